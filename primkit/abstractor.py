@@ -1,0 +1,188 @@
+"""Inference: a trained abstractor turns prepared shapes into indexed cuboids.
+
+``Abstractor.load(path).predict(shapes)`` for many shapes (the network's cost is paid once and
+shapes go through it in batches); :func:`abstract` for one file.
+
+Which parts are kept: a part exists when its probability is above ``existence_threshold`` (0.5),
+then parts mostly inside the others are pruned (:func:`primkit.primitives.prune_covered`: while the
+part with the largest fraction of its volume inside the other present parts exceeds
+``prune_threshold``, 0.6 as in the published code, that part is dropped). Part indices are never
+renumbered: part ``k`` is slot ``k`` of the network on every shape, and absent parts stay in the
+output, marked absent.
+
+Results come back in the input's own frame (the canonical frame used by the network is undone),
+and :meth:`AbstractionResult.save` writes a JSON file (schema-versioned, see
+:class:`primkit.primitives.Cuboids`) and a mesh of the present cuboids coloured by part index.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from . import data, io, primitives
+
+__all__ = ["Abstractor", "AbstractionResult", "abstract", "part_colors"]
+
+
+def part_colors(count: int) -> np.ndarray:
+    """A fixed colour per part index: ``(count, 3) uint8`` (matplotlib's tab20, then repeated)."""
+    from matplotlib import colormaps
+
+    cmap = colormaps["tab20"]
+    return (np.array([cmap(i % 20)[:3] for i in range(count)]) * 255).astype(np.uint8)
+
+
+@dataclass(frozen=True)
+class AbstractionResult:
+    """The abstraction of one shape.
+
+    Attributes
+    ----------
+    name : str
+    cuboids : primitives.Cuboids
+        In the input's frame.
+    canonical : primitives.Cuboids
+        The same in the canonical frame of the network.
+    frame : geometry.CanonicalFrame
+    source : str
+    """
+
+    name: str
+    cuboids: primitives.Cuboids
+    canonical: primitives.Cuboids
+    frame: object
+    source: str = ""
+
+    def to_dict(self) -> dict:
+        d = self.cuboids.to_dict()
+        d["name"] = self.name
+        d["source"] = self.source
+        d["frame"] = "input"
+        d["canonical_frame"] = self.frame.to_dict()
+        return d
+
+    def save(self, folder, *, overwrite: bool = False, mesh_format: str = ".ply") -> tuple[Path, Path]:
+        """Write ``<name>.cuboids.json`` and ``<name>.cuboids<mesh_format>`` into ``folder``."""
+        folder = Path(folder)
+        folder.mkdir(parents=True, exist_ok=True)
+        json_path = folder / f"{self.name}.cuboids.json"
+        mesh_path = folder / f"{self.name}.cuboids{mesh_format}"
+        for p in (json_path, mesh_path):
+            if p.exists() and not overwrite:
+                raise FileExistsError(f"{p}: exists (use --force to overwrite)")
+        with io.atomic_output(json_path, overwrite=overwrite) as tmp:
+            Path(tmp).write_text(json.dumps(self.to_dict(), indent=1))
+        v, f, part = self.cuboids.to_mesh()
+        colors = part_colors(self.cuboids.count)[part]
+        io.write_mesh(mesh_path, v, f, face_colors=colors, overwrite=overwrite)
+        return json_path, mesh_path
+
+
+class Abstractor:
+    """A trained abstractor: the network and its model-file metadata.
+
+    Parameters
+    ----------
+    network : primkit.network.AbstractionNet
+    metadata : dict
+    """
+
+    def __init__(self, network, metadata: dict, device: str | None = None):
+        import torch
+
+        self.device = device or ("cuda" if torch.cuda.is_available() else "cpu")
+        self.network = network.to(self.device).eval()
+        self.metadata = metadata
+
+    @classmethod
+    def load(cls, path, device: str | None = None) -> "Abstractor":
+        """Load a model file written by ``primkit train``."""
+        from .training import load_network
+
+        net, meta = load_network(path)
+        return cls(net, meta, device)
+
+    @property
+    def parts(self) -> int:
+        return self.network.config.parts
+
+    @property
+    def resolution(self) -> int:
+        return self.network.config.grid
+
+    @property
+    def part_names(self) -> list[str]:
+        names = self.metadata.get("part_names")
+        return list(names) if names else [f"part{k}" for k in range(self.parts)]
+
+    @property
+    def settings(self) -> data.PrepareSettings:
+        return data.PrepareSettings(resolution=self.resolution)
+
+    def predict_canonical(self, occupancy: np.ndarray, batch_size: int = 64) -> dict:
+        """Raw network output for ``(s, R, R, R)`` occupancy grids, as NumPy arrays
+        (``half_extents (s, m, 3)``, ``quaternions (s, m, 4)``, ``translations (s, m, 3)``,
+        ``existence (s, m)``)."""
+        import torch
+
+        occupancy = np.asarray(occupancy)
+        out = {"half_extents": [], "quaternions": [], "translations": [], "existence": []}
+        with torch.no_grad():
+            for i in range(0, len(occupancy), batch_size):
+                x = torch.from_numpy(occupancy[i : i + batch_size].astype(np.float32)).to(self.device)
+                pred = self.network(x)
+                for key in out:
+                    out[key].append(getattr(pred, key).double().cpu().numpy())
+        return {k: np.concatenate(v) for k, v in out.items()}
+
+    def predict(
+        self,
+        shapes,
+        existence_threshold: float = 0.5,
+        prune_threshold: float | None = 0.6,
+        batch_size: int = 64,
+        seed: int = 0,
+    ) -> list[AbstractionResult]:
+        """Abstract prepared shapes (:class:`primkit.data.PreparedShape`), in batches.
+
+        Parameters
+        ----------
+        existence_threshold : float
+            Parts with probability above it exist.
+        prune_threshold : float or None
+            Drop parts whose volume is more than this fraction inside the other parts; None keeps all.
+        """
+        shapes = list(shapes)
+        if not shapes:
+            return []
+        for s in shapes:
+            if s.resolution != self.resolution:
+                raise ValueError(f"{s.name}: prepared at {s.resolution}^3 but the model reads {self.resolution}^3")
+        raw = self.predict_canonical(np.stack([s.occupancy for s in shapes]), batch_size)
+        results = []
+        for i, s in enumerate(shapes):
+            cub = primitives.Cuboids(
+                raw["half_extents"][i], raw["quaternions"][i], raw["translations"][i],
+                raw["existence"][i] > existence_threshold, probabilities=raw["existence"][i],
+            )
+            if prune_threshold is not None and cub.existence.sum() > 1:
+                cub = primitives.prune_covered(cub, prune_threshold, seed=seed)
+            back = np.linalg.inv(s.frame.matrix)
+            results.append(AbstractionResult(s.name, cub.transformed(back), cub, s.frame, s.source))
+        return results
+
+    def abstract_files(self, paths, *, cache_dir=None, workers=None, progress=True, **kwargs):
+        """Prepare (through the cache) and abstract files; returns (results, errors)."""
+        coll = data.prepare_collection(paths, self.settings, cache_dir=cache_dir, workers=workers, progress=progress)
+        return self.predict(list(coll), **kwargs), coll.errors
+
+
+def abstract(path, model, **kwargs) -> AbstractionResult:
+    """Abstract one shape file with a model file; raises ShapeFileError for an unusable file."""
+    abstractor = model if isinstance(model, Abstractor) else Abstractor.load(model)
+    shape = data.prepare_file(path, abstractor.settings)
+    return abstractor.predict([shape], **kwargs)[0]

@@ -1,0 +1,483 @@
+"""Prepared shapes and collections: from files to the arrays the abstractor learns from.
+
+:func:`prepare` turns one mesh, point cloud or voxel grid into a :class:`PreparedShape` in the
+canonical frame. :func:`prepare_collection` does it for a whole folder, in parallel, through a cache
+keyed by each file's content *and* the preparation settings, so an edited file or a changed setting
+is prepared again and nothing stale is read. The torch ``Dataset`` on top lives in
+:mod:`primkit.training` (torch stays in the model and training code).
+
+Cache layout: ``<cache>/<key[:2]>/<key>.npz`` (uncompressed NumPy archives), where ``key`` is the
+SHA-256 of the file's bytes, the bytes of a ``.seg`` label file beside it (if any), and the
+settings. The default cache is ``$PRIMKIT_CACHE`` or ``~/.cache/primkit/prepared``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import sys
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from . import geometry, io
+
+__all__ = [
+    "PrepareSettings",
+    "PreparedShape",
+    "prepare",
+    "prepare_file",
+    "find_shape_files",
+    "default_cache_dir",
+    "PreparedCollection",
+    "prepare_collection",
+]
+
+#: bump when the arrays produced by :func:`prepare` change meaning; part of every cache key
+PREPARATION_VERSION = 1
+
+
+@dataclass(frozen=True)
+class PrepareSettings:
+    """How shapes are prepared. Every field is part of the cache key.
+
+    Attributes
+    ----------
+    resolution : int
+        Cells per axis of the occupancy and distance grids (32 in the paper).
+    samples : int
+        Area-uniform surface samples kept per shape.
+    up, front : str
+        The input's up and front axes (``"+y"``, ``"-z"``, ...); COSEG and ShapeNet are ``+y`` up.
+    seed : int
+        Seed of the surface sampling.
+    """
+
+    resolution: int = 32
+    samples: int = 10000
+    up: str = "+y"
+    front: str = "+x"
+    seed: int = 0
+
+    def __post_init__(self):
+        if self.resolution < 4:
+            raise ValueError("`resolution` must be >= 4")
+        if self.samples < 1:
+            raise ValueError("`samples` must be >= 1")
+        geometry.axis_rotation(self.up, self.front)  # validates the axes
+
+    def key(self) -> str:
+        payload = dict(asdict(self), version=PREPARATION_VERSION)
+        return json.dumps(payload, sort_keys=True)
+
+
+@dataclass(frozen=True)
+class PreparedShape:
+    """One shape, ready for training or inference (canonical frame, grid convention of :mod:`primkit`).
+
+    Attributes
+    ----------
+    name : str
+        File stem (or a caller's name).
+    occupancy : (R, R, R) bool
+        Network input: solid cells (winding number) plus every cell the surface passes through.
+    solid : (R, R, R) bool
+        Solid occupancy alone (for volumetric IoU).
+    closest : (R, R, R, 3) float32
+        Closest surface point of each cell centre; the distance grid is ``|closest - centres|``.
+    points : (n, 3) float32
+        Area-uniform surface samples.
+    point_faces : (n,) int32
+        Face of each sample (of the input mesh; of the voxel boundary mesh for voxel inputs; -1 for
+        point clouds).
+    point_labels : (n,) int32
+        Part label of each sample's face when a ``.seg`` file accompanies the mesh, else -1.
+    frame : geometry.CanonicalFrame
+        Maps the input's coordinates to the canonical frame (``frame.from_canonical`` undoes it).
+    source : str
+        Path of the file it came from ('' when prepared from arrays).
+    kind : str
+        ``"mesh"``, ``"points"`` or ``"voxels"``.
+    """
+
+    name: str
+    occupancy: np.ndarray
+    solid: np.ndarray
+    closest: np.ndarray
+    points: np.ndarray
+    point_faces: np.ndarray
+    point_labels: np.ndarray
+    frame: geometry.CanonicalFrame
+    source: str = ""
+    kind: str = "mesh"
+    info: dict = field(default_factory=dict)
+
+    @property
+    def resolution(self) -> int:
+        return self.occupancy.shape[0]
+
+    @property
+    def distance(self) -> np.ndarray:
+        """(R, R, R) float32 distance of each cell centre to the surface."""
+        centres = geometry.grid_centres(self.resolution)
+        return np.linalg.norm(self.closest - centres, axis=-1).astype(np.float32)
+
+    def save(self, path) -> None:
+        """Write to an uncompressed ``.npz`` (atomically)."""
+        meta = {"name": self.name, "frame": self.frame.to_dict(), "source": self.source, "kind": self.kind, "info": self.info}
+        with io.atomic_output(path, overwrite=True) as tmp:
+            with open(tmp, "wb") as fh:
+                np.savez(
+                    fh,
+                    occupancy=np.packbits(self.occupancy),
+                    solid=np.packbits(self.solid),
+                    closest=self.closest,
+                    points=self.points,
+                    point_faces=self.point_faces,
+                    point_labels=self.point_labels,
+                    meta=np.frombuffer(json.dumps(meta).encode(), dtype=np.uint8),
+                )
+
+    @classmethod
+    def load(cls, path) -> "PreparedShape":
+        """Read a file written by :meth:`save` (plain arrays only; nothing is unpickled)."""
+        with np.load(path, allow_pickle=False) as z:
+            meta = json.loads(z["meta"].tobytes().decode())
+            closest = z["closest"]
+            res = closest.shape[0]
+            shape = (res, res, res)
+            return cls(
+                name=meta["name"],
+                occupancy=np.unpackbits(z["occupancy"])[: res**3].reshape(shape).astype(bool),
+                solid=np.unpackbits(z["solid"])[: res**3].reshape(shape).astype(bool),
+                closest=closest,
+                points=z["points"],
+                point_faces=z["point_faces"],
+                point_labels=z["point_labels"],
+                frame=geometry.CanonicalFrame.from_dict(meta["frame"]),
+                source=meta["source"],
+                kind=meta["kind"],
+                info=meta.get("info", {}),
+            )
+
+
+def _rotate_voxels(occupancy: np.ndarray, rotation: np.ndarray) -> np.ndarray:
+    """Apply a signed axis permutation to a cubic grid about its centre."""
+    res = occupancy.shape[0]
+    idx = np.argwhere(occupancy)
+    c = (res - 1) / 2.0
+    new = np.rint((idx - c) @ rotation.T + c).astype(np.int64)
+    out = np.zeros_like(occupancy)
+    out[new[:, 0], new[:, 1], new[:, 2]] = True
+    return out
+
+
+def _prepare_voxels(grid: io.VoxelGrid, settings: PrepareSettings, name: str, source: str) -> PreparedShape:
+    occ = np.asarray(grid.occupancy, bool)
+    res_in = occ.shape[0]
+    if occ.shape != (res_in,) * 3:
+        raise ValueError(f"voxel grid must be cubic, got {occ.shape}")
+    rotation = geometry.axis_rotation(settings.up, settings.front)
+    occ = _rotate_voxels(occ, rotation)
+    # recentre by whole voxels so that voxels stay aligned with cells
+    idx = np.argwhere(occ)
+    lo, hi = idx.min(0), idx.max(0)
+    shift = np.floor(((res_in - 1) - (lo + hi)) / 2.0 + 0.5).astype(np.int64)
+    shifted = np.zeros_like(occ)
+    new = idx + shift
+    shifted[new[:, 0], new[:, 1], new[:, 2]] = True
+    occ = geometry.fill_voxels(shifted)
+    # frame: canonical = scale * (rotation @ x - centre), one voxel = 1 / res_in
+    voxel = grid.scale / res_in
+    scale = 1.0 / grid.scale
+    i0 = np.argwhere(np.asarray(grid.occupancy, bool))[0]  # any occupied voxel: its centre fixes the offset
+    x0 = grid.translate + (i0 + 0.5) * voxel
+    c = (res_in - 1) / 2.0
+    i0_can = np.rint((i0 - c) @ rotation.T + c) + shift
+    p0 = -0.5 + (i0_can + 0.5) / res_in
+    centre = rotation @ x0 - p0 / scale
+    frame = geometry.CanonicalFrame(rotation, centre, scale)
+
+    vertices, faces = geometry.voxel_boundary_mesh(occ)
+    res = settings.resolution
+    if res == res_in:
+        solid = occ
+    else:
+        solid = geometry.occupancy_grid(vertices, faces, res)
+    surface = geometry.surface_voxels(vertices, faces, res) & solid
+    # cells of a voxel grid touched by the boundary include empty neighbours; keep occupied ones
+    samples = geometry.sample_surface(vertices, faces, settings.samples, seed=settings.seed)
+    dist = geometry.distance_grid(vertices, faces, res)
+    return PreparedShape(
+        name=name,
+        occupancy=solid | surface,
+        solid=solid,
+        closest=dist.closest,
+        points=samples.points.astype(np.float32),
+        point_faces=samples.face_index.astype(np.int32),
+        point_labels=np.full(len(samples.points), -1, np.int32),
+        frame=frame,
+        source=source,
+        kind="voxels",
+    )
+
+
+def _prepare_points(cloud: io.PointCloud, settings: PrepareSettings, name: str, source: str) -> PreparedShape:
+    from scipy.spatial import cKDTree
+
+    frame = geometry.canonical_frame(cloud.points, settings.up, settings.front)
+    pts = frame.to_canonical(cloud.points)
+    rng = np.random.default_rng(settings.seed)
+    take = rng.choice(len(pts), settings.samples, replace=len(pts) < settings.samples)
+    res = settings.resolution
+    centres = geometry.grid_centres(res).reshape(-1, 3)
+    _, nearest = cKDTree(pts).query(centres)
+    closest = pts[nearest].reshape(res, res, res, 3)
+    cells = np.clip(np.floor((pts + 0.5) * res).astype(np.int64), 0, res - 1)
+    surface = np.zeros((res,) * 3, bool)
+    surface[cells[:, 0], cells[:, 1], cells[:, 2]] = True
+    solid = geometry.fill_voxels(surface)
+    return PreparedShape(
+        name=name,
+        occupancy=solid,
+        solid=solid,
+        closest=closest.astype(np.float32),
+        points=pts[take].astype(np.float32),
+        point_faces=np.full(settings.samples, -1, np.int32),
+        point_labels=np.full(settings.samples, -1, np.int32),
+        frame=frame,
+        source=source,
+        kind="points",
+    )
+
+
+def prepare(
+    shape: io.Mesh | io.PointCloud | io.VoxelGrid,
+    settings: PrepareSettings = PrepareSettings(),
+    *,
+    face_labels: np.ndarray | None = None,
+    name: str = "shape",
+    source: str = "",
+) -> PreparedShape:
+    """Prepare one shape for the abstractor.
+
+    * **Meshes**: canonical frame from the vertices' bounding box; solid occupancy by winding
+      number; surface cells; exact closest points; area-uniform samples (with the label of each
+      sample's face if ``face_labels`` is given).
+    * **Voxel grids** (binvox): rotated to the canonical axes and recentred by whole voxels, so one
+      voxel stays one cell and the grid is not resampled (one voxel = ``1 / R`` of the canonical
+      cube, so a ShapeNetVox32 shape spanning the grid keeps its longest side 1). Enclosed cavities
+      are filled. Samples and distances come from the voxel boundary surface.
+    * **Point clouds**: samples are the points (resampled to ``settings.samples``); the closest
+      point of a cell is the nearest input point; occupancy is the cells holding points with their
+      enclosed cavities filled. This is an approximation: give a mesh when you have one.
+
+    Parameters
+    ----------
+    face_labels : (f,) int, optional
+        Per-face part labels of a mesh.
+    """
+    if isinstance(shape, io.VoxelGrid):
+        return _prepare_voxels(shape, settings, name, source)
+    if isinstance(shape, io.PointCloud):
+        return _prepare_points(shape, settings, name, source)
+    if not isinstance(shape, io.Mesh):
+        raise TypeError(f"cannot prepare {type(shape).__name__}")
+    frame = geometry.canonical_frame(shape.vertices, settings.up, settings.front)
+    vertices = frame.to_canonical(shape.vertices)
+    faces = shape.faces
+    res = settings.resolution
+    surface = geometry.surface_voxels(vertices, faces, res)
+    solid = geometry.occupancy_grid(vertices, faces, res, surface=surface)
+    dist = geometry.distance_grid(vertices, faces, res)
+    samples = geometry.sample_surface(vertices, faces, settings.samples, seed=settings.seed)
+    if face_labels is not None:
+        face_labels = np.asarray(face_labels)
+        if len(face_labels) != len(faces):
+            raise ValueError(f"{len(face_labels)} labels for {len(faces)} faces")
+        labels = face_labels[samples.face_index].astype(np.int32)
+    else:
+        labels = np.full(len(samples.points), -1, np.int32)
+    return PreparedShape(
+        name=name,
+        occupancy=solid | surface,
+        solid=solid,
+        closest=dist.closest,
+        points=samples.points.astype(np.float32),
+        point_faces=samples.face_index.astype(np.int32),
+        point_labels=labels,
+        frame=frame,
+        source=source,
+        kind="mesh",
+    )
+
+
+def _labels_path(path: Path) -> Path | None:
+    """The ``.seg`` file that goes with a mesh: ``<stem>.seg`` beside it, or COSEG's ``../gt/<stem>.seg``."""
+    for cand in (path.with_suffix(".seg"), path.parent.parent / "gt" / (path.stem + ".seg")):
+        if cand.is_file():
+            return cand
+    return None
+
+
+def prepare_file(path, settings: PrepareSettings = PrepareSettings()) -> PreparedShape:
+    """Read and prepare one shape file; a ``.seg`` label file beside a mesh is used if present.
+
+    Raises :class:`primkit.io.ShapeFileError` (one line, naming the file) when the file cannot be used.
+    """
+    path = Path(path)
+    shape = io.read_shape(path)
+    labels = None
+    info = {}
+    if isinstance(shape, io.Mesh):
+        seg = _labels_path(path)
+        if seg is not None:
+            labels = io.read_labels(seg, face_count=len(shape.faces))
+            info["labels"] = str(seg)
+    try:
+        prepared = prepare(shape, settings, face_labels=labels, name=path.stem, source=str(path))
+    except (ValueError, RuntimeError) as exc:
+        raise io.ShapeFileError(path, f"cannot prepare: {exc}") from exc
+    if info:
+        prepared = PreparedShape(**{**prepared.__dict__, "info": info})
+    return prepared
+
+
+def find_shape_files(folder) -> list[Path]:
+    """Shape files under ``folder`` (recursively, sorted), by suffix (see :func:`primkit.io.is_shape_file`)."""
+    folder = Path(folder)
+    if folder.is_file():
+        return [folder]
+    if not folder.is_dir():
+        raise FileNotFoundError(f"{folder}: no such file or folder")
+    return sorted(p for p in folder.rglob("*") if p.is_file() and io.is_shape_file(p))
+
+
+def default_cache_dir() -> Path:
+    return Path(os.environ.get("PRIMKIT_CACHE", Path.home() / ".cache" / "primkit" / "prepared"))
+
+
+def _cache_key(path: Path, settings: PrepareSettings) -> str:
+    h = hashlib.sha256()
+    h.update(path.read_bytes())
+    seg = _labels_path(path) if path.suffix.lower() != ".binvox" else None
+    if seg is not None:
+        h.update(b"\0labels\0")
+        h.update(seg.read_bytes())
+    h.update(b"\0settings\0")
+    h.update(settings.key().encode())
+    return h.hexdigest()
+
+
+def _prepare_cached(args) -> tuple[str, str | None, str | None]:
+    """Worker: returns (path, cache file or None, error message or None)."""
+    path, settings, cache = args
+    path = Path(path)
+    try:
+        key = _cache_key(path, settings)
+    except OSError as exc:
+        return str(path), None, f"{path}: unreadable ({exc.strerror or exc})"
+    target = Path(cache) / key[:2] / f"{key}.npz"
+    if target.is_file():
+        return str(path), str(target), None
+    try:
+        prepared = prepare_file(path, settings)
+    except io.ShapeFileError as exc:
+        return str(path), None, str(exc)
+    except Exception as exc:  # a bad file must not stop a batch
+        return str(path), None, f"{path}: cannot prepare ({type(exc).__name__}: {exc})"
+    target.parent.mkdir(parents=True, exist_ok=True)
+    prepared.save(target)
+    return str(path), str(target), None
+
+
+@dataclass
+class PreparedCollection:
+    """The prepared shapes of a folder: cache files in a stable (sorted) order, loaded on access.
+
+    Attributes
+    ----------
+    paths : list of Path
+        Source files that prepared successfully.
+    cache_files : list of Path
+        Their prepared ``.npz`` files, aligned with ``paths``.
+    errors : list of str
+        One line per file that could not be used.
+    settings : PrepareSettings
+    """
+
+    paths: list
+    cache_files: list
+    errors: list
+    settings: PrepareSettings
+
+    def __len__(self) -> int:
+        return len(self.cache_files)
+
+    def __getitem__(self, i: int) -> PreparedShape:
+        return PreparedShape.load(self.cache_files[i])
+
+    def __iter__(self):
+        for i in range(len(self)):
+            yield self[i]
+
+
+def prepare_collection(
+    files_or_folder,
+    settings: PrepareSettings = PrepareSettings(),
+    *,
+    cache_dir=None,
+    workers: int | None = None,
+    progress: bool = True,
+) -> PreparedCollection:
+    """Prepare every shape file of a folder (or a list of files) through the cache, in parallel.
+
+    Files that cannot be used are reported in ``errors`` (one line each, naming the file) and the
+    rest go on. Files already in the cache (same bytes, same settings) are not prepared again.
+
+    Parameters
+    ----------
+    files_or_folder : path or list of paths
+    workers : int, optional
+        Processes to use; all cores by default. ``1`` prepares in this process.
+    progress : bool
+        Show a progress bar (tqdm, on stderr).
+    """
+    from tqdm.auto import tqdm
+
+    if isinstance(files_or_folder, (str, os.PathLike)):
+        files = find_shape_files(files_or_folder)
+    else:
+        files = [Path(p) for p in files_or_folder]
+    cache = Path(cache_dir) if cache_dir is not None else default_cache_dir()
+    cache.mkdir(parents=True, exist_ok=True)
+    workers = workers or os.cpu_count() or 1
+    jobs = [(str(p), settings, str(cache)) for p in files]
+    bar = tqdm(total=len(jobs), desc="preparing", unit="shape", disable=not progress, file=sys.stderr)
+    results = {}
+    if workers == 1 or len(jobs) <= 1:
+        for job in jobs:
+            results[job[0]] = _prepare_cached(job)
+            bar.update()
+    else:
+        # fork is fast and safe here: workers only run NumPy/Open3D/libigl code
+        import multiprocessing as mp
+
+        ctx = mp.get_context("fork") if sys.platform.startswith("linux") else None
+        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+            for res in pool.map(_prepare_cached, jobs, chunksize=max(1, min(64, len(jobs) // (workers * 8) or 1))):
+                results[res[0]] = res
+                bar.update()
+    bar.close()
+    paths, cache_files, errors = [], [], []
+    for job in jobs:
+        path, target, error = results[job[0]]
+        if error is not None:
+            errors.append(error)
+        else:
+            paths.append(Path(path))
+            cache_files.append(Path(target))
+    return PreparedCollection(paths, cache_files, errors, settings)

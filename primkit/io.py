@@ -1,0 +1,889 @@
+"""Read and write shapes: meshes, point clouds, voxel grids and per-face labels.
+
+Every reader returns one small value type (:class:`Mesh`, :class:`PointCloud`,
+:class:`VoxelGrid`) or a plain array, and every failure is a :class:`ShapeFileError` whose
+text is one line, ``"<path>: <reason>"``. Writers never replace an existing file unless asked
+(``overwrite=True``) and write through :func:`atomic_output`, so a crash never leaves half a
+file behind. Input files are never modified.
+
+Why trimesh is the format library
+---------------------------------
+trimesh is pure Python on top of NumPy, so it installs everywhere. It reads OBJ, PLY, OFF, STL,
+GLB and GLTF, including scenes whose nodes carry transforms, it triangulates polygons, and it
+keeps vertex and face order when asked (``process=False``). It writes per-face colours to PLY,
+and per-vertex colours to GLB. Open3D's reader keeps no per-face colours at all, and on a
+missing or broken file it logs a warning and returns an empty mesh instead of raising.
+
+Three things are written here rather than by trimesh, each in a few lines:
+
+* OFF and OBJ text, with ``%.17g`` coordinates, so float64 vertices survive a round trip
+  exactly (trimesh writes a fixed number of decimals).
+* OBJ per-face colours: one material per distinct colour in a ``.mtl`` file beside the
+  ``.obj``, with a ``usemtl`` before each run of equal colours, so the faces stay in order.
+* binvox decoding: a short NumPy run-length decoder whose axis order is spelled out below.
+
+Face order
+----------
+Per-face label files (``.seg``) index faces in file order, so readers keep it: OFF, PLY, STL and
+triangle-only OBJ faces come back exactly in file order. Meshes with a few degenerate faces are
+kept as they are (no face is dropped). Polygons with more than three corners are triangulated
+by trimesh, which groups the resulting triangles by polygon size. After that the triangles no
+longer line up with the file's faces. Label files can only be matched against triangle-only
+meshes, and :func:`read_labels` with ``face_count`` raises when the counts differ, as they
+always do for a mesh with a polygon face.
+
+Formats
+-------
+* Meshes: ``.obj .ply .off .stl .glb .gltf``. STL stores every triangle with its own three
+  corners, so exactly equal corners are merged on reading (vertices in order of first use;
+  the faces keep their order). A GLB or GLTF scene is flattened: every mesh node, with its
+  scene-graph transform applied, in the scene graph's node order.
+* Points: ``.xyz`` (whitespace text, 3 columns, or 6 with normals), ``.npy`` ((n, 3) or
+  (n, 6)) and ``.ply`` without faces. A ``.ply`` with faces is a mesh.
+* Voxels: ``.binvox``, see :class:`VoxelGrid` for the axis order.
+* Labels: ``.seg``, one integer per line, one line per face.
+
+PLY, GLB and STL store vertices as float32; OFF, OBJ and the point formats keep float64.
+"""
+
+from __future__ import annotations
+
+import os
+import secrets
+from contextlib import contextmanager
+from dataclasses import dataclass
+from io import BytesIO, StringIO
+from pathlib import Path
+
+import numpy as np
+
+__all__ = [
+    "ShapeFileError",
+    "Mesh",
+    "PointCloud",
+    "VoxelGrid",
+    "MESH_SUFFIXES",
+    "POINT_SUFFIXES",
+    "VOXEL_SUFFIXES",
+    "LABEL_SUFFIXES",
+    "is_shape_file",
+    "read_mesh",
+    "read_points",
+    "read_voxels",
+    "read_shape",
+    "read_labels",
+    "write_mesh",
+    "write_labels",
+    "write_points",
+    "atomic_output",
+]
+
+MESH_SUFFIXES = (".obj", ".ply", ".off", ".stl", ".glb", ".gltf")
+POINT_SUFFIXES = (".xyz", ".npy", ".ply")
+VOXEL_SUFFIXES = (".binvox",)
+LABEL_SUFFIXES = (".seg",)
+
+# suffixes write_mesh / write_points can produce
+_MESH_WRITE_SUFFIXES = (".ply", ".obj", ".glb", ".off", ".stl")
+_POINT_WRITE_SUFFIXES = (".ply", ".xyz", ".npy")
+
+
+class ShapeFileError(ValueError):
+    """A shape or label file that cannot be used, with the reason on one line.
+
+    ``str(err) == f"{path}: {reason}"``; ``err.path`` and ``err.reason`` keep the parts.
+    """
+
+    def __init__(self, path, reason):
+        reason = " ".join(str(reason).split())
+        self.path = path
+        self.reason = reason
+        super().__init__(f"{path}: {reason}")
+
+    def __reduce__(self):
+        # rebuild from both parts so the error survives pickling (worker processes)
+        return (type(self), (self.path, self.reason))
+
+
+# --------------------------------------------------------------------------------------
+# value types
+
+
+@dataclass(frozen=True, eq=False)
+class Mesh:
+    """A triangle mesh.
+
+    Attributes
+    ----------
+    vertices : (n, 3) float64
+      Vertex positions.
+    faces : (f, 3) int64
+      Indices into ``vertices``, with the winding and order of the file they came from.
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+
+    def __post_init__(self):
+        vertices = np.asarray(self.vertices, dtype=np.float64)
+        if vertices.ndim != 2 or vertices.shape[1] != 3:
+            raise ValueError(f"`vertices` must be (n, 3) float, got shape {vertices.shape}")
+        faces = np.asarray(self.faces)
+        if faces.size == 0:
+            faces = faces.reshape((0, 3))
+        if faces.ndim != 2 or faces.shape[1] != 3:
+            raise ValueError(f"`faces` must be (f, 3) int, got shape {faces.shape}")
+        if faces.size and not np.issubdtype(faces.dtype, np.integer):
+            raise ValueError(f"`faces` must be (f, 3) int, got dtype {faces.dtype}")
+        object.__setattr__(self, "vertices", vertices)
+        object.__setattr__(self, "faces", faces.astype(np.int64, copy=False))
+
+    def __repr__(self):
+        return f"Mesh(vertices={self.vertices.shape}, faces={self.faces.shape})"
+
+    def face_areas(self) -> np.ndarray:
+        """Area of every face.
+
+        Returns
+        -------
+        areas : (f,) float
+        """
+        corners = self.vertices[self.faces]
+        cross = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+        return 0.5 * np.linalg.norm(cross, axis=1)
+
+    def area(self) -> float:
+        """Total surface area."""
+        return float(self.face_areas().sum())
+
+    def bounds(self) -> np.ndarray:
+        """Axis-aligned bounding box of the vertices.
+
+        Returns
+        -------
+        bounds : (2, 3) float
+          ``[min, max]`` corners.
+        """
+        if len(self.vertices) == 0:
+            raise ValueError("a mesh without vertices has no bounds")
+        return np.stack([self.vertices.min(axis=0), self.vertices.max(axis=0)])
+
+
+@dataclass(frozen=True, eq=False)
+class PointCloud:
+    """A set of points, with optional normals.
+
+    Attributes
+    ----------
+    points : (n, 3) float64
+    normals : (n, 3) float64 or None
+    """
+
+    points: np.ndarray
+    normals: np.ndarray | None = None
+
+    def __post_init__(self):
+        points = np.asarray(self.points, dtype=np.float64)
+        if points.ndim != 2 or points.shape[1] != 3:
+            raise ValueError(f"`points` must be (n, 3) float, got shape {points.shape}")
+        object.__setattr__(self, "points", points)
+        if self.normals is not None:
+            normals = np.asarray(self.normals, dtype=np.float64)
+            if normals.shape != points.shape:
+                raise ValueError(
+                    f"`normals` must be (n, 3) float like `points` {points.shape}, "
+                    f"got shape {normals.shape}"
+                )
+            object.__setattr__(self, "normals", normals)
+
+    def __repr__(self):
+        normals = None if self.normals is None else self.normals.shape
+        return f"PointCloud(points={self.points.shape}, normals={normals})"
+
+
+@dataclass(frozen=True, eq=False)
+class VoxelGrid:
+    """A cubic occupancy grid in the coordinates of the model it was made from.
+
+    Attributes
+    ----------
+    occupancy : (R, R, R) bool
+      Indexed ``[x, y, z]``. For ShapeNetVox32 files +y is up and chair backs lie toward low x.
+    translate : (3,) float64
+      Model coordinates of the grid's minimum corner.
+    scale : float
+      Side length of the whole grid in model units.
+
+    The centre of voxel ``idx = (i, j, k)`` is ``translate + (idx + 0.5) / R * scale``.
+    """
+
+    occupancy: np.ndarray
+    translate: np.ndarray
+    scale: float
+
+    def __post_init__(self):
+        occupancy = np.asarray(self.occupancy, dtype=bool)
+        if occupancy.ndim != 3 or len(set(occupancy.shape)) != 1:
+            raise ValueError(f"`occupancy` must be (R, R, R) bool, got shape {occupancy.shape}")
+        translate = np.asarray(self.translate, dtype=np.float64)
+        if translate.shape != (3,):
+            raise ValueError(f"`translate` must be (3,) float, got shape {translate.shape}")
+        object.__setattr__(self, "occupancy", occupancy)
+        object.__setattr__(self, "translate", translate)
+        object.__setattr__(self, "scale", float(self.scale))
+
+    def __repr__(self):
+        return (
+            f"VoxelGrid(resolution={self.resolution}, occupied={int(self.occupancy.sum())}, "
+            f"translate={self.translate.tolist()}, scale={self.scale})"
+        )
+
+    @property
+    def resolution(self) -> int:
+        """Cells per axis, ``R``."""
+        return int(self.occupancy.shape[0])
+
+    def voxel_centres(self) -> np.ndarray:
+        """Centre of every voxel in model coordinates.
+
+        Returns
+        -------
+        centres : (R, R, R, 3) float
+          ``centres[i, j, k] = translate + ((i, j, k) + 0.5) / R * scale``.
+        """
+        r = self.resolution
+        index = np.stack(np.meshgrid(*(np.arange(r),) * 3, indexing="ij"), axis=-1)
+        return self.translate + (index + 0.5) / r * self.scale
+
+
+# --------------------------------------------------------------------------------------
+# reading
+
+
+def is_shape_file(path) -> bool:
+    """True when ``path`` has a mesh, point or voxel suffix (case-insensitive)."""
+    return Path(path).suffix.lower() in MESH_SUFFIXES + POINT_SUFFIXES + VOXEL_SUFFIXES
+
+
+def read_mesh(path) -> Mesh:
+    """Read a triangle mesh, keeping vertex and face order.
+
+    Parameters
+    ----------
+    path : str or Path
+      ``.obj .ply .off .stl .glb .gltf``.
+
+    Returns
+    -------
+    mesh : Mesh
+      ``vertices : (n, 3) float64``, ``faces : (f, 3) int64``.
+
+    Raises
+    ------
+    ShapeFileError
+      Missing, unreadable, empty or unparsable file, unsupported suffix, no faces, NaN or inf
+      coordinates, face indices out of range, or zero total area.
+    """
+    data = _read_checked(path, MESH_SUFFIXES, "mesh")
+    return _mesh_from_loaded(path, _load_trimesh(path, data))
+
+
+def read_points(path) -> PointCloud:
+    """Read a point cloud.
+
+    Parameters
+    ----------
+    path : str or Path
+      ``.xyz`` (whitespace text, 3 columns or 6 with normals), ``.npy`` ((n, 3) or (n, 6)),
+      or ``.ply`` without faces (normals from ``nx ny nz`` when present).
+
+    Returns
+    -------
+    cloud : PointCloud
+      ``points : (n, 3) float64``, ``normals : (n, 3) float64`` or None.
+    """
+    data = _read_checked(path, POINT_SUFFIXES, "point cloud")
+    suffix = Path(path).suffix.lower()
+    if suffix == ".ply":
+        return _points_from_loaded(path, _load_trimesh(path, data))
+    if suffix == ".npy":
+        try:
+            array = np.load(BytesIO(data), allow_pickle=False)
+        except Exception as exc:  # numpy raises several types for bad headers
+            raise ShapeFileError(path, f"cannot parse as NPY: {_short(exc)}") from exc
+        if not (np.issubdtype(array.dtype, np.integer) or np.issubdtype(array.dtype, np.floating)):
+            raise ShapeFileError(path, f"expected a real-valued array, got dtype {array.dtype}")
+    else:
+        text = data.decode("utf-8", errors="replace").replace(",", " ")
+        try:
+            array = np.loadtxt(StringIO(text), dtype=np.float64, comments="#", ndmin=2)
+        except ValueError as exc:
+            raise ShapeFileError(path, f"cannot parse as XYZ: {_short(exc)}") from exc
+    if array.ndim != 2 or array.shape[1] not in (3, 6):
+        raise ShapeFileError(path, f"expected (n, 3) or (n, 6) values, got shape {array.shape}")
+    array = array.astype(np.float64)
+    normals = array[:, 3:6] if array.shape[1] == 6 else None
+    return _checked_points(path, array[:, :3], normals)
+
+
+def read_voxels(path) -> VoxelGrid:
+    """Read a binvox occupancy grid.
+
+    binvox stores voxels as (value, count) byte pairs, with x slowest, then z, then y fastest.
+    They are decoded and transposed to ``[x, y, z]``.
+
+    Parameters
+    ----------
+    path : str or Path
+      ``.binvox`` with a cubic ``dim``.
+
+    Returns
+    -------
+    grid : VoxelGrid
+      ``occupancy : (R, R, R) bool`` indexed ``[x, y, z]``, ``translate : (3,)``, ``scale``.
+    """
+    data = _read_checked(path, VOXEL_SUFFIXES, "voxel grid")
+    header, payload = _parse_binvox_header(path, data)
+    dims = header["dim"]
+    if len(set(dims)) != 1:
+        shape = " ".join(map(str, dims))
+        raise ShapeFileError(path, f"non-cubic grid dim {shape} is not supported")
+    r = dims[0]
+    if len(payload) % 2:
+        raise ShapeFileError(path, "run-length data has an odd number of bytes")
+    pairs = np.frombuffer(payload, dtype=np.uint8).reshape(-1, 2)
+    values, counts = pairs[:, 0], pairs[:, 1]
+    if values.size and values.max() > 1:
+        raise ShapeFileError(path, "run-length values must be 0 or 1")
+    total = int(counts.sum(dtype=np.int64))
+    if total != r**3:
+        raise ShapeFileError(path, f"run lengths sum to {total}, expected {r**3} for dim {r}")
+    raw = np.repeat(values.astype(bool), counts).reshape(r, r, r)  # [x, z, y]
+    occupancy = np.ascontiguousarray(raw.transpose(0, 2, 1))  # [x, y, z]
+    if not occupancy.any():
+        raise ShapeFileError(path, "no occupied voxels")
+    return VoxelGrid(occupancy, header["translate"], header["scale"])
+
+
+def read_shape(path) -> Mesh | PointCloud | VoxelGrid:
+    """Read any supported shape file, choosing the type by suffix.
+
+    A ``.ply`` with faces is a :class:`Mesh`; one without faces a :class:`PointCloud`.
+
+    Returns
+    -------
+    shape : Mesh, PointCloud or VoxelGrid
+    """
+    suffix = Path(path).suffix.lower()
+    if suffix == ".ply":
+        data = _read_checked(path, (".ply",), "shape")
+        loaded = _load_trimesh(path, data)
+        if len(getattr(loaded, "faces", ())) > 0:
+            return _mesh_from_loaded(path, loaded)
+        return _points_from_loaded(path, loaded)
+    if suffix in MESH_SUFFIXES:
+        return read_mesh(path)
+    if suffix in POINT_SUFFIXES:
+        return read_points(path)
+    if suffix in VOXEL_SUFFIXES:
+        return read_voxels(path)
+    raise _unsupported(path, MESH_SUFFIXES + POINT_SUFFIXES + VOXEL_SUFFIXES, "shape")
+
+
+def read_labels(path, face_count: int | None = None) -> np.ndarray:
+    """Read per-face labels, one integer per line in face order.
+
+    Parameters
+    ----------
+    path : str or Path
+      ``.seg`` file.
+    face_count : int or None
+      When given, the number of lines must equal it (the mesh's face count).
+
+    Returns
+    -------
+    labels : (f,) int64
+    """
+    data = _read_checked(path, LABEL_SUFFIXES, "label")
+    try:
+        labels = np.loadtxt(BytesIO(data), dtype=np.int64, ndmin=1)
+    except ValueError as exc:
+        raise ShapeFileError(path, f"cannot parse as SEG: {_short(exc)}") from exc
+    if labels.ndim != 1:
+        raise ShapeFileError(path, f"expected one integer per line, got {labels.shape[1]} columns")
+    if face_count is not None and len(labels) != face_count:
+        raise ShapeFileError(path, f"{len(labels)} labels but the mesh has {face_count} faces")
+    return labels
+
+
+# --------------------------------------------------------------------------------------
+# writing
+
+
+@contextmanager
+def atomic_output(path, *, overwrite=False):
+    """Write a file so that it appears complete or not at all.
+
+    Yields a temporary path in the same folder, with the same suffix; when the block ends
+    without an exception the temporary is moved onto ``path`` with ``os.replace``. On an
+    exception the temporary is removed and ``path`` is untouched.
+
+    Parameters
+    ----------
+    path : str or Path
+      Final location.
+    overwrite : bool
+      Replace an existing file. Without it an existing ``path`` raises
+      ``FileExistsError(f"{path}: exists (use --force to overwrite)")``.
+
+    Yields
+    ------
+    temporary : Path
+      An empty file to write to.
+    """
+    path = Path(path)
+    if not overwrite and os.path.lexists(path):
+        raise FileExistsError(f"{path}: exists (use --force to overwrite)")
+    temporary = _create_temporary(path)
+    try:
+        yield temporary
+        if not overwrite and os.path.lexists(path):  # appeared while we were writing
+            raise FileExistsError(f"{path}: exists (use --force to overwrite)")
+        os.replace(temporary, path)
+    except BaseException:
+        try:
+            temporary.unlink()
+        except FileNotFoundError:
+            pass
+        raise
+
+
+def write_mesh(path, vertices, faces, face_colors=None, *, overwrite=False) -> Path:
+    """Write a triangle mesh, optionally with one colour per face.
+
+    Parameters
+    ----------
+    path : str or Path
+      ``.ply``, ``.obj`` (with colours also ``<stem>.mtl`` beside it, one material per colour),
+      ``.glb``, ``.off`` or ``.stl``.
+    vertices : (n, 3) float
+    faces : (f, 3) int
+    face_colors : (f, 3) or (f, 4) uint8, or float in [0, 1], or None
+      Only for ``.ply``, ``.obj`` and ``.glb``. GLB has no per-face colours, so each face gets
+      its own three corners carrying its colour: the file then holds ``3 f`` vertices.
+    overwrite : bool
+      Replace existing files.
+
+    Returns
+    -------
+    path : Path
+      The mesh file written.
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in _MESH_WRITE_SUFFIXES:
+        raise ValueError(
+            f"{path}: cannot write a mesh as '{suffix}' "
+            f"(expected one of {', '.join(_MESH_WRITE_SUFFIXES)})"
+        )
+    mesh = Mesh(vertices, faces)
+    if len(mesh.faces) and (mesh.faces.min() < 0 or mesh.faces.max() >= len(mesh.vertices)):
+        raise ValueError(f"`faces` must index `vertices` (n = {len(mesh.vertices)})")
+    colors = None if face_colors is None else _rgba_uint8(face_colors, len(mesh.faces))
+    if colors is not None and suffix in (".off", ".stl"):
+        raise ValueError(f"{path}: '{suffix}' cannot store face colours (use .ply, .obj or .glb)")
+
+    if suffix == ".obj":
+        _write_obj(path, mesh, colors, overwrite)
+        return path
+
+    if suffix == ".off":
+        payload = _off_text(mesh).encode("ascii")
+    else:
+        import trimesh
+
+        if suffix == ".glb" and colors is not None:
+            # flat colours through per-vertex colours: every face gets its own corners
+            tm = trimesh.Trimesh(
+                mesh.vertices[mesh.faces].reshape(-1, 3),
+                np.arange(3 * len(mesh.faces), dtype=np.int64).reshape(-1, 3),
+                vertex_colors=np.repeat(colors, 3, axis=0),
+                process=False,
+            )
+        else:
+            tm = trimesh.Trimesh(mesh.vertices, mesh.faces, face_colors=colors, process=False)
+        payload = tm.export(file_type=suffix[1:])
+    with atomic_output(path, overwrite=overwrite) as temporary:
+        temporary.write_bytes(payload)
+    return path
+
+
+def write_labels(path, labels, *, overwrite=False) -> Path:
+    """Write per-face labels, one integer per line.
+
+    Parameters
+    ----------
+    path : str or Path
+      ``.seg`` file.
+    labels : (f,) int
+
+    Returns
+    -------
+    path : Path
+    """
+    path = Path(path)
+    if path.suffix.lower() not in LABEL_SUFFIXES:
+        raise ValueError(f"{path}: labels are written as '.seg', not '{path.suffix}'")
+    labels = np.asarray(labels)
+    if labels.ndim != 1 or not (labels.size == 0 or np.issubdtype(labels.dtype, np.integer)):
+        raise ValueError(
+            f"`labels` must be (f,) int, got shape {labels.shape} dtype {labels.dtype}"
+        )
+    text = "".join(f"{value}\n" for value in labels.astype(np.int64).tolist())
+    with atomic_output(path, overwrite=overwrite) as temporary:
+        temporary.write_text(text, encoding="ascii")
+    return path
+
+
+def write_points(path, points, *, normals=None, overwrite=False) -> Path:
+    """Write a point cloud.
+
+    Parameters
+    ----------
+    path : str or Path
+      ``.ply`` (binary, float64 ``x y z`` and ``nx ny nz``), ``.xyz`` (text, 3 or 6 columns)
+      or ``.npy`` ((n, 3) or (n, 6)).
+    points : (n, 3) float
+    normals : (n, 3) float or None
+
+    Returns
+    -------
+    path : Path
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in _POINT_WRITE_SUFFIXES:
+        raise ValueError(
+            f"{path}: cannot write points as '{suffix}' "
+            f"(expected one of {', '.join(_POINT_WRITE_SUFFIXES)})"
+        )
+    cloud = PointCloud(points, normals)
+    columns = cloud.points if cloud.normals is None else np.hstack([cloud.points, cloud.normals])
+    with atomic_output(path, overwrite=overwrite) as temporary:
+        if suffix == ".npy":
+            with open(temporary, "wb") as handle:
+                np.save(handle, columns)
+        elif suffix == ".xyz":
+            buffer = StringIO()
+            np.savetxt(buffer, columns, fmt="%.17g")
+            temporary.write_text(buffer.getvalue(), encoding="ascii")
+        else:
+            names = ["x", "y", "z"] + ([] if cloud.normals is None else ["nx", "ny", "nz"])
+            header = "".join(
+                ["ply\nformat binary_little_endian 1.0\n", f"element vertex {len(columns)}\n"]
+                + [f"property double {name}\n" for name in names]
+                + ["end_header\n"]
+            )
+            temporary.write_bytes(header.encode("ascii") + columns.astype("<f8").tobytes())
+    return path
+
+
+# --------------------------------------------------------------------------------------
+# helpers
+
+
+def _short(exc: BaseException, limit: int = 120) -> str:
+    """One short line describing an exception from a parser."""
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _unsupported(path, suffixes, what) -> ShapeFileError:
+    suffix = Path(path).suffix or "(none)"
+    return ShapeFileError(
+        path, f"unsupported suffix '{suffix}' for a {what} (expected one of {', '.join(suffixes)})"
+    )
+
+
+def _read_checked(path, suffixes, what) -> bytes:
+    """Bytes of ``path`` after checking suffix, existence and emptiness."""
+    p = Path(path)
+    if p.suffix.lower() not in suffixes:
+        raise _unsupported(path, suffixes, what)
+    if not p.exists():
+        raise ShapeFileError(path, "no such file")
+    if p.is_dir():
+        raise ShapeFileError(path, "is a directory")
+    try:
+        data = p.read_bytes()
+    except OSError as exc:
+        raise ShapeFileError(path, f"cannot read: {exc.strerror or _short(exc)}") from exc
+    if not data.strip():
+        raise ShapeFileError(path, "empty file")
+    return data
+
+
+def _obj_geometry_only(text: str) -> str:
+    """Keep only the ``v`` and ``f`` lines of OBJ text, with bare vertex indices.
+
+    trimesh splits an OBJ at every ``usemtl``/``o``/``g`` and duplicates vertices that carry
+    several texture coordinates, both of which reorder the mesh; without them it keeps order.
+    """
+    lines = []
+    for line in text.splitlines():
+        words = line.split(None, 1)
+        if len(words) < 2:
+            continue
+        if words[0] == "v":
+            lines.append("v " + words[1])
+        elif words[0] == "f":
+            lines.append("f " + " ".join(token.split("/")[0] for token in words[1].split()))
+    return "\n".join(lines) + "\n"
+
+
+def _load_trimesh(path, data: bytes):
+    """Parse ``data`` with trimesh without reordering; wraps parser errors."""
+    import trimesh
+
+    p = Path(path)
+    kind = p.suffix.lower()[1:]
+    try:
+        if kind == "obj":
+            text = _obj_geometry_only(data.decode("utf-8", errors="replace"))
+            if "\nv " not in "\n" + text:
+                raise ValueError("no vertex lines")
+            return trimesh.load(
+                BytesIO(text.encode("utf-8")),
+                file_type="obj",
+                process=False,
+                maintain_order=True,
+                skip_materials=True,
+            )
+        if kind == "gltf":  # buffers may live in separate files beside it
+            return trimesh.load(str(p), process=False)
+        return trimesh.load(BytesIO(data), file_type=kind, process=False)
+    except Exception as exc:  # trimesh raises many types for malformed input
+        if kind == "obj" and isinstance(exc, IndexError):
+            raise ShapeFileError(path, "face index out of range") from exc
+        raise ShapeFileError(path, f"cannot parse as {kind.upper()}: {_short(exc)}") from exc
+
+
+def _scene_parts(scene):
+    """(vertices, faces) of every mesh node of a trimesh Scene, transforms applied."""
+    import trimesh
+
+    parts = []
+    for node in scene.graph.nodes_geometry:
+        transform, name = scene.graph[node]
+        geometry = scene.geometry.get(name)
+        if not isinstance(geometry, trimesh.Trimesh) or len(geometry.faces) == 0:
+            continue
+        transform = np.asarray(transform, dtype=np.float64)
+        vertices = np.asarray(geometry.vertices, dtype=np.float64) @ transform[:3, :3].T
+        vertices = vertices + transform[:3, 3]
+        faces = np.asarray(geometry.faces, dtype=np.int64)
+        if np.linalg.det(transform[:3, :3]) < 0:  # a mirror turns the surface inside out
+            faces = faces[:, [0, 2, 1]]
+        parts.append((vertices, faces))
+    return parts
+
+
+def _mesh_from_loaded(path, loaded) -> Mesh:
+    """Validated Mesh from whatever trimesh returned."""
+    import trimesh
+
+    if isinstance(loaded, trimesh.Scene):
+        if not loaded.geometry and Path(path).suffix.lower() not in (".glb", ".gltf"):
+            # trimesh returns an empty scene when none of its loaders understood the bytes
+            kind = Path(path).suffix.lower()[1:].upper()
+            raise ShapeFileError(path, f"cannot parse as {kind}: no geometry found")
+        parts = _scene_parts(loaded)
+        if not parts:
+            raise ShapeFileError(path, "no faces (no triangle mesh in the scene)")
+        offsets = np.cumsum([0] + [len(v) for v, _ in parts[:-1]])
+        vertices = np.concatenate([v for v, _ in parts])
+        faces = np.concatenate([f + o for (_, f), o in zip(parts, offsets)])
+    elif isinstance(loaded, trimesh.Trimesh):
+        vertices = np.asarray(loaded.vertices, dtype=np.float64)
+        faces = np.asarray(loaded.faces, dtype=np.int64).reshape(-1, 3)
+    else:
+        raise ShapeFileError(path, "no faces (a point cloud? use read_points)")
+    if len(faces) == 0:
+        raise ShapeFileError(path, "no faces (a point cloud? use read_points)")
+
+    bad = ~np.isfinite(vertices).all(axis=1)
+    if bad.any():
+        raise ShapeFileError(
+            path, f"NaN or inf coordinates in {int(bad.sum())} of {len(vertices)} vertices"
+        )
+    if faces.min() < 0 or faces.max() >= len(vertices):
+        raise ShapeFileError(
+            path,
+            f"face index out of range ({int(faces.min())}..{int(faces.max())} "
+            f"for {len(vertices)} vertices)",
+        )
+    if Path(path).suffix.lower() == ".stl":
+        vertices, faces = _merge_equal_vertices(vertices, faces)
+
+    mesh = Mesh(vertices, faces)
+    extent = float(np.ptp(vertices, axis=0).max()) if len(vertices) else 0.0
+    if not mesh.area() > 1e-12 * extent**2:
+        raise ShapeFileError(path, "zero total area (all faces are degenerate)")
+    return mesh
+
+
+def _merge_equal_vertices(vertices, faces):
+    """Merge exactly equal vertices, numbered in order of first appearance."""
+    unique, first, inverse = np.unique(vertices, axis=0, return_index=True, return_inverse=True)
+    order = np.argsort(first)
+    rank = np.empty(len(order), dtype=np.int64)
+    rank[order] = np.arange(len(order))
+    return unique[order], rank[inverse.reshape(-1)][faces]
+
+
+def _points_from_loaded(path, loaded) -> PointCloud:
+    """Validated PointCloud from a trimesh result for a PLY without faces."""
+    import trimesh
+
+    if isinstance(loaded, trimesh.Trimesh) and len(loaded.faces):
+        raise ShapeFileError(path, f"has {len(loaded.faces)} faces; read it with read_mesh")
+    if not isinstance(loaded, (trimesh.Trimesh, trimesh.PointCloud)):
+        raise ShapeFileError(path, f"no points (parsed as {type(loaded).__name__})")
+    points = np.asarray(loaded.vertices, dtype=np.float64).reshape(-1, 3)
+    normals = None
+    # trimesh keeps the PLY vertex properties: a dict for ASCII, a structured array for binary
+    raw = loaded.metadata.get("_ply_raw", {}).get("vertex", {}).get("data")
+    if isinstance(raw, dict):
+        names = raw.keys()
+    else:
+        names = getattr(getattr(raw, "dtype", None), "names", None)
+    if names is not None and {"nx", "ny", "nz"} <= set(names):
+        normals = np.column_stack([np.asarray(raw[k], np.float64) for k in ("nx", "ny", "nz")])
+    if normals is not None and normals.shape != points.shape:
+        normals = None
+    return _checked_points(path, points, normals)
+
+
+def _checked_points(path, points, normals) -> PointCloud:
+    if len(points) == 0:
+        raise ShapeFileError(path, "no points")
+    bad = ~np.isfinite(points).all(axis=1)
+    if bad.any():
+        raise ShapeFileError(
+            path, f"NaN or inf coordinates in {int(bad.sum())} of {len(points)} points"
+        )
+    if normals is not None and not np.isfinite(normals).all():
+        raise ShapeFileError(path, "normals have NaN or inf values")
+    return PointCloud(points, normals)
+
+
+def _parse_binvox_header(path, data: bytes):
+    """Header fields ``dim``, ``translate``, ``scale`` and the run-length payload."""
+    marker = data.find(b"\ndata\n")
+    if not data.startswith(b"#binvox") or marker < 0:
+        raise ShapeFileError(path, "cannot parse as BINVOX: missing '#binvox' or 'data' line")
+    header = {"translate": [0.0, 0.0, 0.0], "scale": 1.0}
+    try:
+        for line in data[:marker].decode("ascii").splitlines()[1:]:
+            words = line.split()
+            if not words or words[0].startswith("#"):
+                continue
+            if words[0] == "dim":
+                header["dim"] = [int(w) for w in words[1:4]]
+            elif words[0] == "translate":
+                header["translate"] = [float(w) for w in words[1:4]]
+            elif words[0] == "scale":
+                header["scale"] = float(words[1])
+    except (UnicodeDecodeError, ValueError, IndexError) as exc:
+        raise ShapeFileError(path, f"cannot parse as BINVOX: bad header ({_short(exc)})") from exc
+    dims = header.get("dim")
+    if dims is None or len(dims) != 3 or min(dims) < 1:
+        raise ShapeFileError(path, "cannot parse as BINVOX: missing or bad 'dim' line")
+    if len(header["translate"]) != 3:
+        raise ShapeFileError(path, "cannot parse as BINVOX: bad 'translate' line")
+    return header, data[marker + len(b"\ndata\n") :]
+
+
+def _rgba_uint8(colors, count) -> np.ndarray:
+    """(count, 4) uint8 from (count, 3|4) uint8 or float in [0, 1]."""
+    colors = np.asarray(colors)
+    if colors.ndim != 2 or len(colors) != count or colors.shape[1] not in (3, 4):
+        raise ValueError(
+            f"`face_colors` must be (f, 3) or (f, 4) with f = {count}, got {colors.shape}"
+        )
+    if np.issubdtype(colors.dtype, np.floating):
+        if not np.isfinite(colors).all() or colors.min() < 0 or colors.max() > 1:
+            raise ValueError("float `face_colors` must lie in [0, 1]")
+        colors = np.round(colors * 255.0)
+    elif np.issubdtype(colors.dtype, np.integer):
+        if colors.size and (colors.min() < 0 or colors.max() > 255):
+            raise ValueError("integer `face_colors` must lie in [0, 255]")
+    else:
+        raise ValueError(f"`face_colors` must be uint8 or float, got dtype {colors.dtype}")
+    colors = colors.astype(np.uint8)
+    if colors.shape[1] == 3:
+        colors = np.column_stack([colors, np.full(count, 255, dtype=np.uint8)])
+    return colors
+
+
+def _create_temporary(path: Path) -> Path:
+    """Create an empty, uniquely named file beside ``path`` with the same suffix."""
+    while True:
+        temporary = path.with_name(f".{path.name}.{secrets.token_hex(4)}.tmp{path.suffix}")
+        try:
+            os.close(os.open(temporary, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666))
+        except FileExistsError:
+            continue
+        return temporary
+
+
+def _vertex_lines(vertices, prefix: str) -> str:
+    buffer = StringIO()
+    np.savetxt(buffer, vertices, fmt="%.17g")
+    text = buffer.getvalue()
+    if not prefix:
+        return text
+    return "".join(f"{prefix}{line}\n" for line in text.splitlines())
+
+
+def _off_text(mesh: Mesh) -> str:
+    faces = np.column_stack([np.full(len(mesh.faces), 3, dtype=np.int64), mesh.faces])
+    buffer = StringIO()
+    np.savetxt(buffer, faces, fmt="%d")
+    return (
+        f"OFF\n{len(mesh.vertices)} {len(mesh.faces)} 0\n"
+        + _vertex_lines(mesh.vertices, "")
+        + buffer.getvalue()
+    )
+
+
+def _write_obj(path: Path, mesh: Mesh, colors, overwrite: bool) -> None:
+    """OBJ text, plus a ``.mtl`` with one material per distinct face colour."""
+    face_lines = [f"f {a} {b} {c}\n" for a, b, c in (mesh.faces + 1).tolist()]
+    head = "# written by primkit\n"
+    if colors is None:
+        text = head + _vertex_lines(mesh.vertices, "v ") + "".join(face_lines)
+        with atomic_output(path, overwrite=overwrite) as temporary:
+            temporary.write_text(text, encoding="ascii")
+        return
+
+    mtl_path = path.with_suffix(".mtl")
+    palette, material = np.unique(colors, axis=0, return_inverse=True)
+    material = material.reshape(-1)
+    mtl = "".join(
+        f"newmtl color_{k}\nKd {r / 255:.6f} {g / 255:.6f} {b / 255:.6f}\nd {a / 255:.6f}\n\n"
+        for k, (r, g, b, a) in enumerate(palette.tolist())
+    )
+    # a usemtl before each run of equal material keeps the faces in order
+    starts = np.flatnonzero(np.r_[True, material[1:] != material[:-1]]).tolist()
+    body = []
+    for i, start in enumerate(starts):
+        stop = starts[i + 1] if i + 1 < len(starts) else len(face_lines)
+        body.append(f"usemtl color_{material[start]}\n")
+        body.extend(face_lines[start:stop])
+    text = f"{head}mtllib {mtl_path.name}\n" + _vertex_lines(mesh.vertices, "v ") + "".join(body)
+    with atomic_output(path, overwrite=overwrite) as obj_tmp, atomic_output(
+        mtl_path, overwrite=overwrite
+    ) as mtl_tmp:
+        mtl_tmp.write_text(mtl, encoding="ascii")
+        obj_tmp.write_text(text, encoding="ascii")

@@ -1,0 +1,30 @@
+import os
+from pathlib import Path
+
+import pytest
+
+SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
+
+# pictures are rendered off screen through EGL; never try an X server in tests
+os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
+
+
+@pytest.fixture(scope="session")
+def shared_data():
+    if not SHARED.is_dir():
+        pytest.skip(f"shared data not found at {SHARED} (real-data checks need ../shared/data beside the checkout)")
+    return SHARED
+
+
+@pytest.fixture(scope="session")
+def chairs():
+    from primkit import synthetic
+
+    return synthetic.generate("chair", 8, seed=0)
+
+
+@pytest.fixture(scope="session")
+def prepared_chairs(chairs):
+    from primkit import data, io
+
+    return [data.prepare(io.Mesh(s.vertices, s.faces), face_labels=s.face_labels, name=f"chair{i}") for i, s in enumerate(chairs)]

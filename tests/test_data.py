@@ -1,0 +1,124 @@
+"""Preparation of meshes, voxel grids and point clouds, and the content-and-settings keyed cache."""
+
+import numpy as np
+import pytest
+
+from primkit import data, geometry, io, synthetic
+
+
+def test_prepare_mesh_is_consistent_with_geometry(chairs, prepared_chairs):
+    shape, prep = chairs[0], prepared_chairs[0]
+    assert prep.occupancy.shape == (32, 32, 32) and prep.closest.shape == (32, 32, 32, 3)
+    assert prep.points.shape == (10000, 3)
+    v = prep.frame.to_canonical(shape.vertices)
+    lo, hi = v.min(0), v.max(0)
+    np.testing.assert_allclose((lo + hi) / 2, 0, atol=1e-9)
+    assert np.isclose((hi - lo).max(), 1.0)
+    # labels of samples are the labels of their faces
+    assert np.array_equal(prep.point_labels, shape.face_labels[prep.point_faces])
+    # solid is inside the network input, which also holds every surface cell
+    assert not (prep.solid & ~prep.occupancy).any()
+    surf = geometry.surface_voxels(v, shape.faces)
+    assert np.array_equal(prep.occupancy, prep.solid | surf)
+    # distances derived from the closest points match an independent library
+    import igl
+
+    d2, _, _ = igl.point_mesh_squared_distance(geometry.grid_centres(32).reshape(-1, 3), v, shape.faces)
+    assert np.abs(prep.distance.ravel() - np.sqrt(d2)).max() < 1e-5
+
+
+def test_prepared_shape_save_load_round_trip(tmp_path, prepared_chairs):
+    p = prepared_chairs[1]
+    p.save(tmp_path / "x.npz")
+    q = data.PreparedShape.load(tmp_path / "x.npz")
+    for key in ("occupancy", "solid", "closest", "points", "point_faces", "point_labels"):
+        assert np.array_equal(getattr(p, key), getattr(q, key)), key
+    np.testing.assert_allclose(q.frame.matrix, p.frame.matrix)
+
+
+def test_prepare_voxels_keeps_voxels_and_frame():
+    occ = np.zeros((32, 32, 32), bool)
+    occ[3:13, 0:32, 5:12] = True  # 10 x 32 x 7 voxels, off centre
+    occ[6:8, 10:12, 7:9] = False  # an enclosed cavity: filled by preparation
+    grid = io.VoxelGrid(occ, translate=np.array([-0.3, -0.5, -0.2]), scale=0.9)
+    prep = data.prepare(grid)
+    assert prep.kind == "voxels"
+    assert prep.solid.sum() == 10 * 32 * 7
+    idx = np.argwhere(prep.solid)
+    centre = (idx.min(0) + idx.max(0)) / 2.0
+    assert np.all(np.abs(centre - 15.5) <= 0.5)
+    # the frame maps the file's voxel centres onto the centres of the occupied cells
+    src = np.argwhere(occ)
+    world = grid.translate + (src + 0.5) / 32 * grid.scale
+    can = prep.frame.to_canonical(world)
+    cells = np.floor((can + 0.5) * 32).astype(int)
+    np.testing.assert_allclose(can, -0.5 + (cells + 0.5) / 32, atol=1e-9)
+    assert prep.solid[cells[:, 0], cells[:, 1], cells[:, 2]].all()
+    # samples lie on the voxel boundary: distance to the grid's closest points is ~0 at those points
+    assert np.abs(prep.points).max() <= 0.5 + 1e-9
+
+
+def test_prepare_voxels_with_another_up_axis():
+    occ = np.zeros((16, 16, 16), bool)
+    occ[2:6, 4:8, 0:16] = True  # tall along z
+    prep = data.prepare(io.VoxelGrid(occ, np.zeros(3), 1.0), data.PrepareSettings(resolution=16, up="+z", samples=500))
+    idx = np.argwhere(prep.solid)
+    extent = idx.max(0) - idx.min(0) + 1
+    assert extent[1] == 16  # +z became +y
+
+
+def test_prepare_points_approximates_the_mesh(chairs):
+    shape = chairs[2]
+    mesh_prep = data.prepare(io.Mesh(shape.vertices, shape.faces))
+    pts = geometry.sample_surface(shape.vertices, shape.faces, 40000, seed=1).points
+    prep = data.prepare(io.PointCloud(pts))
+    assert prep.kind == "points"
+    # nearest-sample distances overestimate the true distance by little
+    diff = prep.distance - mesh_prep.distance
+    # (the frames differ slightly: the samples' bounding box is a little inside the mesh's)
+    assert diff.min() > -2e-3 and np.median(diff) < 0.01
+
+
+def test_prepare_collection_cache_and_bad_files(tmp_path):
+    folder = tmp_path / "shapes"
+    paths = synthetic.write_collection(folder, "table", 3, seed=1)
+    (folder / "broken.off").write_text("OFF\n3 1 0\n0 0 0\n1 nan 0\n0 1 0\n3 0 1 2\n")
+    before = {p: p.read_bytes() for p in folder.iterdir()}
+    cache = tmp_path / "cache"
+    coll = data.prepare_collection(folder, cache_dir=cache, workers=2, progress=False)
+    assert len(coll) == 3 and len(coll.errors) == 1
+    assert coll.errors[0].startswith(str(folder / "broken.off")) and "\n" not in coll.errors[0]
+    assert {p: p.read_bytes() for p in folder.iterdir()} == before  # inputs untouched
+    files = set(cache.rglob("*.npz"))
+    mtimes = {f: f.stat().st_mtime_ns for f in files}
+    again = data.prepare_collection(folder, cache_dir=cache, workers=1, progress=False)
+    assert set(again.cache_files) == set(coll.cache_files)
+    assert {f: f.stat().st_mtime_ns for f in files} == mtimes  # nothing prepared twice
+    # an edited file and a changed setting are prepared again
+    shape = synthetic.table(99)
+    io.write_mesh(paths[0], shape.vertices, shape.faces, overwrite=True)
+    (folder / paths[0].with_suffix(".seg").name).write_text("\n".join(map(str, shape.face_labels)) + "\n")
+    edited = data.prepare_collection(folder, cache_dir=cache, workers=1, progress=False)
+    assert edited.cache_files[0] not in coll.cache_files and edited.cache_files[1:] == coll.cache_files[1:]
+    other = data.prepare_collection(folder, data.PrepareSettings(samples=2000), cache_dir=cache, workers=1, progress=False)
+    assert not set(other.cache_files) & set(edited.cache_files)
+    assert other[0].points.shape == (2000, 3)
+
+
+def test_label_count_mismatch_is_reported(tmp_path):
+    shape = synthetic.chair(0)
+    p = io.write_mesh(tmp_path / "c.ply", shape.vertices, shape.faces)
+    (tmp_path / "c.seg").write_text("1\n2\n")
+    with pytest.raises(io.ShapeFileError) as err:
+        data.prepare_file(p)
+    assert str(err.value).startswith(str(tmp_path / "c.seg"))
+
+
+@pytest.mark.shared
+def test_shapenet_voxels_prepare(shared_data):
+    files = sorted((shared_data / "shapenetvox32" / "03001627").iterdir())[:3]
+    for folder in files:
+        prep = data.prepare_file(folder / "model.binvox")
+        vox = io.read_voxels(folder / "model.binvox")
+        assert prep.solid.sum() >= vox.occupancy.sum()
+        assert prep.solid.sum() == data.geometry.fill_voxels(vox.occupancy).sum()
