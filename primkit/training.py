@@ -20,7 +20,9 @@ from __future__ import annotations
 import json
 import math
 import os
+import signal
 import sys
+import threading
 import time
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -327,7 +329,17 @@ def train(
     t0 = time.perf_counter()
     interrupted = False
     running: dict = {}
-    it = start
+    # Ctrl-C finishes the current iteration, then saves a checkpoint and stops, so that resuming
+    # continues exactly where it stopped; a second Ctrl-C stops at once.
+    stop = {"requested": False}
+    previous_handler = None
+    if threading.current_thread() is threading.main_thread():
+        def _request_stop(signum, frame):
+            if stop["requested"]:
+                raise KeyboardInterrupt
+            stop["requested"] = True
+
+        previous_handler = signal.signal(signal.SIGINT, _request_stop)
     try:
         for it in range(start, total):
             stage2 = it >= stage1
@@ -354,6 +366,9 @@ def train(
                 b = baseline.value if baseline.value is not None else float(mean_loss)
                 loss = loss + reinforce_surrogate(pred.existence_logits, present, losses.total, b, config.parsimony)
                 baseline.update(float(mean_loss))
+            else:
+                # existence is not learned in stage 1; the zero term keeps its head in the graph (DDP)
+                loss = loss + 0.0 * pred.existence_logits.sum()
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             optimizer.step()
@@ -374,16 +389,21 @@ def train(
                 history.append(entry)
                 bar.set_postfix(stage=entry["stage"], cov=f"{entry['coverage']:.2e}", cons=f"{entry['consistency']:.2e}", parts=f"{entry['parts']:.1f}")
             bar.update()
+            if stop["requested"] and it + 1 < total:
+                interrupted = True
+                if ckpt_path is not None and rank == 0:
+                    _save_checkpoint(ckpt_path, net, optimizer, generator, baseline, it + 1, history, config, {})
+                    print(f"\ninterrupted after iteration {it + 1}: checkpoint saved to {ckpt_path} (resume with --resume)", file=sys.stderr)
+                break
             if ckpt_path is not None and rank == 0 and (it + 1) % config.checkpoint_every == 0 and it + 1 < total:
                 _save_checkpoint(ckpt_path, net, optimizer, generator, baseline, it + 1, history, config, {})
-        it = total
     except KeyboardInterrupt:
         interrupted = True
-        if ckpt_path is not None and rank == 0:
-            _save_checkpoint(ckpt_path, net, optimizer, generator, baseline, it, history, config, {})
-            print(f"\ninterrupted at iteration {it}: checkpoint saved to {ckpt_path} (resume with --resume)", file=sys.stderr)
+        print("\ninterrupted twice: stopped without saving this iteration (the last checkpoint stands)", file=sys.stderr)
     finally:
         bar.close()
+        if previous_handler is not None:
+            signal.signal(signal.SIGINT, previous_handler)
     seconds = time.perf_counter() - t0
     net.eval()
     if output is not None and rank == 0 and not interrupted:

@@ -1,0 +1,104 @@
+"""The command line end to end: generate, prepare, train, abstract, eval, info, demo; bad input."""
+
+import hashlib
+import json
+
+import numpy as np
+import pytest
+
+from primkit import primitives
+from primkit.cli import main
+
+
+def digest(folder):
+    return {p.name: hashlib.sha256(p.read_bytes()).hexdigest() for p in sorted(folder.iterdir()) if p.is_file()}
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    root = tmp_path_factory.mktemp("cli")
+    shapes = root / "shapes"
+    assert main(["generate", "chair", "-n", "6", "-o", str(shapes), "--seed", "3"]) == 0
+    model = root / "m.safetensors"
+    code = main(["train", str(shapes), "-o", str(model), "--stage1", "30", "--stage2", "20", "--parts", "6",
+                 "--batch-size", "6", "--cache", str(root / "cache"), "--workers", "1", "--data-terms", "procedural"])
+    assert code == 0
+    return root, shapes, model
+
+
+def test_train_writes_model_plot_and_metadata(trained, capsys):
+    root, shapes, model = trained
+    assert (root / "m.training.png").stat().st_size > 1000
+    assert main(["info", str(model)]) == 0
+    meta = json.loads(capsys.readouterr().out)
+    assert meta["training"]["iterations"] == 50 and meta["training"]["data"]["terms"] == "procedural"
+    assert meta["format_version"] == 1
+
+
+def test_abstract_batch_goes_on_past_a_bad_file(trained, tmp_path, capsys):
+    root, shapes, model = trained
+    inputs = tmp_path / "in"
+    inputs.mkdir()
+    for p in sorted(shapes.glob("*.ply"))[:2]:
+        (inputs / p.name).write_bytes(p.read_bytes())
+    (inputs / "empty.obj").write_text("")
+    before = digest(inputs)
+    out = tmp_path / "out"
+    code = main(["abstract", str(inputs), "--model", str(model), "-o", str(out), "--cache", str(tmp_path / "c"), "--workers", "1"])
+    err = capsys.readouterr().err
+    assert code == 1
+    assert "empty.obj" in err and len([l for l in err.splitlines() if "empty.obj" in l]) == 1
+    assert digest(inputs) == before  # inputs never modified
+    jsons = sorted(out.glob("*.cuboids.json"))
+    assert len(jsons) == 2 and len(list(out.glob("*.cuboids.ply"))) == 2
+    d = json.loads(jsons[0].read_text())
+    assert d["schema_version"] == 1 and len(d["parts"]) == 6  # absent parts kept, indices stable
+    cub = primitives.Cuboids.from_dict(d)
+    assert [p["index"] for p in d["parts"]] == list(range(6))
+    # results are in the input's frame: the cuboids overlap the input mesh's bounding box
+    import trimesh
+
+    mesh = trimesh.load(inputs / jsons[0].name.replace(".cuboids.json", ".ply"), process=False)
+    lo, hi = mesh.bounds
+    centres = cub.translations[cub.existence]
+    assert ((centres > lo - 0.1 * (hi - lo)) & (centres < hi + 0.1 * (hi - lo))).all()
+    # nothing is overwritten without --force
+    stamp = jsons[0].stat().st_mtime_ns
+    code = main(["abstract", str(inputs / jsons[0].name.replace(".cuboids.json", ".ply")), "--model", str(model),
+                 "-o", str(out), "--cache", str(tmp_path / "c"), "--workers", "1"])
+    assert code == 1 and jsons[0].stat().st_mtime_ns == stamp
+    assert "--force" in capsys.readouterr().err
+
+
+def test_eval_prints_the_convention(trained, tmp_path, capsys):
+    root, shapes, model = trained
+    code = main(["eval", str(shapes), "--model", str(model), "--cache", str(root / "cache"), "--workers", "1",
+                 "--json", str(tmp_path / "scores.json")])
+    out = capsys.readouterr().out
+    assert code == 0
+    assert "Chamfer-L1" in out and "unsquared" in out and "10000" in out
+    scores = json.loads((tmp_path / "scores.json").read_text())
+    assert scores["summary"]["count"] == 6
+    assert 0 <= scores["summary"]["iou"]["mean"] <= 1
+
+
+def test_bad_model_and_existing_output(trained, tmp_path, capsys):
+    root, shapes, model = trained
+    bogus = tmp_path / "bogus.safetensors"
+    bogus.write_bytes(b"\x00" * 100)
+    assert main(["abstract", str(shapes), "--model", str(bogus), "-o", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("primkit: error: ") and str(bogus) in err and "\n" not in err
+    assert main(["train", str(shapes), "-o", str(model)]) == 2
+    assert "exists" in capsys.readouterr().err
+    assert main(["abstract", str(tmp_path / "missing"), "--model", str(model), "-o", str(tmp_path / "o")]) == 2
+
+
+def test_demo_quick(tmp_path):
+    out = tmp_path / "demo"
+    assert main(["demo", "--quick", "-o", str(out)]) == 0
+    report = json.loads((out / "report.json").read_text())
+    assert "Chamfer" in report["convention"] and report["summary"]["count"] == 4
+    assert (out / "abstractions.png").stat().st_size > 5000
+    assert len(list((out / "abstractions").glob("*.cuboids.json"))) == 4
+    assert main(["demo", "--quick", "-o", str(out)]) == 2  # refuses to overwrite without --force
