@@ -1,0 +1,585 @@
+"""Benchmark: preparing shapes (read, occupancy, distance grid, samples) and the alternatives.
+
+    python benchmarks/bench_prepare.py [--quick] [--collection N] [--workers W]
+
+What it measures, all in one run, on the same meshes:
+
+1. Per-mesh time at 32^3 of ``primkit.io.read_mesh``, ``primkit.data.prepare`` and its parts
+   (canonical frame, surface voxels, winding-number occupancy, distance grid, 10k surface
+   samples); the same for ShapeNetVox32 binvox chairs (read + prepare, the voxel path).
+2. Distance grids: primkit (Open3D BVH + float64 closest point) against libigl's AABB
+   (``igl.point_mesh_squared_distance``, the exact reference), a brute-force NumPy loop over all
+   triangles, and a Euclidean distance transform of a 256^3 voxelisation, with their errors.
+3. Occupancy: primkit's region-sampled winding number against the winding number at every cell.
+4. Peak memory (``ru_maxrss`` of a fresh spawned process per method) and throughput of
+   ``primkit.data.prepare_collection`` over ShapeNetVox32 chairs, extrapolated to all 5,931.
+
+Inputs: the real meshes under ``<repo>/../shared/data`` when present (PSB segmentation benchmark,
+COSEG chairs, ShapeNetVox32); otherwise procedural shapes from :mod:`primkit.synthetic` (and no
+binvox sections). Times are wall-clock ``perf_counter``; per mesh the fastest of ``--repeats``
+runs is kept (other processes on a small machine only ever add time), and the tables show the
+median and the 90th percentile over meshes. Nothing here asserts a time: it prints and exits 0.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+RESOLUTION = 32
+DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+ALL_CHAIRS = 5931  # ShapeNetVox32 chairs in the shared split
+
+
+# --------------------------------------------------------------------------------------------
+# small helpers: tables, timing, fresh processes
+# --------------------------------------------------------------------------------------------
+
+
+def table(title: str, headers: list[str], rows: list[list], note: str | None = None) -> None:
+    """Print a plain fixed-width table (first column left-aligned, the others right-aligned)."""
+    cells = [[str(c) for c in row] for row in rows]
+    widths = [max(len(h), *(len(r[i]) for r in cells)) if cells else len(h) for i, h in enumerate(headers)]
+
+    def line(values):
+        return "  ".join(v.ljust(w) if i == 0 else v.rjust(w) for i, (v, w) in enumerate(zip(values, widths)))
+
+    print(f"\n## {title}")
+    print(line(headers))
+    print("  ".join("-" * w for w in widths))
+    for r in cells:
+        print(line(r))
+    if note:
+        print(note)
+
+
+def ms(seconds: float) -> str:
+    return f"{1000.0 * seconds:.1f}"
+
+
+def mib(kib: float) -> str:
+    return f"{kib / 1024.0:.0f}"
+
+
+def timed(fn, *args, **kwargs):
+    """(result, seconds) of one call."""
+    t0 = time.perf_counter()
+    out = fn(*args, **kwargs)
+    return out, time.perf_counter() - t0
+
+
+def best_of(repeats: int, fn, *args, **kwargs):
+    """(result of the last call, fastest time over ``repeats`` calls)."""
+    best = np.inf
+    out = None
+    for _ in range(repeats):
+        out, dt = timed(fn, *args, **kwargs)
+        best = min(best, dt)
+    return out, best
+
+
+def maxrss_kib(who=None) -> int:
+    """Peak resident set size in KiB (Linux reports ``ru_maxrss`` in KiB)."""
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF if who is None else who).ru_maxrss
+
+
+def _isolated_entry(conn, target, args):
+    try:
+        conn.send(("ok", target(*args)))
+    except BaseException as exc:  # report, never hang the parent
+        import traceback
+
+        conn.send(("error", f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}"))
+    finally:
+        conn.close()
+
+
+def run_isolated(target, *args):
+    """Run ``target(*args)`` in a fresh spawned process and return its result (a picklable dict)."""
+    import multiprocessing as mp
+
+    ctx = mp.get_context("spawn")
+    parent, child = ctx.Pipe(duplex=False)
+    proc = ctx.Process(target=_isolated_entry, args=(child, target, args))
+    proc.start()
+    child.close()
+    try:
+        status, value = parent.recv()
+    except EOFError:
+        status, value = "error", f"process died (exit code {proc.join() or proc.exitcode})"
+    proc.join()
+    if status != "ok":
+        raise RuntimeError(value)
+    return value
+
+
+def load_line() -> str:
+    one, five, _ = os.getloadavg()
+    return f"load average {one:.2f} (1 min), {five:.2f} (5 min) on {os.cpu_count()} cores"
+
+
+# --------------------------------------------------------------------------------------------
+# inputs
+# --------------------------------------------------------------------------------------------
+
+
+def mesh_inputs(quick: bool) -> tuple[str, list[tuple[str, Path]]]:
+    """(description, [(group, path)]) of the meshes to time."""
+    psb = sorted(DATA.glob("psb_seg_benchmark/*/off/*.off"))
+    coseg = sorted(DATA.glob("coseg_chairs/*/shapes/*.off"))
+    if psb or coseg:
+        if quick:
+            psb, coseg = psb[::8], coseg[::4]
+        items = [("psb", p) for p in psb] + [("coseg", p) for p in coseg]
+        return f"real meshes from {DATA} ({len(psb)} PSB, {len(coseg)} COSEG chairs)", items
+    from primkit import synthetic
+
+    folder = Path(tempfile.mkdtemp(prefix="primkit-bench-meshes-"))
+    count = 2 if quick else 10
+    items = []
+    for category in synthetic.CATEGORIES if hasattr(synthetic, "CATEGORIES") else ("chair", "table", "airplane", "animal"):
+        for p in synthetic.write_collection(folder / category, category, count, seed=1):
+            items.append((category, p))
+    return f"procedural shapes (primkit.synthetic, {len(items)}) written to {folder}", items
+
+
+def binvox_inputs(count: int) -> list[Path]:
+    folder = DATA / "shapenetvox32" / "03001627"
+    if not folder.is_dir():
+        return []
+    return sorted(folder.glob("*/model.binvox"))[:count]
+
+
+def warm_up() -> None:
+    """Load every library once (Open3D, libigl, trimesh, scipy) on a small procedural chair."""
+    from primkit import data, io, synthetic
+
+    s = synthetic.chair(seed=0)
+    data.prepare(io.Mesh(s.vertices, s.faces))
+
+
+# --------------------------------------------------------------------------------------------
+# 1. per-shape preparation
+# --------------------------------------------------------------------------------------------
+
+PARTS = ("frame", "surface_voxels", "occupancy_grid", "distance_grid", "sample_surface")
+
+
+def prepare_parts(mesh, settings) -> dict:
+    """Time the steps of ``primkit.data.prepare`` one by one, in its order, with its arguments."""
+    from primkit import geometry
+
+    out = {}
+    t0 = time.perf_counter()
+    frame = geometry.canonical_frame(mesh.vertices, settings.up, settings.front)
+    v = frame.to_canonical(mesh.vertices)
+    f = mesh.faces
+    t1 = time.perf_counter()
+    surface = geometry.surface_voxels(v, f, settings.resolution)
+    t2 = time.perf_counter()
+    geometry.occupancy_grid(v, f, settings.resolution, surface=surface)
+    t3 = time.perf_counter()
+    geometry.distance_grid(v, f, settings.resolution)
+    t4 = time.perf_counter()
+    geometry.sample_surface(v, f, settings.samples, seed=settings.seed)
+    t5 = time.perf_counter()
+    for name, dt in zip(PARTS, (t1 - t0, t2 - t1, t3 - t2, t4 - t3, t5 - t4)):
+        out[name] = dt
+    return out
+
+
+def bench_meshes(items, repeats: int) -> list[dict]:
+    from primkit import data, io
+
+    settings = data.PrepareSettings(resolution=RESOLUTION)
+    rows = []
+    for group, path in items:
+        mesh, t_read = best_of(repeats, io.read_mesh, path)
+        _, t_prep = best_of(repeats, data.prepare, mesh, settings)
+        parts = {k: np.inf for k in PARTS}
+        for _ in range(repeats):
+            for k, v in prepare_parts(mesh, settings).items():
+                parts[k] = min(parts[k], v)
+        rows.append({"group": group, "path": path, "faces": len(mesh.faces), "read": t_read, "prepare": t_prep, **parts})
+    return rows
+
+
+def summary_rows(label: str, records: list[dict], keys: list[str]) -> list[list]:
+    if not records:
+        return []
+    faces = np.array([r["faces"] for r in records])
+    row_med = [f"{label} median", len(records), f"{int(np.median(faces))}"]
+    row_p90 = [f"{label} p90", "", f"{int(np.percentile(faces, 90))}"]
+    for k in keys:
+        vals = np.array([r[k] for r in records])
+        row_med.append(ms(np.median(vals)))
+        row_p90.append(ms(np.percentile(vals, 90)))
+    return [row_med, row_p90]
+
+
+def report_meshes(records: list[dict]) -> None:
+    keys = ["read", "prepare", *PARTS]
+    rows = []
+    band = [r for r in records if 5000 <= r["faces"] <= 20000]
+    rows += summary_rows("5k-20k faces", band, keys)
+    rows += summary_rows("all meshes", records, keys)
+    for group in sorted({r["group"] for r in records}):
+        rows += summary_rows(group, [r for r in records if r["group"] == group], keys)
+    table(
+        f"1. per-mesh preparation at {RESOLUTION}^3 (ms; fastest of the repeats per mesh, then median / p90 over meshes)",
+        ["meshes", "n", "faces", "read", "prepare", *PARTS],
+        rows,
+        "prepare = primkit.data.prepare (frame + surface voxels + occupancy + distance grid + 10k samples);\n"
+        "the part columns time the same steps one by one. Target: median prepare for a ~10k-face mesh well under 100 ms.",
+    )
+    if band:
+        med = float(np.median([r["prepare"] for r in band]))
+        print(f"-> median prepare for 5k-20k-face meshes: {ms(med)} ms "
+              f"(faces median {int(np.median([r['faces'] for r in band]))}); target < 100 ms: "
+              f"{'met' if med < 0.1 else 'NOT met'}")
+
+
+def bench_binvox(paths, repeats: int) -> None:
+    from primkit import data, io
+
+    settings = data.PrepareSettings(resolution=RESOLUTION)
+    reads, preps = [], []
+    for p in paths:
+        grid, t_read = best_of(repeats, io.read_shape, p)
+        _, t_prep = best_of(repeats, data.prepare, grid, settings)
+        reads.append(t_read)
+        preps.append(t_prep)
+    r, q = np.array(reads), np.array(preps)
+    table(
+        f"1b. ShapeNetVox32 binvox chairs at {RESOLUTION}^3 (ms per shape)",
+        ["step", "n", "median", "p90", "max"],
+        [
+            ["read (io.read_shape)", len(r), ms(np.median(r)), ms(np.percentile(r, 90)), ms(r.max())],
+            ["prepare (voxel path)", len(q), ms(np.median(q)), ms(np.percentile(q, 90)), ms(q.max())],
+            ["read + prepare", len(q), ms(np.median(r + q)), ms(np.percentile(r + q, 90)), ms((r + q).max())],
+        ],
+        "voxel path: rotate/recentre, fill cavities, voxel boundary mesh, surface cells, distance grid, samples.",
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# 2. distance grids: primkit and the alternatives
+# --------------------------------------------------------------------------------------------
+
+
+def _dot(x, y):
+    return np.einsum("...i,...i->...", x, y)
+
+
+def brute_force_distance_sq(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray, chunk: int = 16) -> np.ndarray:
+    """Squared distance of each point to the mesh by testing every triangle (chunks of points).
+
+    Per point and triangle: if the point projects inside the triangle, the squared distance to
+    its plane; otherwise the smallest squared distance to the three edges (as segments).
+    Degenerate triangles have no inside and fall back to their edges.
+
+    points : (n, 3) float; returns (n,) float.
+    """
+    a, b, c = (vertices[faces[:, i]][None] for i in range(3))  # (1, f, 3)
+    normal = np.cross(b - a, c - a)
+    nn = _dot(normal, normal)
+    edges = [(a, b - a), (b, c - b), (c, a - c)]
+    edge_len = [_dot(d, d) for _, d in edges]
+    out = np.empty(len(points))
+    for start in range(0, len(points), chunk):
+        p = points[start : start + chunk, None, :]  # (k, 1, 3)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            h = _dot(p - a, normal)
+            plane = h * h / nn
+            inside = nn > 0
+            for (s0, d) in edges:
+                inside = inside & (_dot(np.cross(d, p - s0), normal) >= 0)
+            best = None
+            for (s0, d), dd in zip(edges, edge_len):
+                u = np.clip(_dot(p - s0, d) / dd, 0.0, 1.0)
+                u = np.where(dd > 0, u, 0.0)
+                r = p - s0 - u[..., None] * d
+                e = _dot(r, r)
+                best = e if best is None else np.minimum(best, e)
+        out[start : start + chunk] = np.where(inside, plane, best).min(axis=1)
+    return out
+
+
+def edt_distance(vertices: np.ndarray, faces: np.ndarray, fine: int = 256, samples: int = 2_000_000) -> np.ndarray:
+    """Distance at the canonical cell centres from an exact EDT of a ``fine``^3 voxelisation.
+
+    Surface voxels come from ``samples`` area-uniform surface samples; the EDT gives, at every fine
+    voxel centre, the distance to the nearest surface voxel centre, and the 32^3 cell centres
+    (which fall between fine voxel centres) read it by trilinear interpolation.
+
+    Returns (R, R, R) float.
+    """
+    from scipy import ndimage
+
+    from primkit import geometry
+
+    pts = geometry.sample_surface(vertices, faces, samples, seed=0).points
+    idx = np.clip(np.floor((pts + 0.5) * fine).astype(np.int64), 0, fine - 1)
+    surface = np.zeros((fine,) * 3, bool)
+    surface[idx[:, 0], idx[:, 1], idx[:, 2]] = True
+    dist = ndimage.distance_transform_edt(~surface, sampling=1.0 / fine)
+    centres = geometry.grid_centres(RESOLUTION).reshape(-1, 3)
+    coords = ((centres + 0.5) * fine - 0.5).T
+    return ndimage.map_coordinates(dist, coords, order=1, mode="nearest").reshape((RESOLUTION,) * 3)
+
+
+def canonical_mesh(path):
+    from primkit import geometry, io
+
+    mesh = io.read_mesh(path)
+    frame = geometry.canonical_frame(mesh.vertices)
+    return frame.to_canonical(mesh.vertices), mesh.faces
+
+
+def bench_distances(paths, bf_cells: int, repeats: int) -> None:
+    import igl
+
+    from primkit import geometry
+
+    centres = geometry.grid_centres(RESOLUTION).reshape(-1, 3)
+    sel = np.sort(np.random.default_rng(0).choice(len(centres), bf_cells, replace=False))
+    res = {k: {"t": [], "max": [], "mean": []} for k in ("primkit", "igl", "brute", "edt")}
+    faces_seen = []
+    for path in paths:
+        v, f = canonical_mesh(path)
+        faces_seen.append(len(f))
+        (ref_sq, _, _), t_igl = best_of(repeats, igl.point_mesh_squared_distance, centres, v, f)
+        ref = np.sqrt(ref_sq)
+        grid, t_pk = best_of(repeats, geometry.distance_grid, v, f, RESOLUTION)
+        bf_sq, t_bf = timed(brute_force_distance_sq, centres[sel], v, f)
+        edt, t_edt = timed(edt_distance, v, f)
+        for key, t, err in (
+            ("igl", t_igl, np.zeros(1)),
+            ("primkit", t_pk, np.abs(grid.distance.ravel().astype(np.float64) - ref)),
+            ("brute", t_bf * len(centres) / bf_cells, np.abs(np.sqrt(bf_sq) - ref[sel])),
+            ("edt", t_edt, np.abs(edt.ravel() - ref)),
+        ):
+            res[key]["t"].append(t)
+            res[key]["max"].append(err.max())
+            res[key]["mean"].append(err.mean())
+    names = {
+        "primkit": "primkit.geometry.distance_grid (Open3D BVH + float64)",
+        "igl": "igl.point_mesh_squared_distance (AABB; reference)",
+        "brute": f"brute force NumPy, all triangles (extrapolated from {bf_cells} cells)",
+        "edt": "scipy EDT of 256^3 voxels from 2M samples, interpolated",
+    }
+    rows = []
+    for key in ("primkit", "igl", "brute", "edt"):
+        r = res[key]
+        rows.append([names[key], ms(np.median(r["t"])), ms(np.max(r["t"])), f"{np.max(r['max']):.1e}", f"{np.mean(r['mean']):.1e}"])
+    table(
+        f"2. distance grid at {RESOLUTION}^3 on {len(paths)} meshes ({min(faces_seen)}-{max(faces_seen)} faces)",
+        ["method", "median ms", "max ms", "max |err|", "mean |err|"],
+        rows,
+        "errors: distance at the cell centres against libigl's exact distances, in units of the unit cube\n"
+        "(a cell is 1/32 = 3.1e-2); primkit stores float32.",
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# 3. occupancy: region-sampled winding number vs every cell
+# --------------------------------------------------------------------------------------------
+
+
+def bench_occupancy(paths, repeats: int) -> None:
+    import igl
+
+    from primkit import geometry
+
+    centres = geometry.grid_centres(RESOLUTION).reshape(-1, 3)
+    t_pk, t_all, t_surf, diffs, faces_seen = [], [], [], [], []
+    for path in paths:
+        v, f = canonical_mesh(path)
+        faces_seen.append(len(f))
+        surface, ts = best_of(repeats, geometry.surface_voxels, v, f, RESOLUTION)
+        occ, tp = best_of(repeats, geometry.occupancy_grid, v, f, RESOLUTION, surface=surface)
+        w, ta = best_of(repeats, igl.fast_winding_number, v, f, centres)
+        full = (w > 0.5).reshape(occ.shape)
+        t_pk.append(tp)
+        t_all.append(ta)
+        t_surf.append(ts)
+        diffs.append(int((full != occ).sum()))
+    diffs = np.array(diffs)
+    table(
+        f"3. solid occupancy at {RESOLUTION}^3 on {len(paths)} meshes ({min(faces_seen)}-{max(faces_seen)} faces)",
+        ["method", "median ms", "p90 ms", "cells differing (total)", "meshes differing"],
+        [
+            ["primkit occupancy_grid (surface cells + samples per region)", ms(np.median(t_pk)), ms(np.percentile(t_pk, 90)), int(diffs.sum()), int((diffs > 0).sum())],
+            ["  + its surface_voxels input", ms(np.median(np.add(t_pk, t_surf))), ms(np.percentile(np.add(t_pk, t_surf), 90)), "", ""],
+            ["igl.fast_winding_number at all 32768 cells", ms(np.median(t_all)), ms(np.percentile(t_all, 90)), "reference", ""],
+        ],
+        f"agreement: {100.0 * (1 - diffs.sum() / (len(paths) * RESOLUTION**3)):.4f}% of all cells",
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# 4. peak memory (fresh process per method) and collections
+# --------------------------------------------------------------------------------------------
+
+
+def _mem_job(method: str, path: str, bf_cells: int) -> dict:
+    """Runs in a fresh process: warm up (imports + one small shape), then one method on one mesh."""
+    import igl
+
+    from primkit import data, geometry, io
+
+    warm_up()
+    base = maxrss_kib()
+    mesh = io.read_mesh(path)
+    frame = geometry.canonical_frame(mesh.vertices)
+    v, f = frame.to_canonical(mesh.vertices), mesh.faces
+    centres = geometry.grid_centres(RESOLUTION).reshape(-1, 3)
+    t0 = time.perf_counter()
+    if method == "prepare":
+        data.prepare(mesh)
+    elif method == "distance_grid":
+        geometry.distance_grid(v, f, RESOLUTION)
+    elif method == "igl":
+        igl.point_mesh_squared_distance(centres, v, f)
+    elif method == "brute":
+        brute_force_distance_sq(centres[:bf_cells], v, f)
+    elif method == "edt":
+        edt_distance(v, f)
+    elif method == "occupancy_grid":
+        geometry.occupancy_grid(v, f, RESOLUTION)
+    elif method == "fwn_all":
+        igl.fast_winding_number(v, f, centres)
+    else:
+        raise ValueError(method)
+    return {"base": base, "peak": maxrss_kib(), "seconds": time.perf_counter() - t0}
+
+
+def bench_memory(path: Path, faces: int, bf_cells: int) -> None:
+    methods = [
+        ("prepare", "primkit.data.prepare (whole)"),
+        ("distance_grid", "primkit distance_grid"),
+        ("igl", "igl.point_mesh_squared_distance"),
+        ("brute", f"brute force NumPy ({bf_cells} cells, 16 a chunk)"),
+        ("edt", "scipy EDT 256^3"),
+        ("occupancy_grid", "primkit occupancy_grid (incl. surface voxels)"),
+        ("fwn_all", "igl.fast_winding_number, all cells"),
+    ]
+    rows = []
+    for key, label in methods:
+        r = run_isolated(_mem_job, key, str(path), bf_cells)
+        rows.append([label, mib(r["base"]), mib(r["peak"]), mib(r["peak"] - r["base"]), ms(r["seconds"])])
+    table(
+        f"4. peak memory of one mesh ({path.parent.parent.name}/{path.name}, {faces} faces), fresh spawned process per method",
+        ["method", "RSS after imports+warm-up MiB", "peak RSS MiB", "increase MiB", "ms (cold)"],
+        rows,
+        "RSS is ru_maxrss of the process (native allocations included); the warm-up prepares one small\n"
+        "procedural chair so that every library is loaded before the baseline is read.",
+    )
+
+
+def _collection_job(files: list[str], workers: int) -> dict:
+    """Runs in a fresh process: prepare_collection into an empty temporary cache, then again (cached)."""
+    import resource
+
+    from primkit import data
+
+    base = maxrss_kib()
+    with tempfile.TemporaryDirectory(prefix="primkit-bench-cache-") as cache:
+        coll, t_cold = timed(data.prepare_collection, files, cache_dir=cache, workers=workers, progress=False)
+        parent_peak = maxrss_kib()
+        child_peak = maxrss_kib(resource.RUSAGE_CHILDREN)
+        _, t_warm = timed(data.prepare_collection, files, cache_dir=cache, workers=workers, progress=False)
+        size = sum(p.stat().st_size for p in Path(cache).rglob("*.npz"))
+    return {
+        "ok": len(coll), "errors": coll.errors[:3], "n_errors": len(coll.errors), "cold": t_cold, "warm": t_warm,
+        "base": base, "parent_peak": parent_peak, "child_peak": child_peak, "bytes": size,
+    }
+
+
+def bench_collection(files: list[Path], workers: int) -> None:
+    r = run_isolated(_collection_job, [str(p) for p in files], workers)
+    n = len(files)
+    rate = n / r["cold"]
+    per_shape_bytes = r["bytes"] / max(r["ok"], 1)
+    total_mem = r["parent_peak"] + workers * r["child_peak"]
+    rows = [
+        ["shapes (prepared / errors)", f"{r['ok']} / {r['n_errors']}"],
+        ["wall time, empty cache", f"{r['cold']:.1f} s"],
+        ["shapes per second", f"{rate:.1f}"],
+        [f"extrapolated, all {ALL_CHAIRS} chairs", f"{ALL_CHAIRS / rate / 60:.1f} min"],
+        ["wall time again, all cached", f"{r['warm']:.2f} s ({1000 * r['warm'] / n:.1f} ms per shape)"],
+        ["peak RSS, main process", f"{mib(r['parent_peak'])} MiB (after imports {mib(r['base'])} MiB)"],
+        ["peak RSS, largest worker", f"{mib(r['child_peak'])} MiB"],
+        [f"main + {workers} x worker (upper bound)", f"{mib(total_mem)} MiB"],
+        ["cache on disk", f"{per_shape_bytes / 1024:.0f} KiB per shape; {per_shape_bytes * ALL_CHAIRS / 2**30:.2f} GiB for {ALL_CHAIRS}"],
+    ]
+    table(
+        f"5. prepare_collection on {n} ShapeNetVox32 chairs, workers={workers}, fresh process, temporary cache",
+        ["quantity", "value"],
+        rows,
+        "worker peaks include pages shared with the main process (workers are forked), so the sum over-counts."
+        + (f"\nerrors: {r['errors']}" if r["n_errors"] else ""),
+    )
+
+
+# --------------------------------------------------------------------------------------------
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--quick", action="store_true", help="few shapes and one repeat (smoke test)")
+    parser.add_argument("--repeats", type=int, default=None, help="runs per mesh, fastest kept (default 2; quick 1)")
+    parser.add_argument("--collection", type=int, default=None, help="ShapeNetVox32 chairs for prepare_collection (default 500; quick 50)")
+    parser.add_argument("--workers", type=int, default=2)
+    args = parser.parse_args(argv)
+    quick = args.quick
+    repeats = args.repeats or (1 if quick else 2)
+    n_collection = args.collection or (50 if quick else 500)
+    n_binvox = 10 if quick else 50
+    n_distance = 2 if quick else 5
+    bf_cells = 128 if quick else 1024
+
+    import primkit
+
+    print(f"# bench_prepare: primkit {primkit.__version__}, Python {platform.python_version()}, "
+          f"NumPy {np.__version__}, {platform.machine()}, {'quick' if quick else 'full'} run")
+    print(f"# {load_line()} at start")
+    what, items = mesh_inputs(quick)
+    print(f"# inputs: {what}")
+    warm_up()
+
+    t_start = time.perf_counter()
+    records = bench_meshes(items, repeats)
+    report_meshes(records)
+
+    binvox = binvox_inputs(max(n_binvox, n_collection))
+    if binvox:
+        bench_binvox(binvox[:n_binvox], repeats)
+    else:
+        print("\n(no ShapeNetVox32 folder: binvox sections skipped)")
+
+    # distance alternatives on a few meshes spread over the face counts
+    order = sorted(records, key=lambda r: r["faces"])
+    pick = [order[int(round(i))] for i in np.linspace(0, len(order) - 1, min(n_distance, len(order)))]
+    bench_distances([r["path"] for r in pick], bf_cells, repeats)
+    bench_occupancy([r["path"] for r in records], repeats)
+
+    biggest = order[-1]
+    bench_memory(biggest["path"], biggest["faces"], bf_cells)
+    if binvox:
+        bench_collection(binvox[:n_collection], args.workers)
+    print(f"\n# {load_line()} at end; benchmark took {time.perf_counter() - t_start:.0f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
