@@ -85,11 +85,25 @@ def best_of(repeats: int, fn, *args, **kwargs):
     return out, best
 
 
-def maxrss_kib(who=None) -> int:
-    """Peak resident set size in KiB (Linux reports ``ru_maxrss`` in KiB)."""
+def maxrss_kib(children: bool = False) -> int:
+    """Peak resident set size in KiB: of this process, or of its largest waited-for child.
+
+    For this process it is ``VmHWM`` of ``/proc/self/status`` where available: ``ru_maxrss``
+    survives ``exec``, so a spawned process would report its parent's peak. Forked children
+    (``children=True``, from ``ru_maxrss`` of ``RUSAGE_CHILDREN``) start from the RSS they share
+    with their parent at fork time.
+    """
     import resource
 
-    return resource.getrusage(resource.RUSAGE_SELF if who is None else who).ru_maxrss
+    if children:
+        return resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1])
+    except OSError:
+        pass
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
 
 
 def _isolated_entry(conn, target, args):
@@ -481,22 +495,20 @@ def bench_memory(path: Path, faces: int, bf_cells: int) -> None:
         f"4. peak memory of one mesh ({path.parent.parent.name}/{path.name}, {faces} faces), fresh spawned process per method",
         ["method", "RSS after imports+warm-up MiB", "peak RSS MiB", "increase MiB", "ms (cold)"],
         rows,
-        "RSS is ru_maxrss of the process (native allocations included); the warm-up prepares one small\n"
+        "RSS is the peak resident set size of the process (VmHWM; native allocations included); the warm-up prepares one small\n"
         "procedural chair so that every library is loaded before the baseline is read.",
     )
 
 
 def _collection_job(files: list[str], workers: int) -> dict:
     """Runs in a fresh process: prepare_collection into an empty temporary cache, then again (cached)."""
-    import resource
-
     from primkit import data
 
     base = maxrss_kib()
     with tempfile.TemporaryDirectory(prefix="primkit-bench-cache-") as cache:
         coll, t_cold = timed(data.prepare_collection, files, cache_dir=cache, workers=workers, progress=False)
         parent_peak = maxrss_kib()
-        child_peak = maxrss_kib(resource.RUSAGE_CHILDREN)
+        child_peak = maxrss_kib(children=True)
         _, t_warm = timed(data.prepare_collection, files, cache_dir=cache, workers=workers, progress=False)
         size = sum(p.stat().st_size for p in Path(cache).rglob("*.npz"))
     return {
@@ -505,29 +517,35 @@ def _collection_job(files: list[str], workers: int) -> dict:
     }
 
 
-def bench_collection(files: list[Path], workers: int) -> None:
-    r = run_isolated(_collection_job, [str(p) for p in files], workers)
+def bench_collection(files: list[Path], workers_list: list[int]) -> None:
     n = len(files)
-    rate = n / r["cold"]
-    per_shape_bytes = r["bytes"] / max(r["ok"], 1)
-    total_mem = r["parent_peak"] + workers * r["child_peak"]
-    rows = [
-        ["shapes (prepared / errors)", f"{r['ok']} / {r['n_errors']}"],
-        ["wall time, empty cache", f"{r['cold']:.1f} s"],
-        ["shapes per second", f"{rate:.1f}"],
-        [f"extrapolated, all {ALL_CHAIRS} chairs", f"{ALL_CHAIRS / rate / 60:.1f} min"],
-        ["wall time again, all cached", f"{r['warm']:.2f} s ({1000 * r['warm'] / n:.1f} ms per shape)"],
-        ["peak RSS, main process", f"{mib(r['parent_peak'])} MiB (after imports {mib(r['base'])} MiB)"],
-        ["peak RSS, largest worker", f"{mib(r['child_peak'])} MiB"],
-        [f"main + {workers} x worker (upper bound)", f"{mib(total_mem)} MiB"],
-        ["cache on disk", f"{per_shape_bytes / 1024:.0f} KiB per shape; {per_shape_bytes * ALL_CHAIRS / 2**30:.2f} GiB for {ALL_CHAIRS}"],
-    ]
+    results = {w: run_isolated(_collection_job, [str(p) for p in files], w) for w in workers_list}
+    rows = []
+
+    def row(label, fn):
+        rows.append([label, *(fn(w, results[w]) for w in workers_list)])
+
+    row("shapes (prepared / errors)", lambda w, r: f"{r['ok']} / {r['n_errors']}")
+    row("wall time, empty cache", lambda w, r: f"{r['cold']:.1f} s")
+    row("shapes per second", lambda w, r: f"{n / r['cold']:.1f}")
+    row(f"extrapolated, all {ALL_CHAIRS} chairs", lambda w, r: f"{ALL_CHAIRS * r['cold'] / n / 60:.1f} min")
+    row("wall time again, all cached", lambda w, r: f"{r['warm']:.2f} s ({1000 * r['warm'] / n:.1f} ms/shape)")
+    row("RSS after imports, main process", lambda w, r: f"{mib(r['base'])} MiB")
+    row("peak RSS, main process", lambda w, r: f"{mib(r['parent_peak'])} MiB")
+    row("peak RSS, largest worker", lambda w, r: f"{mib(r['child_peak'])} MiB" if w > 1 else "-")
+    row("main + workers x largest (upper bound)", lambda w, r: f"{mib(r['parent_peak'] + (w if w > 1 else 0) * r['child_peak'])} MiB")
+    row(
+        f"cache on disk (extrapolated to {ALL_CHAIRS})",
+        lambda w, r: f"{r['bytes'] / max(r['ok'], 1) / 1024:.0f} KiB/shape; {r['bytes'] / max(r['ok'], 1) * ALL_CHAIRS / 2**30:.2f} GiB",
+    )
+    errors = [e for r in results.values() for e in r["errors"]]
     table(
-        f"5. prepare_collection on {n} ShapeNetVox32 chairs, workers={workers}, fresh process, temporary cache",
-        ["quantity", "value"],
+        f"5. prepare_collection on {n} ShapeNetVox32 chairs, fresh process per run, empty temporary cache",
+        ["quantity", *(f"workers={w}" for w in workers_list)],
         rows,
-        "worker peaks include pages shared with the main process (workers are forked), so the sum over-counts."
-        + (f"\nerrors: {r['errors']}" if r["n_errors"] else ""),
+        "workers=1 prepares in the main process; worker peaks include pages shared with the main process\n"
+        "(workers are forked), so the sum over-counts. Worker processes import Open3D/libigl on first use."
+        + (f"\nerrors: {errors}" if errors else ""),
     )
 
 
@@ -576,7 +594,7 @@ def main(argv=None) -> int:
     biggest = order[-1]
     bench_memory(biggest["path"], biggest["faces"], bf_cells)
     if binvox:
-        bench_collection(binvox[:n_collection], args.workers)
+        bench_collection(binvox[:n_collection], sorted({1, args.workers}))
     print(f"\n# {load_line()} at end; benchmark took {time.perf_counter() - t_start:.0f} s")
     return 0
 

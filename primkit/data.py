@@ -291,7 +291,7 @@ def prepare(
     faces = shape.faces
     res = settings.resolution
     surface = geometry.surface_voxels(vertices, faces, res)
-    solid = geometry.occupancy_grid(vertices, faces, res, surface=surface)
+    solid = geometry.occupancy_grid(vertices, faces, res)
     dist = geometry.distance_grid(vertices, faces, res)
     samples = geometry.sample_surface(vertices, faces, settings.samples, seed=settings.seed)
     if face_labels is not None:

@@ -7,14 +7,12 @@ the one grid convention written there: ``grid[i, j, k]`` along X, Y, Z, cell cen
 
 Which library does what, and why:
 
-* **Closest points** come from Open3D's ``RaycastingScene`` (Embree BVH, multi-threaded), which
-  measured faster than libigl's AABB on the same grids; the point on the found triangle is then
-  recomputed in float64.
+* **Closest points** come from Open3D's ``RaycastingScene`` (Embree BVH, multi-threaded); the point
+  on the found triangle is then recomputed in float64. libigl's AABB (``point_mesh_squared_distance``)
+  measured the same speed (61 against 63 ms a mesh in ``benchmarks/bench_prepare.py``); either is
+  fine, Open3D was kept because it also gives the surface voxels.
 * **Occupancy** is the generalised winding number (libigl ``fast_winding_number``), which is robust
   on open and self-intersecting meshes where ray parity (Open3D's ``compute_occupancy``) is not.
-  It is evaluated on the cells touched by the surface and on a few cells of each connected region
-  of untouched cells (the winding number of a closed mesh is constant on such a region), which
-  gives the same grid as evaluating every cell at a fraction of the cost.
 * **Surface voxels** (cells a triangle passes through) are Open3D's exact triangle-box voxeliser.
 * **Surface samples** are area-uniform with face ids (trimesh's ``sample_surface``).
 """
@@ -191,16 +189,14 @@ def occupancy_grid(
     resolution: int = 32,
     include_surface: bool = False,
     surface: np.ndarray | None = None,
-    samples_per_region: int = 16,
 ) -> np.ndarray:
-    """Solid occupancy of the canonical grid by the generalised winding number (> 0.5 inside).
+    """Solid occupancy of the canonical grid: generalised winding number > 0.5 at each cell centre.
 
-    The winding number is evaluated on every cell the surface passes through, and on up to
-    ``samples_per_region`` cells of each connected region of surface-free cells. On a closed mesh
-    the winding number is constant on such a region, so when the samples agree the whole region
-    takes their answer; where they disagree (an open mesh, whose outside leaks into the inside
-    through a hole) every cell of the region is evaluated. The result equals evaluating every
-    cell, at a fraction of the cost.
+    The winding number (libigl's fast approximation) is robust where ray parity is not: on open
+    meshes (a chair with a hole), self-intersections and duplicated faces. We also tried evaluating
+    it only on surface cells plus a few cells per connected free region: identical grids, but
+    ``benchmarks/bench_prepare.py`` measured it slower (29 ms against 20 ms a mesh), so every cell
+    is evaluated.
 
     Parameters
     ----------
@@ -210,53 +206,20 @@ def occupancy_grid(
         Also mark the cells the surface passes through, so that parts thinner than a cell still
         show in the grid (this is the network's input).
     surface : (R, R, R) bool, optional
-        Precomputed :func:`surface_voxels`, to avoid computing it twice.
+        Precomputed :func:`surface_voxels` (used with ``include_surface``).
 
     Returns
     -------
     occupancy : (R, R, R) bool
     """
     import igl
-    from scipy import ndimage
 
     vertices = np.asarray(vertices, np.float64)
     faces = np.asarray(faces, np.int64)
-    if surface is None:
-        surface = surface_voxels(vertices, faces, resolution)
-    centres = grid_centres(resolution)
-    occupancy = np.zeros(surface.shape, dtype=bool)
-
-    winding = igl.fast_winding_number(vertices, faces, centres[surface].reshape(-1, 3))
-    occupancy[surface] = winding > 0.5
-
-    regions, count = ndimage.label(~surface)
-    if count:
-        flat = regions.ravel()
-        order = np.argsort(flat, kind="stable")
-        starts = np.searchsorted(flat[order], np.arange(1, count + 1))
-        sizes = np.diff(np.append(starts, len(flat)))
-        # up to `samples_per_region` evenly spread cells of each region
-        rank = np.arange(samples_per_region)[None, :] * np.maximum(sizes // samples_per_region, 1)[:, None]
-        valid = rank < sizes[:, None]
-        picks = order[(starts[:, None] + np.minimum(rank, sizes[:, None] - 1))[valid]]
-        owners = np.broadcast_to(np.arange(1, count + 1)[:, None], rank.shape)[valid]
-        w = igl.fast_winding_number(vertices, faces, centres.reshape(-1, 3)[picks])
-        lo = np.full(count + 1, np.inf)
-        hi = np.full(count + 1, -np.inf)
-        np.minimum.at(lo, owners, w)
-        np.maximum.at(hi, owners, w)
-        inside = lo > 0.5
-        # a region is uniform when all its samples agree (always, on a closed mesh); on an open
-        # mesh the outside can leak into the inside through a hole: evaluate such regions per cell
-        mixed = (hi - lo > 0.25) | ((lo - 0.5) * (hi - 0.5) <= 0)
-        inside[0] = mixed[0] = False
-        free = ~surface
-        occupancy |= inside[regions] & free
-        todo = mixed[regions] & free
-        if todo.any():
-            occupancy[todo] = igl.fast_winding_number(vertices, faces, centres[todo].reshape(-1, 3)) > 0.5
+    centres = grid_centres(resolution).reshape(-1, 3)
+    occupancy = (igl.fast_winding_number(vertices, faces, centres) > 0.5).reshape((resolution,) * 3)
     if include_surface:
-        occupancy |= surface
+        occupancy |= surface if surface is not None else surface_voxels(vertices, faces, resolution)
     return occupancy
 
 

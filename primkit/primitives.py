@@ -665,10 +665,16 @@ def sample_volume(cuboids: Cuboids, samples_per_cuboid: int = 1000, seed: Any = 
 
 
 def _containment(cuboids: Cuboids, k: int, seed: Any) -> np.ndarray:
-    """(m, k, m) bool: volume sample s of part i lies inside part j."""
+    """(m, k, m) bool: volume sample s of part i lies inside part j (computed among present parts
+    only; entries involving an absent part are False)."""
     pts = sample_volume(cuboids, k, seed)
     m = cuboids.count
-    return contains(pts.reshape(-1, 3), cuboids).reshape(m, k, m)
+    out = np.zeros((m, k, m), dtype=bool)
+    idx = cuboids.present
+    if len(idx):
+        sub = cuboids.subset(idx)
+        out[np.ix_(idx, np.arange(k), idx)] = contains(pts[idx].reshape(-1, 3), sub).reshape(len(idx), k, len(idx))
+    return out
 
 
 def _fractions(inside: np.ndarray, existence: np.ndarray) -> np.ndarray:

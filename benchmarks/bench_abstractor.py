@@ -1,0 +1,548 @@
+"""Benchmark: training iterations per second and inference shapes per second of the abstractor.
+
+    python benchmarks/bench_abstractor.py [--quick] [--iterations N] [--device cpu|cuda|all]
+
+What it measures, all in one run:
+
+1. One training iteration as :func:`primkit.training.train` runs it (batch 32, 20 parts, 1,000
+   surface points per shape, 150 samples per cuboid): network forward, ``primkit.losses.shape_losses``,
+   backward, Adam step; stage 1 (every part present) and stage 2 (existence sampled, REINFORCE
+   term), for the paper's encoder (stride-2 convs, fc 100) and the released one (conv + batch norm
+   + max-pool). Projected time for the paper's 20k + 30k iterations.
+2. The straightforward alternative, in the same run and on the same batches: the same losses
+   computed one cuboid at a time in a Python loop (running minimum for coverage, one consistency
+   term per cuboid); checked to give the same values, then timed alone and inside a whole step.
+3. Peak memory of training (a fresh spawned process per variant; RSS, and CUDA allocations).
+4. Inference with :class:`primkit.abstractor.Abstractor` around a randomly initialised network:
+   shapes per second from prepared grids (batched, with and without pruning, against one shape at
+   a time) and from mesh files (prepare + predict).
+
+Data: procedural chairs from :mod:`primkit.synthetic` prepared with :func:`primkit.data.prepare`
+(16 shapes; batches of 32 drawn with replacement), so no data set or trained model is needed.
+Times are wall-clock per iteration (CUDA synchronised), reported as median and 90th percentile
+after warm-up iterations. Nothing here asserts a time: it prints and exits 0.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+BATCH = 32
+PARTS = 20
+POINTS = 1000
+SAMPLES_PER_CUBOID = 150
+STAGE1, STAGE2 = 20000, 30000  # the paper's schedule (TrainConfig defaults)
+
+
+# --------------------------------------------------------------------------------------------
+# small helpers: tables, statistics, fresh processes
+# --------------------------------------------------------------------------------------------
+
+
+def table(title: str, headers: list[str], rows: list[list], note: str | None = None) -> None:
+    """Print a plain fixed-width table (first column left-aligned, the others right-aligned)."""
+    cells = [[str(c) for c in row] for row in rows]
+    widths = [max(len(h), *(len(r[i]) for r in cells)) if cells else len(h) for i, h in enumerate(headers)]
+
+    def line(values):
+        return "  ".join(v.ljust(w) if i == 0 else v.rjust(w) for i, (v, w) in enumerate(zip(values, widths)))
+
+    print(f"\n## {title}")
+    print(line(headers))
+    print("  ".join("-" * w for w in widths))
+    for r in cells:
+        print(line(r))
+    if note:
+        print(note)
+
+
+def med(values) -> float:
+    return float(np.median(values))
+
+
+def p90(values) -> float:
+    return float(np.percentile(values, 90))
+
+
+def maxrss_kib() -> int:
+    """Peak resident set size of this process in KiB (``VmHWM``; ``ru_maxrss`` survives exec)."""
+    import resource
+
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1])
+    except OSError:
+        pass
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+
+
+def _isolated_entry(conn, target, args):
+    try:
+        conn.send(("ok", target(*args)))
+    except BaseException as exc:  # report, never hang the parent
+        import traceback
+
+        conn.send(("error", f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}"))
+    finally:
+        conn.close()
+
+
+def run_isolated(target, *args):
+    """Run ``target(*args)`` in a fresh spawned process and return its result (a picklable dict)."""
+    import multiprocessing as mp
+
+    ctx = mp.get_context("spawn")
+    parent, child = ctx.Pipe(duplex=False)
+    proc = ctx.Process(target=_isolated_entry, args=(child, target, args))
+    proc.start()
+    child.close()
+    try:
+        status, value = parent.recv()
+    except EOFError:
+        proc.join()
+        status, value = "error", f"process died (exit code {proc.exitcode})"
+    proc.join()
+    if status != "ok":
+        raise RuntimeError(value)
+    return value
+
+
+def load_line() -> str:
+    one, five, _ = os.getloadavg()
+    return f"load average {one:.2f} (1 min), {five:.2f} (5 min) on {os.cpu_count()} cores"
+
+
+def sync(device) -> None:
+    import torch
+
+    if torch.device(device).type == "cuda":
+        torch.cuda.synchronize(device)
+
+
+# --------------------------------------------------------------------------------------------
+# data
+# --------------------------------------------------------------------------------------------
+
+
+def prepared_chairs(count: int, seed: int = 0) -> list:
+    """``count`` procedural chairs, prepared at 32^3 (PreparedShape list)."""
+    from primkit import data, io, synthetic
+
+    return [
+        data.prepare(io.Mesh(s.vertices, s.faces), name=f"chair_{i:02d}")
+        for i, s in enumerate(synthetic.generate("chair", count, seed=seed))
+    ]
+
+
+# --------------------------------------------------------------------------------------------
+# losses: ours (shape_losses) and the per-cuboid loop
+# --------------------------------------------------------------------------------------------
+
+
+def loop_losses(prediction, present, points, closest, samples_per_cuboid: int = SAMPLES_PER_CUBOID, generator=None):
+    """The loss terms of :func:`primkit.losses.shape_losses`, one cuboid at a time.
+
+    Coverage keeps a running minimum over cuboids of each point's squared distance; consistency
+    adds one area-weighted mean per cuboid. The surface coefficients are drawn in one call with
+    the same shape as ``sample_surface_torch`` draws them, so with equally seeded generators the
+    two give the same numbers.
+    """
+    import torch
+
+    from primkit.distance_field import lookup_distance_sq
+    from primkit.losses import _ABSENT, ShapeLosses
+    from primkit.primitives import _sample_surface_from_uv_torch, cuboid_distance_sq_torch
+
+    z, q, t = prediction.half_extents, prediction.quaternions, prediction.translations
+    batch, m = present.shape
+    k = samples_per_cuboid
+    device = z.device if generator is None else generator.device
+    uv = (2.0 * torch.rand((batch, m, k, 2), generator=generator, device=device, dtype=z.dtype) - 1.0).to(z.device)
+    best = None
+    consistency = torch.zeros(batch, dtype=z.dtype, device=z.device)
+    for j in range(m):
+        zj, qj, tj = z[:, j : j + 1], q[:, j : j + 1], t[:, j : j + 1]
+        d2 = cuboid_distance_sq_torch(points, zj, qj, tj)[..., 0] + (1.0 - present[:, j, None]) * _ABSENT  # (B, n)
+        best = d2 if best is None else torch.minimum(best, d2)
+        samples, w = _sample_surface_from_uv_torch(zj, qj, tj, uv[:, j : j + 1])  # (B, 1, k, 3), (B, 1, k)
+        ds = lookup_distance_sq(closest, samples[:, 0])  # (B, k)
+        part = (ds * w[:, 0]).sum(-1) / w[:, 0].sum(-1).clamp_min(1e-12)
+        consistency = consistency + part * present[:, j]
+    coverage = best.mean(dim=1)
+    return ShapeLosses(coverage, consistency, torch.zeros_like(coverage), coverage + consistency)
+
+
+def ours_losses(prediction, present, points, closest, generator=None):
+    from primkit.losses import shape_losses
+
+    return shape_losses(prediction, present, points, closest, samples_per_cuboid=SAMPLES_PER_CUBOID, generator=generator)
+
+
+LOSSES = {"vectorised": ours_losses, "loop": loop_losses}
+
+
+# --------------------------------------------------------------------------------------------
+# 1-2. training iterations
+# --------------------------------------------------------------------------------------------
+
+
+class Trainer:
+    """One training iteration as primkit.training.train runs it (without logging/checkpoints)."""
+
+    def __init__(self, shapes, encoder: str, device: str, loss: str = "vectorised", seed: int = 0):
+        import torch
+
+        from primkit.losses import MovingBaseline
+        from primkit.network import AbstractionNet, NetworkConfig
+        from primkit.training import ShapeTensors
+
+        torch.set_flush_denormal(True)  # as training does
+        torch.manual_seed(seed)
+        self.device = device
+        self.tensors = shapes if isinstance(shapes, ShapeTensors) else ShapeTensors(shapes)
+        width = 100 if encoder == "paper" else 64
+        self.net = AbstractionNet(NetworkConfig(parts=PARTS, grid=self.tensors.resolution, encoder=encoder, fc_width=width)).to(device)
+        self.optimizer = torch.optim.Adam(self.net.parameters(), lr=1e-3)
+        self.generator = torch.Generator().manual_seed(seed)
+        self.baseline = MovingBaseline(0.9)
+        self.loss_fn = LOSSES[loss]
+
+    def step(self, stage2: bool) -> dict:
+        """One iteration; returns the seconds spent in each phase."""
+        import torch
+
+        from primkit.losses import reinforce_surrogate
+
+        dev = self.device
+        t0 = time.perf_counter()
+        index = torch.randint(0, len(self.tensors), (BATCH,), generator=self.generator)
+        occ, closest, pts = self.tensors.batch(index, POINTS, self.generator, dev)
+        sync(dev)
+        t1 = time.perf_counter()
+        self.net.train()
+        pred = self.net(occ)
+        if stage2:
+            u = torch.rand(pred.existence.shape, generator=self.generator).to(dev)
+            present = (u < pred.existence.detach()).to(pred.existence.dtype)
+        else:
+            present = torch.ones_like(pred.existence)
+        sync(dev)
+        t2 = time.perf_counter()
+        losses = self.loss_fn(pred, present, pts, closest)
+        loss = losses.total.mean()
+        if stage2:
+            mean_loss = float(loss.detach())
+            b = self.baseline.value if self.baseline.value is not None else mean_loss
+            loss = loss + reinforce_surrogate(pred.existence_logits, present, losses.total, b, 8e-5)
+            self.baseline.update(mean_loss)
+        else:
+            loss = loss + 0.0 * pred.existence_logits.sum()
+        sync(dev)
+        t3 = time.perf_counter()
+        self.optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        sync(dev)
+        t4 = time.perf_counter()
+        self.optimizer.step()
+        sync(dev)
+        t5 = time.perf_counter()
+        return {"batch": t1 - t0, "forward": t2 - t1, "loss": t3 - t2, "backward": t4 - t3, "adam": t5 - t4, "step": t5 - t0}
+
+
+def time_steps(trainer: Trainer, stage2: bool, iterations: int, warmup: int) -> dict:
+    for _ in range(warmup):
+        trainer.step(stage2)
+    records = [trainer.step(stage2) for _ in range(iterations)]
+    return {k: [r[k] for r in records] for k in records[0]}
+
+
+def check_loop_agrees(shapes, device: str) -> tuple[float, float]:
+    """Largest relative difference between the loop and shape_losses (coverage, consistency)."""
+    import torch
+
+    tr = Trainer(shapes, "paper", device)
+    index = torch.arange(min(BATCH, len(tr.tensors)))
+    occ, closest, pts = tr.tensors.batch(index, POINTS, tr.generator, device)
+    with torch.no_grad():
+        pred = tr.net(occ)
+    present = (torch.rand(pred.existence.shape, generator=torch.Generator().manual_seed(1)) < 0.7).to(pred.existence.dtype).to(device)
+    gen_kind = torch.device(device).type
+    a = ours_losses(pred, present, pts, closest, generator=torch.Generator(device=gen_kind).manual_seed(5))
+    b = loop_losses(pred, present, pts, closest, generator=torch.Generator(device=gen_kind).manual_seed(5))
+
+    def rel(x, y):
+        return float(((x - y).abs() / y.abs().clamp_min(1e-12)).max())
+
+    return rel(b.coverage, a.coverage), rel(b.consistency, a.consistency)
+
+
+def time_loss_alone(shapes, device: str, loss: str, iterations: int, warmup: int) -> dict:
+    """Loss forward, and forward + backward to the cuboid parameters, on one fixed batch."""
+    import torch
+
+    tr = Trainer(shapes, "paper", device)
+    index = torch.randint(0, len(tr.tensors), (BATCH,), generator=tr.generator)
+    occ, closest, pts = tr.tensors.batch(index, POINTS, tr.generator, device)
+    with torch.no_grad():
+        pred = tr.net(occ)
+    leaves = [pred.half_extents, pred.quaternions, pred.translations]
+    pred.half_extents, pred.quaternions, pred.translations = (x.clone().requires_grad_(True) for x in leaves)
+    present = torch.ones_like(pred.existence)
+    fn = LOSSES[loss]
+    fwd, both = [], []
+    for i in range(warmup + iterations):
+        sync(device)
+        t0 = time.perf_counter()
+        total = fn(pred, present, pts, closest).total.mean()
+        sync(device)
+        t1 = time.perf_counter()
+        total.backward()
+        sync(device)
+        t2 = time.perf_counter()
+        if i >= warmup:
+            fwd.append(t1 - t0)
+            both.append(t2 - t0)
+    return {"forward": fwd, "both": both}
+
+
+def bench_training(shapes, device: str, iterations: int, warmup: int) -> None:
+    ms = lambda s: f"{1000.0 * s:.1f}"  # noqa: E731
+    import torch
+
+    threads = torch.get_num_threads()
+    variants = [
+        ("paper encoder, shape_losses", "paper", "vectorised", threads),
+        ("released encoder, shape_losses", "released", "vectorised", threads),
+        ("paper encoder, per-cuboid loop", "paper", "loop", threads),
+    ]
+    if device == "cpu" and threads > 1:
+        # on a small shared machine, OpenMP threads competing with other processes can cost more than they give
+        variants.append(("paper encoder, shape_losses, 1 thread", "paper", "vectorised", 1))
+    rows, projections = [], []
+    for label, encoder, loss, n_threads in variants:
+        trainer = Trainer(shapes, encoder, device, loss)
+        per_stage = {}
+        for stage2 in (False, True):
+            torch.set_num_threads(n_threads)
+            try:
+                r = time_steps(trainer, stage2, iterations, warmup)
+            finally:
+                torch.set_num_threads(threads)
+            per_stage[stage2] = med(r["step"])
+            rows.append([
+                f"{label}, stage {2 if stage2 else 1}", ms(med(r["step"])), ms(p90(r["step"])), f"{1.0 / med(r['step']):.1f}",
+                ms(med(r["batch"])), ms(med(r["forward"])), ms(med(r["loss"])), ms(med(r["backward"])), ms(med(r["adam"])),
+            ])
+        hours = (STAGE1 * per_stage[False] + STAGE2 * per_stage[True]) / 3600.0
+        projections.append([label, f"{hours * 60:.0f} min ({hours:.2f} h)", "yes" if hours < 1 else "no"])
+    table(
+        f"1. training iteration on {device} (batch {BATCH}, {PARTS} parts, {POINTS} points, {SAMPLES_PER_CUBOID} samples/cuboid; ms)",
+        ["variant", "median", "p90", "it/s", "batch", "forward", "loss", "backward", "adam"],
+        rows,
+        f"{iterations} timed iterations per row after {warmup} warm-up; torch threads {threads} unless the row says otherwise;\n"
+        "phase columns are medians of each phase "
+        "(backward includes the loss's backward, which is where the loop alternative pays most).",
+    )
+    table(
+        f"1b. projected time for the paper's {STAGE1:,} + {STAGE2:,} iterations on {device}",
+        ["variant", "projected", "under an hour"],
+        projections,
+    )
+
+    cov, cons = check_loop_agrees(shapes, device)
+    rows = []
+    for n_threads in [threads] + ([1] if device == "cpu" and threads > 1 else []):
+        for loss in ("vectorised", "loop"):
+            torch.set_num_threads(n_threads)
+            try:
+                r = time_loss_alone(shapes, device, loss, iterations, warmup)
+            finally:
+                torch.set_num_threads(threads)
+            label = "primkit.losses.shape_losses" if loss == "vectorised" else "per-cuboid Python loop"
+            if device == "cpu":
+                label += f", {n_threads} thread{'s' if n_threads > 1 else ''}"
+            rows.append([label, ms(med(r["forward"])), ms(p90(r["forward"])), ms(med(r["both"])), ms(p90(r["both"]))])
+    table(
+        f"2. losses alone on {device} (one batch of {BATCH}, all {PARTS} parts present; ms)",
+        ["losses", "forward median", "forward p90", "fwd+bwd median", "fwd+bwd p90"],
+        rows,
+        f"agreement, same random surface coefficients: max relative difference coverage {cov:.1e}, consistency {cons:.1e}",
+    )
+
+
+def _memory_job(shapes, encoder: str, loss: str, device: str, iterations: int) -> dict:
+    """Runs in a fresh process: build everything, then train ``iterations`` steps (stage 2)."""
+    import torch
+
+    trainer = Trainer(shapes, encoder, device, loss)
+    base = maxrss_kib()
+    if device.startswith("cuda"):
+        torch.cuda.reset_peak_memory_stats()
+    for i in range(iterations):
+        trainer.step(stage2=i % 2 == 1)
+    out = {"base": base, "peak": maxrss_kib(), "threads": torch.get_num_threads()}
+    if device.startswith("cuda"):
+        out["cuda_peak"] = torch.cuda.max_memory_allocated()
+    return out
+
+
+def bench_training_memory(shapes, device: str, iterations: int) -> None:
+    rows = []
+    for label, encoder, loss in (("paper encoder, shape_losses", "paper", "vectorised"),
+                                 ("released encoder, shape_losses", "released", "vectorised"),
+                                 ("paper encoder, per-cuboid loop", "paper", "loop")):
+        r = run_isolated(_memory_job, shapes, encoder, loss, device, iterations)
+        row = [label, f"{r['base'] / 1024:.0f}", f"{r['peak'] / 1024:.0f}", f"{(r['peak'] - r['base']) / 1024:.0f}"]
+        if "cuda_peak" in r:
+            row.append(f"{r['cuda_peak'] / 2**20:.0f}")
+        rows.append(row)
+    headers = ["variant", "RSS before training MiB", "peak RSS MiB", "increase MiB"]
+    if device.startswith("cuda"):
+        headers.append("CUDA peak allocated MiB")
+    table(
+        f"3. peak memory of training on {device} ({iterations} iterations, stages 1 and 2 alternating), fresh spawned process per variant",
+        headers,
+        rows,
+        "'before training': after imports, data ({} prepared shapes as tensors), network and optimizer.".format(len(shapes)),
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# 4. inference
+# --------------------------------------------------------------------------------------------
+
+
+def make_abstractor(device: str):
+    from primkit.abstractor import Abstractor
+    from primkit.network import AbstractionNet, NetworkConfig
+
+    import torch
+
+    torch.manual_seed(0)
+    config = NetworkConfig(parts=PARTS, grid=32, encoder="paper", fc_width=100)
+    return Abstractor(AbstractionNet(config), {"network": config.to_dict()}, device=device)
+
+
+def best_time(repeats: int, fn) -> float:
+    best = np.inf
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def bench_inference(shapes, device: str, count: int, files: int, repeats: int) -> None:
+    from primkit import abstractor as abstractor_mod
+    from primkit import synthetic
+
+    ab = make_abstractor(device)
+    many = [shapes[i % len(shapes)] for i in range(count)]
+    occupancy = np.stack([s.occupancy for s in many])
+    ab.predict(many[:2])  # warm-up
+
+    def one_by_one(**kw):
+        for s in many:
+            ab.predict([s], **kw)
+
+    cases = [
+        ("network only (predict_canonical, batches of 64)", lambda: ab.predict_canonical(occupancy)),
+        ("predict, batched, no pruning", lambda: ab.predict(many, prune_threshold=None)),
+        ("predict, batched, with pruning (default)", lambda: ab.predict(many)),
+        ("predict, one shape at a time, no pruning", lambda: one_by_one(prune_threshold=None)),
+        ("predict, one shape at a time, with pruning", lambda: one_by_one()),
+    ]
+    rows = []
+    for label, fn in cases:
+        t = best_time(repeats, fn)
+        rows.append([label, f"{count / t:.0f}", f"{1000.0 * t / count:.2f}"])
+    kept = np.mean([r.canonical.existence.sum() for r in ab.predict(many)])
+    table(
+        f"4. inference from prepared 32^3 grids on {device} ({count} shapes, random network)",
+        ["method", "shapes/s", "ms/shape"],
+        rows,
+        f"fastest of {repeats} passes. A random network predicts {PARTS} small overlapping parts, all present;\n"
+        f"pruning keeps {kept:.1f} of them on average (a trained model prunes fewer candidates).",
+    )
+
+    with tempfile.TemporaryDirectory(prefix="primkit-bench-files-") as tmp:
+        paths = synthetic.write_collection(Path(tmp) / "meshes", "chair", files, seed=3)
+        rows = []
+        for label, workers in (("abstract_files, workers=1 (prepare + predict)", 1), ("abstract_files, workers=2", 2)):
+            times = []
+            for r in range(repeats):
+                cache = Path(tmp) / f"cache-{workers}-{r}"  # empty cache every time
+                t0 = time.perf_counter()
+                results, errors = ab.abstract_files(paths, cache_dir=cache, workers=workers, progress=False)
+                times.append(time.perf_counter() - t0)
+                assert len(results) == files and not errors
+            rows.append([label, f"{files / min(times):.1f}", f"{1000.0 * min(times) / files:.0f}"])
+        t = best_time(repeats, lambda: [abstractor_mod.abstract(p, ab) for p in paths])
+        rows.append(["abstract(path), one file at a time (no cache)", f"{files / t:.1f}", f"{1000.0 * t / files:.0f}"])
+    table(
+        f"4b. inference from mesh files on {device} ({files} procedural chairs, PLY, empty cache)",
+        ["method", "shapes/s", "ms/shape"],
+        rows,
+        "abstract_files prepares through the on-disk cache (hashing + writing .npz) and spawns its worker pool per call.",
+    )
+
+
+# --------------------------------------------------------------------------------------------
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--quick", action="store_true", help="few iterations and shapes (smoke test)")
+    parser.add_argument("--iterations", type=int, default=None, help="timed iterations per variant (default 30; quick 5)")
+    parser.add_argument("--device", choices=("auto", "cpu", "cuda", "all"), default="auto",
+                        help="auto: cpu, and cuda too when available")
+    parser.add_argument("--shapes", type=int, default=16, help="prepared procedural chairs to draw batches from")
+    args = parser.parse_args(argv)
+    quick = args.quick
+    iterations = args.iterations or (5 if quick else 30)
+    warmup = 1 if quick else 3
+    repeats = 1 if quick else 3
+
+    import torch
+
+    import primkit
+
+    cuda = torch.cuda.is_available()
+    if args.device == "cpu":
+        devices = ["cpu"]
+    elif args.device == "cuda":
+        if not cuda:
+            print("CUDA is not available", file=sys.stderr)
+            return 2
+        devices = ["cuda"]
+    else:
+        devices = ["cpu"] + (["cuda"] if cuda else [])
+
+    print(f"# bench_abstractor: primkit {primkit.__version__}, torch {torch.__version__}, Python {platform.python_version()}, "
+          f"{'quick' if quick else 'full'} run")
+    print(f"# CPU: {platform.machine()}, {os.cpu_count()} cores, torch threads {torch.get_num_threads()}; {load_line()} at start")
+    if cuda:
+        print(f"# CUDA: {torch.cuda.get_device_name(0)}")
+    t_start = time.perf_counter()
+    shapes, t_prep = (lambda t0: (prepared_chairs(args.shapes), time.perf_counter() - t0))(time.perf_counter())
+    print(f"# data: {len(shapes)} procedural chairs prepared in {t_prep:.1f} s")
+
+    for device in devices:
+        bench_training(shapes, device, iterations, warmup)
+        bench_training_memory(shapes, device, max(4, iterations // 3))
+        bench_inference(shapes, device, count=16 if quick else 64, files=4 if quick else 8, repeats=repeats)
+    print(f"\n# {load_line()} at end; benchmark took {time.perf_counter() - t_start:.0f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
