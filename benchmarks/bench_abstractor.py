@@ -35,6 +35,9 @@ from pathlib import Path
 
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import load_line, maxrss_kib, run_isolated, table  # noqa: E402
+
 BATCH = 32
 PARTS = 20
 POINTS = 1000
@@ -47,78 +50,12 @@ STAGE1, STAGE2 = 20000, 30000  # the paper's schedule (TrainConfig defaults)
 # --------------------------------------------------------------------------------------------
 
 
-def table(title: str, headers: list[str], rows: list[list], note: str | None = None) -> None:
-    """Print a plain fixed-width table (first column left-aligned, the others right-aligned)."""
-    cells = [[str(c) for c in row] for row in rows]
-    widths = [max(len(h), *(len(r[i]) for r in cells)) if cells else len(h) for i, h in enumerate(headers)]
-
-    def line(values):
-        return "  ".join(v.ljust(w) if i == 0 else v.rjust(w) for i, (v, w) in enumerate(zip(values, widths)))
-
-    print(f"\n## {title}")
-    print(line(headers))
-    print("  ".join("-" * w for w in widths))
-    for r in cells:
-        print(line(r))
-    if note:
-        print(note)
-
-
 def med(values) -> float:
     return float(np.median(values))
 
 
 def p90(values) -> float:
     return float(np.percentile(values, 90))
-
-
-def maxrss_kib() -> int:
-    """Peak resident set size of this process in KiB (``VmHWM``; ``ru_maxrss`` survives exec)."""
-    import resource
-
-    try:
-        for line in Path("/proc/self/status").read_text().splitlines():
-            if line.startswith("VmHWM:"):
-                return int(line.split()[1])
-    except OSError:
-        pass
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-
-
-def _isolated_entry(conn, target, args):
-    try:
-        conn.send(("ok", target(*args)))
-    except BaseException as exc:  # report, never hang the parent
-        import traceback
-
-        conn.send(("error", f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}"))
-    finally:
-        conn.close()
-
-
-def run_isolated(target, *args):
-    """Run ``target(*args)`` in a fresh spawned process and return its result (a picklable dict)."""
-    import multiprocessing as mp
-
-    ctx = mp.get_context("spawn")
-    parent, child = ctx.Pipe(duplex=False)
-    proc = ctx.Process(target=_isolated_entry, args=(child, target, args))
-    proc.start()
-    child.close()
-    try:
-        status, value = parent.recv()
-    except EOFError:
-        proc.join()
-        status, value = "error", f"process died (exit code {proc.exitcode})"
-    proc.join()
-    if status != "ok":
-        raise RuntimeError(value)
-    return value
-
-
-def load_line() -> str:
-    one, five, _ = os.getloadavg()
-    return f"load average {one:.2f} (1 min), {five:.2f} (5 min) on {os.cpu_count()} cores"
 
 
 def sync(device) -> None:

@@ -175,6 +175,31 @@ def _rotate_voxels(occupancy: np.ndarray, rotation: np.ndarray) -> np.ndarray:
     return out
 
 
+def _from_surface(vertices, faces, solid, surface, settings, frame, *, face_labels=None, name, source, kind) -> PreparedShape:
+    """The part of preparation shared by meshes and voxel grids: distances, samples, labels."""
+    dist = geometry.distance_grid(vertices, faces, settings.resolution)
+    samples = geometry.sample_surface(vertices, faces, settings.samples, seed=settings.seed)
+    if face_labels is not None:
+        face_labels = np.asarray(face_labels)
+        if len(face_labels) != len(faces):
+            raise ValueError(f"{len(face_labels)} labels for {len(faces)} faces")
+        labels = face_labels[samples.face_index].astype(np.int32)
+    else:
+        labels = np.full(len(samples.points), -1, np.int32)
+    return PreparedShape(
+        name=name,
+        occupancy=solid | surface,
+        solid=solid,
+        closest=dist.closest,
+        points=samples.points.astype(np.float32),
+        point_faces=samples.face_index.astype(np.int32),
+        point_labels=labels,
+        frame=frame,
+        source=source,
+        kind=kind,
+    )
+
+
 def _prepare_voxels(grid: io.VoxelGrid, settings: PrepareSettings, name: str, source: str) -> PreparedShape:
     occ = np.asarray(grid.occupancy, bool)
     res_in = occ.shape[0]
@@ -209,20 +234,7 @@ def _prepare_voxels(grid: io.VoxelGrid, settings: PrepareSettings, name: str, so
         solid = geometry.occupancy_grid(vertices, faces, res)
     surface = geometry.surface_voxels(vertices, faces, res) & solid
     # cells of a voxel grid touched by the boundary include empty neighbours; keep occupied ones
-    samples = geometry.sample_surface(vertices, faces, settings.samples, seed=settings.seed)
-    dist = geometry.distance_grid(vertices, faces, res)
-    return PreparedShape(
-        name=name,
-        occupancy=solid | surface,
-        solid=solid,
-        closest=dist.closest,
-        points=samples.points.astype(np.float32),
-        point_faces=samples.face_index.astype(np.int32),
-        point_labels=np.full(len(samples.points), -1, np.int32),
-        frame=frame,
-        source=source,
-        kind="voxels",
-    )
+    return _from_surface(vertices, faces, solid, surface, settings, frame, name=name, source=source, kind="voxels")
 
 
 def _prepare_points(cloud: io.PointCloud, settings: PrepareSettings, name: str, source: str) -> PreparedShape:
@@ -292,27 +304,8 @@ def prepare(
     res = settings.resolution
     surface = geometry.surface_voxels(vertices, faces, res)
     solid = geometry.occupancy_grid(vertices, faces, res)
-    dist = geometry.distance_grid(vertices, faces, res)
-    samples = geometry.sample_surface(vertices, faces, settings.samples, seed=settings.seed)
-    if face_labels is not None:
-        face_labels = np.asarray(face_labels)
-        if len(face_labels) != len(faces):
-            raise ValueError(f"{len(face_labels)} labels for {len(faces)} faces")
-        labels = face_labels[samples.face_index].astype(np.int32)
-    else:
-        labels = np.full(len(samples.points), -1, np.int32)
-    return PreparedShape(
-        name=name,
-        occupancy=solid | surface,
-        solid=solid,
-        closest=dist.closest,
-        points=samples.points.astype(np.float32),
-        point_faces=samples.face_index.astype(np.int32),
-        point_labels=labels,
-        frame=frame,
-        source=source,
-        kind="mesh",
-    )
+    return _from_surface(vertices, faces, solid, surface, settings, frame, face_labels=face_labels,
+                         name=name, source=source, kind="mesh")
 
 
 def _labels_path(path: Path) -> Path | None:

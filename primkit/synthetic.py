@@ -33,14 +33,14 @@ import functools
 import json
 import math
 import operator
-import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import manifold3d
 import numpy as np
 import trimesh
+
+from .io import atomic_output
 
 __all__ = [
     "CATEGORIES",
@@ -841,16 +841,9 @@ def generate(category: str, count: int, seed: int = 0) -> list[LabelledShape]:
 
 
 def _write_atomic(path: Path, data: bytes) -> None:
-    """Write ``data`` to a temporary file beside ``path``, then rename it into place."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as handle:
-            handle.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    """Write ``data`` through :func:`primkit.io.atomic_output` (existence was checked by the caller)."""
+    with atomic_output(path, overwrite=True) as tmp:
+        Path(tmp).write_bytes(data)
 
 
 def write_collection(

@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from . import __version__, io, modelfile
+from . import io, modelfile
 from .losses import LossWeights, MovingBaseline, reinforce_surrogate, shape_losses
 from .network import AbstractionNet, NetworkConfig
 

@@ -1,0 +1,79 @@
+"""Helpers shared by the benchmark scripts: tables, peak memory, fresh processes, machine load."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+
+def table(title: str, headers: list[str], rows: list[list], note: str | None = None) -> None:
+    """Print a plain fixed-width table (first column left-aligned, the others right-aligned)."""
+    cells = [[str(c) for c in row] for row in rows]
+    widths = [max(len(h), *(len(r[i]) for r in cells)) if cells else len(h) for i, h in enumerate(headers)]
+
+    def line(values):
+        return "  ".join(v.ljust(w) if i == 0 else v.rjust(w) for i, (v, w) in enumerate(zip(values, widths)))
+
+    print(f"\n## {title}")
+    print(line(headers))
+    print("  ".join("-" * w for w in widths))
+    for r in cells:
+        print(line(r))
+    if note:
+        print(note)
+
+
+def maxrss_kib(children: bool = False) -> int:
+    """Peak resident set size in KiB: of this process, or of its largest waited-for child.
+
+    For this process it is ``VmHWM`` of ``/proc/self/status`` where available: ``ru_maxrss``
+    survives ``exec``, so a spawned process would report its parent's peak. Forked children
+    (``children=True``, from ``ru_maxrss`` of ``RUSAGE_CHILDREN``) start from the RSS they share
+    with their parent at fork time.
+    """
+    import resource
+
+    if children:
+        return resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1])
+    except OSError:
+        pass
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+
+
+def _isolated_entry(conn, target, args):
+    try:
+        conn.send(("ok", target(*args)))
+    except BaseException as exc:  # report, never hang the parent
+        import traceback
+
+        conn.send(("error", f"{type(exc).__name__}: {exc}\n{traceback.format_exc()}"))
+    finally:
+        conn.close()
+
+
+def run_isolated(target, *args):
+    """Run ``target(*args)`` in a fresh spawned process and return its result (a picklable dict)."""
+    import multiprocessing as mp
+
+    ctx = mp.get_context("spawn")
+    parent, child = ctx.Pipe(duplex=False)
+    proc = ctx.Process(target=_isolated_entry, args=(child, target, args))
+    proc.start()
+    child.close()
+    try:
+        status, value = parent.recv()
+    except EOFError:
+        status, value = "error", f"process died (exit code {proc.join() or proc.exitcode})"
+    proc.join()
+    if status != "ok":
+        raise RuntimeError(value)
+    return value
+
+
+def load_line() -> str:
+    one, five, _ = os.getloadavg()
+    return f"load average {one:.2f} (1 min), {five:.2f} (5 min) on {os.cpu_count()} cores"
