@@ -10,6 +10,16 @@ part with the largest fraction of its volume inside the other present parts exce
 renumbered: part ``k`` is slot ``k`` of the network on every shape, and absent parts stay in the
 output, marked absent.
 
+Options (both off by default, both in ``primkit abstract``):
+
+* ``align="auto"``: each shape is tried in the 24 axis-aligned orientations
+  (:mod:`primkit.orientation`) and the one whose predicted cuboids have the lowest coverage +
+  consistency loss (:func:`primkit.fitting.fit_losses`) is used; the result records it
+  (``alignment``) and the cuboids still come back in the input's frame.
+* ``refine=N``: ``N`` Adam steps on each shape's own losses, from the network's answer, with part
+  indices and existence kept (:func:`primkit.fitting.refine`); the result records the loss before
+  and after.
+
 Results come back in the input's own frame (the canonical frame used by the network is undone),
 and :meth:`AbstractionResult.save` writes a JSON file (schema-versioned, see
 :class:`primkit.primitives.Cuboids`) and a mesh of the present cuboids coloured by part index.
@@ -23,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import data, io, primitives
+from . import data, io, orientation, primitives
 
 __all__ = ["Abstractor", "AbstractionResult", "abstract", "part_colors"]
 
@@ -56,6 +66,8 @@ class AbstractionResult:
     canonical: primitives.Cuboids
     frame: object
     source: str = ""
+    alignment: dict | None = None
+    refinement: dict | None = None
 
     def to_dict(self) -> dict:
         d = self.cuboids.to_dict()
@@ -63,7 +75,17 @@ class AbstractionResult:
         d["source"] = self.source
         d["frame"] = "input"
         d["canonical_frame"] = self.frame.to_dict()
+        if self.alignment is not None:
+            d["alignment"] = self.alignment
+        if self.refinement is not None:
+            d["refinement"] = self.refinement
         return d
+
+    def canonical_shape(self, shape):
+        """The prepared ``shape`` in the frame of ``canonical`` (turned when ``align`` chose an orientation)."""
+        if self.alignment is None:
+            return shape
+        return orientation.rotate_prepared(shape, np.asarray(self.alignment["rotation"], float))
 
     def save(self, folder, *, overwrite: bool = False, mesh_format: str = ".ply") -> tuple[Path, Path]:
         """Write ``<name>.cuboids.json`` and ``<name>.cuboids<mesh_format>`` into ``folder``."""
@@ -100,10 +122,11 @@ class Abstractor:
 
     @classmethod
     def load(cls, path, device: str | None = None) -> "Abstractor":
-        """Load a model file written by ``primkit train``."""
+        """Load a model file written by ``primkit train``, or a bundled model by name (``"chair"``)."""
+        from .models import resolve_model
         from .training import load_network
 
-        net, meta = load_network(path)
+        net, meta = load_network(resolve_model(path))
         return cls(net, meta, device)
 
     @property
@@ -139,6 +162,34 @@ class Abstractor:
                     out[key].append(getattr(pred, key).double().cpu().numpy())
         return {k: np.concatenate(v) for k, v in out.items()}
 
+    def _cuboids(self, raw: dict, i: int, existence_threshold: float) -> primitives.Cuboids:
+        return primitives.Cuboids(
+            raw["half_extents"][i], raw["quaternions"][i], raw["translations"][i],
+            raw["existence"][i] > existence_threshold, probabilities=raw["existence"][i],
+        )
+
+    def align(self, shape, existence_threshold: float = 0.5):
+        """The shape turned into the axis-aligned orientation the model explains best.
+
+        Returns ``(turned shape, report)``; the report gives the chosen rotation of the shape's
+        canonical frame, the input axes it takes as up and front, and the losses of the identity
+        and of the best orientation.
+        """
+        from .fitting import fit_losses
+
+        turned = [orientation.rotate_prepared(shape, a) for a in orientation.AXIS_ROTATIONS]
+        raw = self.predict_canonical(np.stack([t.occupancy for t in turned]))
+        cubs = [self._cuboids(raw, i, existence_threshold) for i in range(len(turned))]
+        losses = fit_losses(cubs, turned)["total"]
+        best = int(np.argmin(losses))
+        report = {
+            "rotation": orientation.AXIS_ROTATIONS[best].tolist(),
+            **orientation.describe_rotation(turned[best].frame.rotation),
+            "loss": float(losses[best]),
+            "loss_as_given": float(losses[0]),
+        }
+        return turned[best], report
+
     def predict(
         self,
         shapes,
@@ -146,6 +197,8 @@ class Abstractor:
         prune_threshold: float | None = 0.6,
         batch_size: int = 64,
         seed: int = 0,
+        align: str | None = None,
+        refine: int = 0,
     ) -> list[AbstractionResult]:
         """Abstract prepared shapes (:class:`primkit.data.PreparedShape`), in batches.
 
@@ -155,24 +208,46 @@ class Abstractor:
             Parts with probability above it exist.
         prune_threshold : float or None
             Drop parts whose volume is more than this fraction inside the other parts; None keeps all.
+        align : None or "auto"
+            ``"auto"`` tries the 24 axis-aligned orientations per shape and keeps the best.
+        refine : int
+            Gradient steps per shape on its own losses after the network (0: none).
         """
         shapes = list(shapes)
         if not shapes:
             return []
+        if align not in (None, "none", "auto"):
+            raise ValueError(f"align must be None or 'auto', got {align!r}")
         for s in shapes:
             if s.resolution != self.resolution:
                 raise ValueError(f"{s.name}: prepared at {s.resolution}^3 but the model reads {self.resolution}^3")
+        alignments = [None] * len(shapes)
+        if align == "auto":
+            for i, s in enumerate(shapes):
+                shapes[i], alignments[i] = self.align(s, existence_threshold)
         raw = self.predict_canonical(np.stack([s.occupancy for s in shapes]), batch_size)
-        results = []
-        for i, s in enumerate(shapes):
-            cub = primitives.Cuboids(
-                raw["half_extents"][i], raw["quaternions"][i], raw["translations"][i],
-                raw["existence"][i] > existence_threshold, probabilities=raw["existence"][i],
-            )
+        cubs = []
+        for i in range(len(shapes)):
+            cub = self._cuboids(raw, i, existence_threshold)
             if prune_threshold is not None and cub.existence.sum() > 1:
                 cub = primitives.prune_covered(cub, prune_threshold, seed=seed)
+            cubs.append(cub)
+        refinements = [None] * len(shapes)
+        if refine:
+            from .fitting import refine as refine_cuboids
+
+            refined = []
+            for i in range(0, len(shapes), batch_size):
+                part, losses = refine_cuboids(cubs[i : i + batch_size], shapes[i : i + batch_size], refine, seed=seed)
+                refined.extend(part)
+                for j in range(len(part)):
+                    refinements[i + j] = {"steps": int(refine), "loss_before": float(losses["before"][j]),
+                                          "loss_after": float(losses["after"][j])}
+            cubs = refined
+        results = []
+        for s, cub, al, rf in zip(shapes, cubs, alignments, refinements):
             back = np.linalg.inv(s.frame.matrix)
-            results.append(AbstractionResult(s.name, cub.transformed(back), cub, s.frame, s.source))
+            results.append(AbstractionResult(s.name, cub.transformed(back), cub, s.frame, s.source, al, rf))
         return results
 
     def abstract_files(self, paths, *, cache_dir=None, workers=None, progress=True, **kwargs):

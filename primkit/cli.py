@@ -46,7 +46,7 @@ def _cmd_generate(args) -> int:
 def _settings(args):
     from .data import PrepareSettings
 
-    return PrepareSettings(resolution=args.resolution, samples=args.samples, up=args.up, front=args.front)
+    return PrepareSettings(resolution=args.resolution, samples=args.samples, up=args.up or "+y", front=args.front or "+x")
 
 
 def _cmd_prepare(args) -> int:
@@ -58,31 +58,59 @@ def _cmd_prepare(args) -> int:
 
 
 def _cmd_train(args) -> int:
-    from .data import prepare_collection
+    from dataclasses import replace
+
+    from .data import PrepareSettings, prepare_collection, split_files
     from .training import ShapeTensors, TrainConfig, train
 
     out = Path(args.output)
     if out.exists() and not args.force:
         _err(f"{out}: exists (use --force to overwrite)")
         return 2
-    coll = prepare_collection(_collect(args.inputs), _settings(args), cache_dir=args.cache, workers=args.workers)
+    preset = None
+    config = TrainConfig()
+    hold_out = 0
+    up, front = "+y", "+x"
+    if args.preset:
+        from .presets import get_preset
+
+        preset = get_preset(args.preset)
+        config, hold_out = preset.config, preset.hold_out_every
+        up, front = preset.prepare.get("up", up), preset.prepare.get("front", front)
+    explicit = {k: getattr(args, k) for k in ("parts", "batch_size", "encoder", "seed") if getattr(args, k) is not None}
+    if args.lr is not None:
+        explicit["learning_rate"] = args.lr
+    if args.symmetry is not None:
+        explicit["symmetry_weight"] = args.symmetry
+    config = replace(config, **explicit)
+    if args.hold_out is not None:
+        hold_out = args.hold_out
+    files, held = split_files(_collect(args.inputs), hold_out)
+    settings = PrepareSettings(resolution=args.resolution, samples=args.samples, up=args.up or up, front=args.front or front)
+    coll = prepare_collection(files, settings, cache_dir=args.cache, workers=args.workers)
     status = _report_errors(coll.errors)
     if len(coll) == 0:
         _err("no usable shapes to train on")
         return 2
     shapes = ShapeTensors(coll)
-    config = TrainConfig(parts=args.parts, batch_size=args.batch_size, encoder=args.encoder,
-                         symmetry_weight=args.symmetry, seed=args.seed, learning_rate=args.lr)
     if args.stage1 is not None or args.stage2 is not None:
-        from dataclasses import replace
-
         config = replace(config, stage1_iterations=args.stage1 if args.stage1 is not None else config.stage1_iterations,
                          stage2_iterations=args.stage2 if args.stage2 is not None else config.stage2_iterations)
-    elif not args.full_schedule:
+    elif args.full_schedule:
+        config = replace(config, stage1_iterations=TrainConfig.stage1_iterations, stage2_iterations=TrainConfig.stage2_iterations)
+    elif preset is None:
         config = config.scaled_for(len(shapes))
-    print(f"training on {len(shapes)} shapes: {config.stage1_iterations} + {config.stage2_iterations} iterations, "
-          f"{config.parts} parts, batch {config.batch_size}", file=sys.stderr)
-    description = {"inputs": [str(p) for p in args.inputs], "terms": args.data_terms or "not stated"}
+    print(f"training on {len(shapes)} shapes ({len(held)} held out): {config.stage1_iterations} + {config.stage2_iterations} "
+          f"iterations, {config.parts} parts, batch {config.batch_size}", file=sys.stderr)
+    description = {
+        "inputs": [str(p) for p in args.inputs],
+        "terms": args.data_terms or (preset.terms if preset else "not stated"),
+        "hold_out_every": hold_out,
+        "held_out": len(held),
+        "prepare": {"up": settings.up, "front": settings.front},
+    }
+    if preset is not None:
+        description["preset"] = preset.to_dict()
     result = train(shapes, out, config, device=args.device, resume=args.resume, description=description, overwrite=args.force)
     if result.interrupted:
         return 130
@@ -94,13 +122,18 @@ def _cmd_train(args) -> int:
     return status
 
 
+def _align(args):
+    return None if args.align == "none" else args.align
+
+
 def _cmd_abstract(args) -> int:
     from .abstractor import Abstractor
 
     abstractor = Abstractor.load(args.model)
     results, errors = abstractor.abstract_files(_collect(args.inputs), cache_dir=args.cache, workers=args.workers,
                                                 existence_threshold=args.threshold,
-                                                prune_threshold=None if args.prune <= 0 else args.prune)
+                                                prune_threshold=None if args.prune <= 0 else args.prune,
+                                                align=_align(args), refine=args.refine)
     failed = list(errors)
     for r in results:
         try:
@@ -108,8 +141,25 @@ def _cmd_abstract(args) -> int:
         except FileExistsError as exc:
             failed.append(str(exc))
             continue
-        print(f"{r.name}: {int(r.cuboids.existence.sum())} parts -> {j}")
+        extra = ""
+        if r.alignment is not None:
+            extra += f"; oriented with up {r.alignment['up']}, front {r.alignment['front']}"
+        if r.refinement is not None:
+            extra += f"; refined: loss {r.refinement['loss_before']:.2e} -> {r.refinement['loss_after']:.2e}"
+        print(f"{r.name}: {int(r.cuboids.existence.sum())} parts{extra} -> {j}")
     return _report_errors(failed)
+
+
+def _split_inputs(files, abstractor, split: str) -> list:
+    from .data import split_files
+
+    if split == "all":
+        return files
+    every = int((abstractor.metadata.get("training") or {}).get("data", {}).get("hold_out_every") or 0)
+    if not every:
+        raise ValueError(f"--split {split}: the model records no held-out rule (it was trained without --hold-out)")
+    train_files, held = split_files(files, every)
+    return held if split == "held-out" else train_files
 
 
 def _cmd_eval(args) -> int:
@@ -118,11 +168,15 @@ def _cmd_eval(args) -> int:
     from .metrics import ChamferConvention, score, summarize
 
     abstractor = Abstractor.load(args.model)
-    coll = prepare_collection(_collect(args.inputs), abstractor.settings, cache_dir=args.cache, workers=args.workers)
+    files = _split_inputs(_collect(args.inputs), abstractor, args.split)
+    if args.limit:
+        files = files[: args.limit]
+    settings = replace_settings(abstractor.settings, args)
+    coll = prepare_collection(files, settings, cache_dir=args.cache, workers=args.workers)
     shapes = list(coll)
-    results = abstractor.predict(shapes)
+    results = abstractor.predict(shapes, align=_align(args), refine=args.refine)
     conv = ChamferConvention(power=args.chamfer_power)
-    scores = [score(r.canonical, s, conv) for r, s in zip(results, shapes)]
+    scores = [score(r.canonical, r.canonical_shape(s), conv) for r, s in zip(results, shapes)]
     summary = summarize(scores) if scores else {}
     print(f"metric convention: {conv.describe()}")
     for key in ("chamfer", "iou", "coverage", "consistency", "parts"):
@@ -134,14 +188,46 @@ def _cmd_eval(args) -> int:
         from .io import atomic_output
 
         with atomic_output(args.json, overwrite=args.force) as tmp:
-            Path(tmp).write_text(json.dumps({"summary": summary, "shapes": {r.name: s.to_dict() for r, s in zip(results, scores)}}, indent=1))
+            Path(tmp).write_text(json.dumps({"convention": conv.describe(), "summary": summary,
+                                             "shapes": {r.name: s.to_dict() for r, s in zip(results, scores)}}, indent=1))
     return _report_errors(coll.errors)
+
+
+def replace_settings(settings, args):
+    from dataclasses import replace
+
+    return replace(settings, up=args.up or settings.up, front=args.front or settings.front)
+
+
+def _cmd_models(args) -> int:
+    from .modelfile import read_metadata
+    from .models import bundled_models
+
+    models = bundled_models()
+    if not models:
+        print("no bundled models installed")
+        return 0
+    for name, path in models.items():
+        meta = read_metadata(path)
+        card = meta.get("card") or {}
+        if args.name and name not in args.name:
+            continue
+        print(f"== {name} ({path.stat().st_size / 1024:.0f} KiB): {card.get('summary', '')}")
+        if args.verbose:
+            print(card.get("text", json.dumps(card, indent=1)))
+        else:
+            for key in ("data", "terms", "schedule", "metrics"):
+                if key in card:
+                    print(f"  {key}: {card[key] if isinstance(card[key], str) else json.dumps(card[key])}")
+    return 0
 
 
 def _cmd_info(args) -> int:
     from .modelfile import read_metadata
 
-    meta = read_metadata(args.model)
+    from .models import resolve_model
+
+    meta = read_metadata(resolve_model(args.model))
     print(json.dumps(meta, indent=1))
     return 0
 
@@ -155,8 +241,8 @@ def _cmd_demo(args) -> int:
 def _add_prepare_options(p) -> None:
     p.add_argument("--resolution", type=int, default=32, help="grid cells per axis (default 32)")
     p.add_argument("--samples", type=int, default=10000, help="surface samples per shape (default 10000)")
-    p.add_argument("--up", default="+y", help="the inputs' up axis, e.g. +y (COSEG, ShapeNet) or +z")
-    p.add_argument("--front", default="+x", help="the inputs' front axis (default +x)")
+    p.add_argument("--up", default=None, help="the inputs' up axis, e.g. +y (COSEG, ShapeNet; the default) or +z")
+    p.add_argument("--front", default=None, help="the inputs' front axis (default +x)")
     p.add_argument("--cache", default=None, help="cache folder (default $PRIMKIT_CACHE or ~/.cache/primkit/prepared)")
     p.add_argument("--workers", type=int, default=None, help="processes for preparation (default: all cores)")
 
@@ -190,15 +276,19 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("train", help="train an abstractor on a folder of shapes")
     p.add_argument("inputs", nargs="+", help="folders or files of shapes")
     p.add_argument("-o", "--output", required=True, help="model file to write (.safetensors)")
-    p.add_argument("--parts", type=int, default=20)
-    p.add_argument("--batch-size", type=int, default=32)
-    p.add_argument("--lr", type=float, default=1e-3)
-    p.add_argument("--encoder", choices=["paper", "released"], default="paper")
-    p.add_argument("--symmetry", type=float, default=0.0, help="weight of the reflection-symmetry loss (0: off)")
+    p.add_argument("--preset", default=None, help="a bundled model's recipe (chair, table, airplane, animal): schedule, "
+                   "hold-out rule, data terms; other flags override it")
+    p.add_argument("--parts", type=int, default=None, help="part slots M (default 20)")
+    p.add_argument("--batch-size", type=int, default=None, help="default 32")
+    p.add_argument("--lr", type=float, default=None, help="Adam learning rate (default 1e-3)")
+    p.add_argument("--encoder", choices=["paper", "released"], default=None, help="default: paper")
+    p.add_argument("--symmetry", type=float, default=None, help="weight of the reflection-symmetry loss (default 0: off)")
+    p.add_argument("--hold-out", type=int, default=None, metavar="K",
+                   help="hold out every K-th file (sorted paths, rank %% K == K-1) from training; recorded for eval --split")
     p.add_argument("--stage1", type=int, default=None, help="stage-1 iterations (all parts on)")
     p.add_argument("--stage2", type=int, default=None, help="stage-2 iterations (existence learned)")
     p.add_argument("--full-schedule", action="store_true", help="the paper's 20k + 30k iterations whatever the collection size")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=None)
     p.add_argument("--device", default=None, help="cpu or cuda (default: cuda when available)")
     p.add_argument("--resume", default=None, help="checkpoint to resume from (<model>.checkpoint.safetensors)")
     p.add_argument("--data-terms", default=None, help="the training data's terms of use, recorded in the model file")
@@ -208,7 +298,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("abstract", help="abstract shapes with a trained model: JSON + coloured cuboid mesh per shape")
     p.add_argument("inputs", nargs="+")
-    p.add_argument("--model", required=True)
+    p.add_argument("--model", required=True, help="a model file, or a bundled model's name (primkit models)")
+    p.add_argument("--refine", type=int, default=0, metavar="N", help="N gradient steps per shape on its own losses (0: off)")
+    p.add_argument("--align", choices=["none", "auto"], default="none",
+                   help="auto: try the 24 axis-aligned orientations and keep the one the model explains best")
     p.add_argument("-o", "--output", required=True, help="output folder")
     p.add_argument("--threshold", type=float, default=0.5, help="existence probability above which a part exists")
     p.add_argument("--prune", type=float, default=0.6, help="drop parts more than this fraction inside others (0: off)")
@@ -219,13 +312,25 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("eval", help="Chamfer, IoU, coverage, consistency and parts of a model's abstractions")
     p.add_argument("inputs", nargs="+")
-    p.add_argument("--model", required=True)
+    p.add_argument("--model", required=True, help="a model file, or a bundled model's name")
+    p.add_argument("--split", choices=["all", "held-out", "train"], default="all",
+                   help="evaluate on the files the model held out from training (its recorded rule), or those it trained on")
+    p.add_argument("--limit", type=int, default=0, help="evaluate at most this many files (0: all)")
+    p.add_argument("--refine", type=int, default=0, metavar="N")
+    p.add_argument("--align", choices=["none", "auto"], default="none")
+    p.add_argument("--up", default=None, help="the inputs' up axis (default: the model's, +y)")
+    p.add_argument("--front", default=None, help="the inputs' front axis (default +x)")
     p.add_argument("--chamfer-power", type=int, choices=[1, 2], default=1, help="1: unsquared distances, 2: squared")
     p.add_argument("--json", default=None, help="also write the scores to this JSON file")
     p.add_argument("--cache", default=None)
     p.add_argument("--workers", type=int, default=None)
     p.add_argument("--force", action="store_true")
     p.set_defaults(func=_cmd_eval)
+
+    p = sub.add_parser("models", help="list the bundled models with their model cards")
+    p.add_argument("name", nargs="*", help="only these models")
+    p.add_argument("-v", "--verbose", action="store_true", help="print the whole card")
+    p.set_defaults(func=_cmd_models)
 
     p = sub.add_parser("info", help="print a model file's metadata (without loading its weights)")
     p.add_argument("model")

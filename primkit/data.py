@@ -31,6 +31,8 @@ __all__ = [
     "prepare",
     "prepare_file",
     "find_shape_files",
+    "shape_name",
+    "split_files",
     "default_cache_dir",
     "PreparedCollection",
     "prepare_collection",
@@ -331,7 +333,7 @@ def prepare_file(path, settings: PrepareSettings = PrepareSettings()) -> Prepare
             labels = io.read_labels(seg, face_count=len(shape.faces))
             info["labels"] = str(seg)
     try:
-        prepared = prepare(shape, settings, face_labels=labels, name=path.stem, source=str(path))
+        prepared = prepare(shape, settings, face_labels=labels, name=shape_name(path), source=str(path))
     except (ValueError, RuntimeError) as exc:
         raise io.ShapeFileError(path, f"cannot prepare: {exc}") from exc
     if info:
@@ -347,6 +349,36 @@ def find_shape_files(folder) -> list[Path]:
     if not folder.is_dir():
         raise FileNotFoundError(f"{folder}: no such file or folder")
     return sorted(p for p in folder.rglob("*") if p.is_file() and io.is_shape_file(p))
+
+
+#: file stems that say nothing about the shape (ShapeNet's ``<synset>/<id>/model.binvox``); the
+#: folder's name is used instead
+_GENERIC_STEMS = {"model", "model_normalized", "models", "mesh", "shape"}
+
+
+def shape_name(path) -> str:
+    """A shape's name from its path: the file's stem, or its folder's name when the stem is generic
+    (``03001627/1a6f615e8b1b5ae4dbbc9440457e303e/model.binvox`` -> ``1a6f615e...``)."""
+    path = Path(path)
+    if path.stem.lower() in _GENERIC_STEMS and path.parent.name:
+        return path.parent.name
+    return path.stem
+
+
+def split_files(files, hold_out_every: int) -> tuple[list, list]:
+    """Split files deterministically into (training, held-out): sorted by path, the file of rank
+    ``r`` is held out when ``r % hold_out_every == hold_out_every - 1``; ``0`` holds out nothing.
+
+    The rule depends only on the sorted paths, so the held-out set can be recomputed from a model
+    file's metadata (``primkit eval --split held-out``)."""
+    files = sorted(Path(p) for p in files)
+    if not hold_out_every:
+        return files, []
+    if hold_out_every < 2:
+        raise ValueError(f"hold_out_every must be 0 or at least 2, got {hold_out_every}")
+    train = [p for r, p in enumerate(files) if r % hold_out_every != hold_out_every - 1]
+    held = [p for r, p in enumerate(files) if r % hold_out_every == hold_out_every - 1]
+    return train, held
 
 
 def default_cache_dir() -> Path:
@@ -411,7 +443,11 @@ class PreparedCollection:
         return len(self.cache_files)
 
     def __getitem__(self, i: int) -> PreparedShape:
-        return PreparedShape.load(self.cache_files[i])
+        # the cache is keyed by content, so two files with the same bytes share an entry: the name
+        # and source always come from this collection's path
+        shape = PreparedShape.load(self.cache_files[i])
+        path = self.paths[i]
+        return PreparedShape(**{**shape.__dict__, "name": shape_name(path), "source": str(path)})
 
     def __iter__(self):
         for i in range(len(self)):

@@ -362,6 +362,9 @@ def read_voxels(path) -> VoxelGrid:
     occupancy = np.ascontiguousarray(raw.transpose(0, 2, 1))  # [x, y, z]
     if not occupancy.any():
         raise ShapeFileError(path, "no occupied voxels")
+    if occupancy.all():
+        # two ShapeNetVox32 tables are like this: a defect, not a shape (no surface inside the grid)
+        raise ShapeFileError(path, "every voxel is occupied (no surface inside the grid)")
     return VoxelGrid(occupancy, header["translate"], header["scale"])
 
 

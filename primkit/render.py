@@ -54,7 +54,11 @@ def render_pairs(items, path, *, tile: int = 260, columns: int = 4) -> None:
         mesh.cell_data["rgb"] = np.asarray(cc, np.uint8)
         plotter.add_mesh(mesh, scalars="rgb", rgb=True, show_edges=True, edge_color="black", line_width=0.5)
         plotter.view_vector((1.0, 0.6, 1.2), viewup=(0, 1, 0))
-    plotter.link_views()
+        # each shape and its cuboids share one camera, framed on the shape; pairs differ in size
+        plotter.subplot(r, 2 * c)
+        plotter.reset_camera()
+        first = r * cols + 2 * c
+        plotter.link_views((first, first + 1))
     with atomic_output(path, overwrite=True) as tmp:
         plotter.screenshot(str(tmp))
     plotter.close()

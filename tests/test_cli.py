@@ -102,3 +102,61 @@ def test_demo_quick(tmp_path):
     assert (out / "abstractions.png").stat().st_size > 5000
     assert len(list((out / "abstractions").glob("*.cuboids.json"))) == 4
     assert main(["demo", "--quick", "-o", str(out)]) == 2  # refuses to overwrite without --force
+
+
+def test_hold_out_is_recorded_and_eval_split_uses_it(tmp_path, capsys):
+    shapes = tmp_path / "shapes"
+    assert main(["generate", "chair", "-n", "6", "-o", str(shapes), "--seed", "5"]) == 0
+    model = tmp_path / "h.safetensors"
+    assert main(["train", str(shapes), "-o", str(model), "--stage1", "4", "--stage2", "4", "--parts", "4", "--batch-size", "4",
+                 "--hold-out", "3", "--cache", str(tmp_path / "c"), "--workers", "1"]) == 0
+    assert "(2 held out)" in capsys.readouterr().err
+    assert main(["info", str(model)]) == 0
+    meta = json.loads(capsys.readouterr().out)
+    assert meta["training"]["shapes"] == 4
+    assert meta["training"]["data"]["hold_out_every"] == 3 and meta["training"]["data"]["held_out"] == 2
+    report = tmp_path / "held.json"
+    assert main(["eval", str(shapes), "--model", str(model), "--split", "held-out", "--json", str(report),
+                 "--cache", str(tmp_path / "c"), "--workers", "1"]) == 0
+    held = json.loads(report.read_text())["shapes"]
+    # sorted .ply files of rank 2 and 5 (rank % 3 == 2) are the held-out ones
+    names = sorted(p.stem for p in shapes.glob("*.ply"))
+    assert sorted(held) == [names[2], names[5]]
+
+
+def test_eval_split_needs_a_recorded_rule(trained, capsys):
+    root, shapes, model = trained
+    assert main(["eval", str(shapes), "--model", str(model), "--split", "held-out", "--cache", str(root / "cache")]) == 2
+    assert "held-out rule" in capsys.readouterr().err
+
+
+def test_abstract_align_and_refine_are_recorded_in_the_input_frame(trained, tmp_path, capsys):
+    root, shapes, model = trained
+    src = sorted(shapes.glob("*.ply"))[0]
+    out = tmp_path / "out"
+    assert main(["abstract", str(src), "--model", str(model), "-o", str(out), "--align", "auto", "--refine", "25",
+                 "--cache", str(root / "cache"), "--workers", "1"]) == 0
+    assert "oriented with up" in capsys.readouterr().out
+    d = json.loads((out / f"{src.stem}.cuboids.json").read_text())
+    assert set(d["alignment"]) >= {"rotation", "up", "front", "loss", "loss_as_given"}
+    assert d["alignment"]["loss"] <= d["alignment"]["loss_as_given"]
+    assert d["refinement"]["steps"] == 25 and d["refinement"]["loss_after"] < d["refinement"]["loss_before"]
+    import trimesh
+
+    mesh = trimesh.load(src, process=False)
+    cub = primitives.Cuboids.from_dict(d)
+    lo, hi = mesh.bounds
+    centres = cub.translations[cub.existence]
+    assert ((centres > lo - 0.1 * (hi - lo)) & (centres < hi + 0.1 * (hi - lo))).all()
+
+
+def test_unknown_model_name_lists_the_bundled_ones(tmp_path, capsys):
+    from primkit.models import bundled_models
+
+    assert main(["abstract", str(tmp_path), "--model", "no-such-model", "-o", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "no-such-model" in err and "bundled" in err and "\n" not in err
+    assert main(["models"]) == 0
+    out = capsys.readouterr().out
+    for name in bundled_models():
+        assert f"== {name}" in out

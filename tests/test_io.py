@@ -385,6 +385,7 @@ def test_read_points_and_shape_rejections(tmp_path):
         (read_shape, "x.txt", "1 2 3\n", "unsupported suffix"),
         (read_voxels, "bad.binvox", b"#binvox 1\ndim 2 2 2\ndata\n\x01\x07", "sum to 7"),
         (read_voxels, "empty.binvox", b"#binvox 1\ndim 2 2 2\ndata\n\x00\x08", "no occupied voxels"),
+        (read_voxels, "full.binvox", b"#binvox 1\ndim 2 2 2\ndata\n\x01\x08", "every voxel is occupied"),
         (read_voxels, "nohead.binvox", b"dim 2 2 2\n\x00\x08", "cannot parse as BINVOX"),
         (read_labels, "float.seg", "1\n2.5\n", "cannot parse as SEG"),
         (read_labels, "two.seg", "1 2\n3 4\n", "one integer per line"),
@@ -435,7 +436,7 @@ def test_read_shape_dispatch(tmp_path):
     assert isinstance(read_shape(write_mesh(tmp_path / "m.ply", vertices, faces)), Mesh)
     assert isinstance(read_shape(write_mesh(tmp_path / "m.off", vertices, faces)), Mesh)
     assert isinstance(read_shape(write_points(tmp_path / "p.npy", vertices)), PointCloud)
-    binvox = _write(tmp_path / "v.binvox", encode_binvox(np.ones((2, 2, 2), bool), (0, 0, 0), 1.0))
+    binvox = _write(tmp_path / "v.binvox", encode_binvox(np.eye(2, dtype=bool)[:, :, None].repeat(2, axis=2), (0, 0, 0), 1.0))
     assert isinstance(read_shape(binvox), VoxelGrid)
 
 
