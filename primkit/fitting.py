@@ -22,7 +22,7 @@ import numpy as np
 import torch
 
 from .losses import consistency_loss, coverage_loss
-from .primitives import Cuboids, sample_surface_torch
+from .primitives import sample_surface_torch
 
 __all__ = ["fit_losses", "refine"]
 

@@ -50,7 +50,6 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -359,16 +358,10 @@ class Cuboids:
         if path.exists() and not overwrite:
             raise FileExistsError(f"{path} exists; pass overwrite=True to replace it")
         text = json.dumps(self.to_dict(), indent=2)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent or ".")
-        try:
-            with os.fdopen(fd, "w", encoding="utf-8") as fh:
-                fh.write(text)
-                fh.write("\n")
-            os.replace(tmp, path)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
+        from .io import atomic_output  # temporary beside the target, created with the user's umask
+
+        with atomic_output(path, overwrite=True) as tmp:
+            Path(tmp).write_text(text + "\n", encoding="utf-8")
         return path
 
     @classmethod

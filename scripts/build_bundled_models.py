@@ -17,7 +17,6 @@ abstractions go to ``--pictures``.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import sys

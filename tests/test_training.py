@@ -5,14 +5,12 @@ import subprocess
 import sys
 import textwrap
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
 from primkit import losses, primitives, training
-from primkit.network import AbstractionNet, NetworkConfig
 
 
 def random_cuboids(batch, m, seed=0, dtype=torch.float64):
