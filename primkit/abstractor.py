@@ -143,6 +143,11 @@ class Abstractor:
         return list(names) if names else [f"part{k}" for k in range(self.parts)]
 
     @property
+    def hold_out_every(self) -> int:
+        """The hold-out rule the model was trained with (:func:`primkit.data.split_files`; 0: none recorded)."""
+        return int(((self.metadata.get("training") or {}).get("data") or {}).get("hold_out_every") or 0)
+
+    @property
     def settings(self) -> data.PrepareSettings:
         return data.PrepareSettings(resolution=self.resolution)
 

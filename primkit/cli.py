@@ -43,10 +43,16 @@ def _cmd_generate(args) -> int:
     return 0
 
 
-def _settings(args):
+def _settings(args, base=None):
+    """Preparation settings: ``base`` (a model's or a preset's; the defaults when None) with the
+    options given on the command line."""
+    from dataclasses import replace
+
     from .data import PrepareSettings
 
-    return PrepareSettings(resolution=args.resolution, samples=args.samples, up=args.up or "+y", front=args.front or "+x")
+    base = base or PrepareSettings()
+    given = {k: getattr(args, k, None) for k in ("resolution", "samples", "up", "front")}
+    return replace(base, **{k: v for k, v in given.items() if v is not None})
 
 
 def _cmd_prepare(args) -> int:
@@ -86,7 +92,7 @@ def _cmd_train(args) -> int:
     if args.hold_out is not None:
         hold_out = args.hold_out
     files, held = split_files(_collect(args.inputs), hold_out)
-    settings = PrepareSettings(resolution=args.resolution, samples=args.samples, up=args.up or up, front=args.front or front)
+    settings = _settings(args, PrepareSettings(up=up, front=front))
     coll = prepare_collection(files, settings, cache_dir=args.cache, workers=args.workers)
     status = _report_errors(coll.errors)
     if len(coll) == 0:
@@ -155,7 +161,7 @@ def _split_inputs(files, abstractor, split: str) -> list:
 
     if split == "all":
         return files
-    every = int((abstractor.metadata.get("training") or {}).get("data", {}).get("hold_out_every") or 0)
+    every = abstractor.hold_out_every
     if not every:
         raise ValueError(f"--split {split}: the model records no held-out rule (it was trained without --hold-out)")
     train_files, held = split_files(files, every)
@@ -171,7 +177,7 @@ def _cmd_eval(args) -> int:
     files = _split_inputs(_collect(args.inputs), abstractor, args.split)
     if args.limit:
         files = files[: args.limit]
-    settings = replace_settings(abstractor.settings, args)
+    settings = _settings(args, abstractor.settings)
     coll = prepare_collection(files, settings, cache_dir=args.cache, workers=args.workers)
     shapes = list(coll)
     results = abstractor.predict(shapes, align=_align(args), refine=args.refine)
@@ -191,12 +197,6 @@ def _cmd_eval(args) -> int:
             Path(tmp).write_text(json.dumps({"convention": conv.describe(), "summary": summary,
                                              "shapes": {r.name: s.to_dict() for r, s in zip(results, scores)}}, indent=1))
     return _report_errors(coll.errors)
-
-
-def replace_settings(settings, args):
-    from dataclasses import replace
-
-    return replace(settings, up=args.up or settings.up, front=args.front or settings.front)
 
 
 def _cmd_models(args) -> int:

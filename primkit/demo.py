@@ -26,10 +26,10 @@ def _bundled_step(out: Path, folder: Path, cache: Path, quick: bool) -> None:
     import numpy as np
 
     from . import data, io, orientation
-    from .abstractor import Abstractor, part_colors
+    from .abstractor import Abstractor
     from .metrics import ChamferConvention, score, summarize
     from .models import bundled_models
-    from .render import render_pairs
+    from .render import render_abstractions
 
     if "chair" not in bundled_models():
         print("[bundled] no bundled chair model installed; skipped", file=sys.stderr)
@@ -40,39 +40,35 @@ def _bundled_step(out: Path, folder: Path, cache: Path, quick: bool) -> None:
     shapes = list(coll)
     turns = [orientation.AXIS_ROTATIONS[(7 * i + 5) % 23 + 1] for i in range(len(shapes))]
     turned = [orientation.rotate_prepared(s, a) for s, a in zip(shapes, turns)]
-    runs = {
-        "as given": model.predict(shapes),
-        "turned, align auto": model.predict(turned, align="auto"),
-        "refined (200 steps)": model.predict(shapes, refine=50 if quick else 200),
+    steps = 50 if quick else 200
+    runs = {  # name: (results, the shapes they were computed from)
+        "as given": (model.predict(shapes), shapes),
+        "turned, align auto": (model.predict(turned, align="auto"), turned),
+        "refined": (model.predict(shapes, refine=steps), shapes),
     }
     conv = ChamferConvention()
-    report = {"convention": conv.describe()}
-    for key, results in runs.items():
-        scores = [score(r.canonical, r.canonical_shape(s), conv) for r, s in zip(results, shapes if key != "turned, align auto" else turned)]
+    report = {"convention": conv.describe(), "refine_steps": steps}
+    for key, (results, inputs) in runs.items():
+        scores = [score(r.canonical, r.canonical_shape(s), conv) for r, s in zip(results, inputs)]
         summ = summarize(scores)
         report[key] = {"parts": summ["parts"]["mean"], "iou": summ["iou"]["mean"], "chamfer": summ["chamfer"]["mean"]}
         print(f"  {key:20s}: parts {summ['parts']['mean']:.1f}, IoU {summ['iou']['mean']:.3f}, Chamfer {summ['chamfer']['mean']:.4f}",
               file=sys.stderr)
-    undone = [bool(np.allclose(r.frame.rotation, s.frame.rotation)) for r, s in zip(runs["turned, align auto"], shapes)]
+    undone = [bool(np.allclose(r.frame.rotation, s.frame.rotation)) for r, s in zip(runs["turned, align auto"][0], shapes)]
     report["turned, align auto"]["orientation_recovered"] = f"{sum(undone)}/{len(undone)}"
     print(f"  turned chairs whose orientation align auto recovered: {sum(undone)}/{len(undone)}", file=sys.stderr)
     with io.atomic_output(out / "bundled.json", overwrite=True) as tmp:
         Path(tmp).write_text(json.dumps(report, indent=1))
-    items = []
-    for r, path in zip(runs["refined (200 steps)"], coll.paths):
-        mesh = io.read_mesh(path)
-        v, f, part = r.cuboids.to_mesh()
-        items.append((f"{r.name}: {int(r.cuboids.existence.sum())} parts", (mesh.vertices, mesh.faces),
-                      (v, f, part_colors(r.cuboids.count)[part])))
-    render_pairs(items, out / "bundled.png")
+    meshes = [(m.vertices, m.faces) for m in map(io.read_mesh, coll.paths)]
+    render_abstractions(runs["refined"][0], meshes, out / "bundled.png", note=f" (refined {steps})")
 
 
 def run_demo(output="primkit-demo", *, quick: bool = False, force: bool = False, train_count: int = 96,
              test_count: int = 8, iterations: int = 2400) -> int:
     from . import data, io, synthetic
-    from .abstractor import Abstractor, part_colors
+    from .abstractor import Abstractor
     from .metrics import ChamferConvention, part_label_agreement, score, summarize
-    from .render import render_pairs
+    from .render import render_abstractions
     from .training import ShapeTensors, TrainConfig, train
 
     out = Path(output)
@@ -114,13 +110,7 @@ def run_demo(output="primkit-demo", *, quick: bool = False, force: bool = False,
     report = {"convention": conv.describe(), "summary": summarize(scores), "part_index_agreement": agreement}
     with io.atomic_output(out / "report.json", overwrite=True) as tmp:
         Path(tmp).write_text(json.dumps(report, indent=1))
-    items = []
-    for r, path in zip(results, test_set.paths):
-        mesh = io.read_mesh(path)
-        v, f, part = r.cuboids.to_mesh()
-        items.append((f"{r.name}: {int(r.cuboids.existence.sum())} parts", (mesh.vertices, mesh.faces),
-                      (v, f, part_colors(r.cuboids.count)[part])))
-    render_pairs(items, out / "abstractions.png")
+    render_abstractions(results, [(m.vertices, m.faces) for m in map(io.read_mesh, test_set.paths)], out / "abstractions.png")
     summ = report["summary"]
     print(f"held-out chairs: {len(scores)}; parts {summ['parts']['mean']:.1f}; IoU {summ['iou']['mean']:.3f}; "
           f"Chamfer {summ['chamfer']['mean']:.4f} ({conv.describe()})")

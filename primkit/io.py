@@ -483,12 +483,7 @@ def write_mesh(path, vertices, faces, face_colors=None, *, overwrite=False) -> P
       The mesh file written.
     """
     path = Path(path)
-    suffix = path.suffix.lower()
-    if suffix not in _MESH_WRITE_SUFFIXES:
-        raise ValueError(
-            f"{path}: cannot write a mesh as '{suffix}' "
-            f"(expected one of {', '.join(_MESH_WRITE_SUFFIXES)})"
-        )
+    suffix = _write_suffix(path, _MESH_WRITE_SUFFIXES, "a mesh")
     mesh = Mesh(vertices, faces)
     if len(mesh.faces) and (mesh.faces.min() < 0 or mesh.faces.max() >= len(mesh.vertices)):
         raise ValueError(f"`faces` must index `vertices` (n = {len(mesh.vertices)})")
@@ -564,12 +559,7 @@ def write_points(path, points, *, normals=None, overwrite=False) -> Path:
     path : Path
     """
     path = Path(path)
-    suffix = path.suffix.lower()
-    if suffix not in _POINT_WRITE_SUFFIXES:
-        raise ValueError(
-            f"{path}: cannot write points as '{suffix}' "
-            f"(expected one of {', '.join(_POINT_WRITE_SUFFIXES)})"
-        )
+    suffix = _write_suffix(path, _POINT_WRITE_SUFFIXES, "points")
     cloud = PointCloud(points, normals)
     columns = cloud.points if cloud.normals is None else np.hstack([cloud.points, cloud.normals])
     with atomic_output(path, overwrite=overwrite) as temporary:
@@ -827,6 +817,14 @@ def _rgba_uint8(colors, count) -> np.ndarray:
     if colors.shape[1] == 3:
         colors = np.column_stack([colors, np.full(count, 255, dtype=np.uint8)])
     return colors
+
+
+def _write_suffix(path: Path, allowed, what: str) -> str:
+    """``path``'s lower-cased suffix, or ValueError naming the file when we cannot write ``what`` in it."""
+    suffix = path.suffix.lower()
+    if suffix not in allowed:
+        raise ValueError(f"{path}: cannot write {what} as '{suffix}' (expected one of {', '.join(allowed)})")
+    return suffix
 
 
 def _create_temporary(path: Path) -> Path:

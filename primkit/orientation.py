@@ -52,13 +52,12 @@ def describe_rotation(rotation) -> dict:
     return {"up": axis_name(r[1]), "front": axis_name(r[0])}
 
 
-def _rotate_grid(grid: np.ndarray, rotation: np.ndarray) -> np.ndarray:
-    """Grid values moved so that the value at cell centre ``c`` ends at cell centre ``rotation @ c``."""
-    res = grid.shape[0]
+def _source_cells(res: int, rotation: np.ndarray) -> tuple:
+    """Flat index arrays of the old cell whose value lands in each new cell: the value at cell centre
+    ``c`` ends at cell centre ``rotation @ c``."""
     idx = np.indices((res,) * 3).reshape(3, -1).T  # new cells
-    centred = idx - (res - 1) / 2.0
-    old = np.rint(centred @ rotation + (res - 1) / 2.0).astype(np.int64)  # rotation.T @ c for each row
-    return grid[old[:, 0], old[:, 1], old[:, 2]].reshape(grid.shape)
+    old = np.rint((idx - (res - 1) / 2.0) @ rotation + (res - 1) / 2.0).astype(np.int64)  # rotation.T @ c per row
+    return old[:, 0], old[:, 1], old[:, 2]
 
 
 def rotate_prepared(shape, rotation):
@@ -76,18 +75,19 @@ def rotate_prepared(shape, rotation):
     on it still come back in the input's frame through ``frame``.
     """
     a = np.asarray(rotation, float)
-    if a.shape != (3, 3) or not np.allclose(np.abs(a).sum(0), 1) or not np.allclose(np.abs(a).sum(1), 1) \
-            or not np.isclose(np.linalg.det(a), 1) or not np.allclose(np.abs(a)[np.abs(a) > 0.5], 1):
+    if a.shape != (3, 3) or not np.any(np.all(np.isclose(AXIS_ROTATIONS, a), axis=(1, 2))):
         raise ValueError("`rotation` must be a proper axis rotation (a signed permutation matrix, det +1)")
     if np.allclose(a, np.eye(3)):
         return shape
-    closest = _rotate_grid(shape.closest, a) @ a.T
+    res = shape.resolution
+    src = _source_cells(res, a)
+    closest = shape.closest[src].reshape(shape.closest.shape) @ a.T
     f = shape.frame
     frame = geometry.CanonicalFrame(a @ f.rotation, a @ f.centre, f.scale)
     return replace(
         shape,
-        occupancy=_rotate_grid(shape.occupancy, a),
-        solid=_rotate_grid(shape.solid, a),
+        occupancy=shape.occupancy[src].reshape(shape.occupancy.shape),
+        solid=shape.solid[src].reshape(shape.solid.shape),
         closest=closest.astype(shape.closest.dtype),
         points=(np.asarray(shape.points) @ a.T).astype(shape.points.dtype),
         frame=frame,

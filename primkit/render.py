@@ -10,7 +10,7 @@ import os
 
 import numpy as np
 
-__all__ = ["render_pairs"]
+__all__ = ["render_pairs", "render_abstractions"]
 
 
 def _pyvista():
@@ -62,3 +62,28 @@ def render_pairs(items, path, *, tile: int = 260, columns: int = 4) -> None:
     with atomic_output(path, overwrite=True) as tmp:
         plotter.screenshot(str(tmp))
     plotter.close()
+
+
+def render_abstractions(results, meshes, path, *, canonical: bool = False, note: str = "", **kwargs) -> None:
+    """Draw abstraction results beside their shapes, cuboids coloured by part index (one colour per index).
+
+    Parameters
+    ----------
+    results : list of primkit.abstractor.AbstractionResult
+    meshes : list of (vertices, faces)
+        Each result's shape in the input's frame.
+    canonical : bool
+        Draw in the model's canonical frame (upright, front toward +X) instead of the input's.
+    note : str
+        Appended to each tile's title.
+    """
+    from .abstractor import part_colors
+
+    items = []
+    for r, (v, f) in zip(results, meshes):
+        cub = r.canonical if canonical else r.cuboids
+        if canonical:
+            v = r.frame.to_canonical(v)
+        cv, cf, part = cub.to_mesh()
+        items.append((f"{r.name[:12]}: {int(cub.existence.sum())} parts{note}", (v, f), (cv, cf, part_colors(cub.count)[part])))
+    render_pairs(items, path, **kwargs)

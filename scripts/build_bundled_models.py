@@ -29,11 +29,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from primkit import data, io, modelfile, orientation  # noqa: E402
-from primkit.abstractor import Abstractor, part_colors  # noqa: E402
+from primkit import data, geometry, io, modelfile, orientation  # noqa: E402
+from primkit.abstractor import Abstractor  # noqa: E402
 from primkit.metrics import ChamferConvention, part_label_agreement, score, summarize  # noqa: E402
 from primkit.presets import get_preset  # noqa: E402
-from primkit.render import render_pairs  # noqa: E402
+from primkit.render import render_abstractions  # noqa: E402
 
 SHARED = ROOT.parent / "shared" / "data"
 CONV = ChamferConvention()
@@ -59,23 +59,16 @@ def evaluate(abstractor, shapes, **kwargs):
 
 
 def picture(results, shapes, path, title_extra=""):
-    items = []
-    for r, s in zip(results, shapes):
-        src = Path(s.source)
-        shape = io.read_shape(src)
+    """Results beside their shapes, drawn in the canonical frame (voxel inputs as their boundary)."""
+    meshes = []
+    for s in shapes:
+        shape = io.read_shape(Path(s.source))
         if isinstance(shape, io.Mesh):
-            v, f = shape.vertices, shape.faces
-        else:  # voxels: draw the voxel boundary in the input frame
-            from primkit import geometry
-
-            occ = s.solid
-            v, f = geometry.voxel_boundary_mesh(occ)
-            v = s.frame.from_canonical(v)  # back to the input frame, like a mesh
-        v = r.frame.to_canonical(v)  # drawn upright, front toward +X, whatever the input's frame
-        cv, cf, part = r.canonical.to_mesh()
-        items.append((f"{r.name[:10]}: {int(r.cuboids.existence.sum())} parts{title_extra}", (v, f),
-                      (cv, cf, part_colors(r.cuboids.count)[part])))
-    render_pairs(items, path)
+            meshes.append((shape.vertices, shape.faces))
+        else:
+            v, f = geometry.voxel_boundary_mesh(s.solid)
+            meshes.append((s.frame.from_canonical(v), f))  # in the input frame, like a mesh
+    render_abstractions(results, meshes, path, canonical=True, note=title_extra)
     print(f"  picture: {path}", file=sys.stderr)
 
 
@@ -147,7 +140,7 @@ def held_out(abstractor, meta, limit: int, refine: int, pictures: Path | None, n
     files = []
     for inp in d["inputs"]:
         files += data.find_shape_files(inp)
-    _, held = data.split_files(files, d["hold_out_every"])
+    _, held = data.split_files(files, abstractor.hold_out_every)
     total = len(held)
     if limit and len(held) > limit:
         held = held[:: int(np.ceil(len(held) / limit))]
