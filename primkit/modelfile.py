@@ -51,6 +51,7 @@ __all__ = [
     "load_model",
     "read_metadata",
     "save_model",
+    "update_metadata",
 ]
 
 #: Version of the file layout and metadata schema written by this primkit.
@@ -216,3 +217,13 @@ def load_model(path, map_location="cpu") -> tuple[dict[str, Tensor], dict]:
         except Exception as err:
             raise ModelFileError(path, f"cannot read the weights ({err})") from None
     return weights, metadata
+
+
+def update_metadata(path, output, changes: dict, *, overwrite: bool = False) -> Path:
+    """Copy the model file ``path`` to ``output`` with ``changes`` merged into its metadata
+    (the weights are copied unchanged; ``path`` itself is never modified unless it is ``output``
+    and ``overwrite`` is given). Returns ``output``."""
+    weights, metadata = load_model(path)
+    metadata = {**metadata, **changes}
+    metadata.pop("created", None)
+    return save_model(output, weights, metadata, overwrite=overwrite)

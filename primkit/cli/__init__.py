@@ -7,78 +7,49 @@ on); 2 bad usage or a fatal error (one line: ``primkit: error: ...``); 130 inter
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
+import pkgutil
 import sys
 from pathlib import Path
 
-__all__ = ["main"]
+__all__ = ["main", "build_parser"]
 
-
-def _err(msg: str) -> None:
-    print(f"primkit: error: {msg}", file=sys.stderr)
-
-
-def _report_errors(errors) -> int:
-    for e in errors:
-        print(f"primkit: skipped {e}", file=sys.stderr)
-    if errors:
-        print(f"primkit: {len(errors)} input(s) could not be used", file=sys.stderr)
-    return 1 if errors else 0
-
-
-def _collect(inputs) -> list[Path]:
-    from .data import find_shape_files
-
-    files = []
-    for item in inputs:
-        files.extend(find_shape_files(item))
-    return files
+from ._common import add_prepare_options, collect, err, report_errors, settings_from_args
 
 
 def _cmd_generate(args) -> int:
-    from .synthetic import write_collection
+    from ..synthetic import write_collection
 
     paths = write_collection(args.output, args.category, args.count, seed=args.seed, overwrite=args.force)
     print(f"wrote {len(paths)} {args.category} shapes (.ply + .seg labels + .json attributes) to {args.output}")
     return 0
 
 
-def _settings(args, base=None):
-    """Preparation settings: ``base`` (a model's or a preset's; the defaults when None) with the
-    options given on the command line."""
-    from dataclasses import replace
-
-    from .data import PrepareSettings
-
-    base = base or PrepareSettings()
-    given = {k: getattr(args, k, None) for k in ("resolution", "samples", "up", "front")}
-    return replace(base, **{k: v for k, v in given.items() if v is not None})
-
-
 def _cmd_prepare(args) -> int:
-    from .data import prepare_collection
+    from ..data import prepare_collection
 
-    coll = prepare_collection(_collect(args.inputs), _settings(args), cache_dir=args.cache, workers=args.workers)
+    coll = prepare_collection(collect(args.inputs), settings_from_args(args), cache_dir=args.cache, workers=args.workers)
     print(f"prepared {len(coll)} shape(s) into {args.cache or 'the default cache'}")
-    return _report_errors(coll.errors)
+    return report_errors(coll.errors)
 
 
 def _cmd_train(args) -> int:
     from dataclasses import replace
 
-    from .data import PrepareSettings, prepare_collection, split_files
-    from .training import ShapeTensors, TrainConfig, train
+    from ..data import PrepareSettings, prepare_collection, split_files
+    from ..training import ShapeTensors, TrainConfig, train
 
     out = Path(args.output)
     if out.exists() and not args.force:
-        _err(f"{out}: exists (use --force to overwrite)")
+        err(f"{out}: exists (use --force to overwrite)")
         return 2
     preset = None
     config = TrainConfig()
     hold_out = 0
     up, front = "+y", "+x"
     if args.preset:
-        from .presets import get_preset
+        from ..presets import get_preset
 
         preset = get_preset(args.preset)
         config, hold_out = preset.config, preset.hold_out_every
@@ -91,12 +62,12 @@ def _cmd_train(args) -> int:
     config = replace(config, **explicit)
     if args.hold_out is not None:
         hold_out = args.hold_out
-    files, held = split_files(_collect(args.inputs), hold_out)
-    settings = _settings(args, PrepareSettings(up=up, front=front))
+    files, held = split_files(collect(args.inputs), hold_out)
+    settings = settings_from_args(args, PrepareSettings(up=up, front=front))
     coll = prepare_collection(files, settings, cache_dir=args.cache, workers=args.workers)
-    status = _report_errors(coll.errors)
+    status = report_errors(coll.errors)
     if len(coll) == 0:
-        _err("no usable shapes to train on")
+        err("no usable shapes to train on")
         return 2
     shapes = ShapeTensors(coll)
     if args.stage1 is not None or args.stage2 is not None:
@@ -133,10 +104,10 @@ def _align(args):
 
 
 def _cmd_abstract(args) -> int:
-    from .abstractor import Abstractor
+    from ..abstractor import Abstractor
 
     abstractor = Abstractor.load(args.model)
-    results, errors = abstractor.abstract_files(_collect(args.inputs), cache_dir=args.cache, workers=args.workers,
+    results, errors = abstractor.abstract_files(collect(args.inputs), cache_dir=args.cache, workers=args.workers,
                                                 existence_threshold=args.threshold,
                                                 prune_threshold=None if args.prune <= 0 else args.prune,
                                                 align=_align(args), refine=args.refine)
@@ -153,11 +124,11 @@ def _cmd_abstract(args) -> int:
         if r.refinement is not None:
             extra += f"; refined: loss {r.refinement['loss_before']:.2e} -> {r.refinement['loss_after']:.2e}"
         print(f"{r.name}: {int(r.cuboids.existence.sum())} parts{extra} -> {j}")
-    return _report_errors(failed)
+    return report_errors(failed)
 
 
 def _split_inputs(files, abstractor, split: str) -> list:
-    from .data import split_files
+    from ..data import split_files
 
     if split == "all":
         return files
@@ -169,15 +140,15 @@ def _split_inputs(files, abstractor, split: str) -> list:
 
 
 def _cmd_eval(args) -> int:
-    from .abstractor import Abstractor
-    from .data import prepare_collection
-    from .metrics import ChamferConvention, score, summarize
+    from ..abstractor import Abstractor
+    from ..data import prepare_collection
+    from ..metrics import ChamferConvention, score, summarize
 
     abstractor = Abstractor.load(args.model)
-    files = _split_inputs(_collect(args.inputs), abstractor, args.split)
+    files = _split_inputs(collect(args.inputs), abstractor, args.split)
     if args.limit:
         files = files[: args.limit]
-    settings = _settings(args, abstractor.settings)
+    settings = settings_from_args(args, abstractor.settings)
     coll = prepare_collection(files, settings, cache_dir=args.cache, workers=args.workers)
     shapes = list(coll)
     results = abstractor.predict(shapes, align=_align(args), refine=args.refine)
@@ -191,17 +162,17 @@ def _cmd_eval(args) -> int:
             print(f"{key:12s} mean {st['mean']:.5f}  median {st['median']:.5f}  std {st['std']:.5f}")
     print(f"shapes: {len(scores)}")
     if args.json:
-        from .io import atomic_output
+        from ..io import atomic_output
 
         with atomic_output(args.json, overwrite=args.force) as tmp:
             Path(tmp).write_text(json.dumps({"convention": conv.describe(), "summary": summary,
                                              "shapes": {r.name: s.to_dict() for r, s in zip(results, scores)}}, indent=1))
-    return _report_errors(coll.errors)
+    return report_errors(coll.errors)
 
 
 def _cmd_models(args) -> int:
-    from .modelfile import read_metadata
-    from .models import bundled_models
+    from ..modelfile import read_metadata
+    from ..models import bundled_models
 
     models = bundled_models()
     if not models:
@@ -223,9 +194,9 @@ def _cmd_models(args) -> int:
 
 
 def _cmd_info(args) -> int:
-    from .modelfile import read_metadata
+    from ..modelfile import read_metadata
 
-    from .models import resolve_model
+    from ..models import resolve_model
 
     meta = read_metadata(resolve_model(args.model))
     print(json.dumps(meta, indent=1))
@@ -233,22 +204,13 @@ def _cmd_info(args) -> int:
 
 
 def _cmd_demo(args) -> int:
-    from .demo import run_demo
+    from ..demo import run_demo
 
     return run_demo(args.output, quick=args.quick, force=args.force)
 
 
-def _add_prepare_options(p) -> None:
-    p.add_argument("--resolution", type=int, default=32, help="grid cells per axis (default 32)")
-    p.add_argument("--samples", type=int, default=10000, help="surface samples per shape (default 10000)")
-    p.add_argument("--up", default=None, help="the inputs' up axis, e.g. +y (COSEG, ShapeNet; the default) or +z")
-    p.add_argument("--front", default=None, help="the inputs' front axis (default +x)")
-    p.add_argument("--cache", default=None, help="cache folder (default $PRIMKIT_CACHE or ~/.cache/primkit/prepared)")
-    p.add_argument("--workers", type=int, default=None, help="processes for preparation (default: all cores)")
-
-
 def build_parser() -> argparse.ArgumentParser:
-    from . import __version__
+    from .. import __version__
 
     parser = argparse.ArgumentParser(prog="primkit", description="Explain 3D shapes with a few cuboids (Tulsiani et al. 2017).")
     parser.add_argument("--version", action="version", version=f"primkit {__version__}")
@@ -270,7 +232,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("prepare", help="prepare shapes into the cache (grids, samples, distances)")
     p.add_argument("inputs", nargs="+")
-    _add_prepare_options(p)
+    add_prepare_options(p)
     p.set_defaults(func=_cmd_prepare)
 
     p = sub.add_parser("train", help="train an abstractor on a folder of shapes")
@@ -293,7 +255,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--resume", default=None, help="checkpoint to resume from (<model>.checkpoint.safetensors)")
     p.add_argument("--data-terms", default=None, help="the training data's terms of use, recorded in the model file")
     p.add_argument("--force", action="store_true")
-    _add_prepare_options(p)
+    add_prepare_options(p)
     p.set_defaults(func=_cmd_train)
 
     p = sub.add_parser("abstract", help="abstract shapes with a trained model: JSON + coloured cuboid mesh per shape")
@@ -335,22 +297,31 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("info", help="print a model file's metadata (without loading its weights)")
     p.add_argument("model")
     p.set_defaults(func=_cmd_info)
+
+    # The application commands live one per module beside this one (segment.py, embed.py, ...):
+    # each defines ``register(subparsers)``; every public module of this package is one.
+    for name in _command_modules():
+        importlib.import_module(f"{__name__}.{name}").register(sub)
     return parser
 
 
+def _command_modules() -> list[str]:
+    return sorted(m.name for m in pkgutil.iter_modules(__path__) if not m.name.startswith("_"))
+
+
 def main(argv=None) -> int:
-    from .io import ShapeFileError
-    from .modelfile import ModelFileError
+    from ..io import ShapeFileError
+    from ..modelfile import ModelFileError
 
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
         return int(args.func(args) or 0)
     except KeyboardInterrupt:
-        _err("interrupted")
+        err("interrupted")
         return 130
     except (ShapeFileError, ModelFileError, FileExistsError, FileNotFoundError, ValueError) as exc:
-        _err(str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
+        err(str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
         return 2
 
 
