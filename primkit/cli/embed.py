@@ -1,0 +1,243 @@
+"""``primkit embed`` (distances and a t-SNE map of a collection) and ``primkit similar`` (retrieval).
+
+Both abstract their inputs with a model, describe the chosen parts' chosen properties
+(:class:`primkit.embedding.PartDescriptor`) and compare the descriptors; ``--metric voxel-iou``
+compares the prepared occupancy grids instead (the paper's baseline).
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from ._common import add_prepare_options, collect, err, report_errors
+
+#: Above this many shapes ``embed`` writes no full distance matrix unless --distances yes.
+_MATRIX_LIMIT = 4000
+
+
+def _scales(text):
+    """``"orientation=30,size=0.1"`` -> dict."""
+    out = {}
+    for item in (text or "").split(","):
+        if not item.strip():
+            continue
+        key, _, value = item.partition("=")
+        try:
+            out[key.strip()] = float(value)
+        except ValueError:
+            raise ValueError(f"--scale: expected NAME=NUMBER items, got {item!r}") from None
+    return out
+
+
+def _abstract(args, files):
+    """Abstract files in batches, keeping only what the commands need: results and occupancy grids."""
+    from dataclasses import replace
+
+    from tqdm import tqdm
+
+    from ..abstractor import Abstractor
+    from ..data import prepare_collection
+    from ._common import settings_from_args
+
+    abstractor = Abstractor.load(args.model)
+    settings = settings_from_args(args, abstractor.settings)
+    settings = replace(settings, resolution=abstractor.resolution)
+    coll = prepare_collection(files, settings, cache_dir=args.cache, workers=args.workers)
+    results, grids = [], []
+    batch = 128
+    with tqdm(total=len(coll), desc="abstracting", unit="shape", disable=len(coll) <= batch) as bar:
+        for i in range(0, len(coll), batch):
+            shapes = [coll[j] for j in range(i, min(i + batch, len(coll)))]
+            part = abstractor.predict(shapes, align=None if args.align == "none" else args.align, refine=args.refine)
+            results.extend(part)
+            grids.extend(r.canonical_shape(s).occupancy for r, s in zip(part, shapes))
+            bar.update(len(shapes))
+    return abstractor, results, np.array(grids, dtype=bool), coll.errors
+
+
+def _thumb_meshes(results, grids, kind, selected):
+    """One mesh per shape for its thumbnail: the voxel boundary, or the cuboids coloured by part
+    index with the unselected parts grey."""
+    from ..abstractor import part_colors
+    from ..geometry import voxel_boundary_mesh
+
+    meshes = []
+    for r, g in zip(results, grids):
+        if kind == "shape":
+            meshes.append(voxel_boundary_mesh(g))
+            continue
+        v, f, part = r.canonical.to_mesh()
+        colors = part_colors(r.canonical.count)
+        if selected is not None:
+            grey = np.ones(len(colors), bool)
+            grey[selected] = False
+            colors[grey] = 200
+        meshes.append((v, f, colors[part]))
+    return meshes
+
+
+def _check_outputs(paths, force):
+    for p in paths:
+        if p.exists() and not force:
+            raise FileExistsError(f"{p}: exists (use --force to overwrite)")
+
+
+def _write_text(path, text, force):
+    from ..io import atomic_output
+
+    with atomic_output(path, overwrite=force) as tmp:
+        Path(tmp).write_text(text)
+
+
+def _describe(args, abstractor, results, grids, queries=None):
+    """Descriptor matrix of the collection (and of extra query results), or None for voxel IoU."""
+    from ..embedding import PartDescriptor
+
+    if args.metric == "voxel-iou":
+        return None, None, None
+    desc = PartDescriptor(args.parts, args.what, _scales(args.scale), part_names=abstractor.part_names).fit(results)
+    X = desc.transform(results)
+    Q = desc.transform(queries) if queries else None
+    return desc, X, Q
+
+
+def _cmd_embed(args) -> int:
+    from .. import embedding
+    from ..io import atomic_output
+
+    out = Path(args.output)
+    names_out = ["distances.npy", "distances.csv", "map.csv"] + (["map.png"] if args.png else []) + (["map.svg"] if args.svg else [])
+    if args.metric == "descriptor":
+        names_out += ["descriptors.npy"]
+    _check_outputs([out / n for n in names_out], args.force)
+    files = collect(args.inputs)
+    if not files:
+        raise ValueError(f"no shape files found in {', '.join(args.inputs)}")
+    abstractor, results, grids, errors = _abstract(args, files)
+    if len(results) < 3:
+        err(f"{len(results)} usable shape(s): a map needs at least 3")
+        report_errors(errors)
+        return 2
+    names = [r.name for r in results]
+    desc, X, _ = _describe(args, abstractor, results, grids)
+    s = len(results)
+    if X is None:
+        D = embedding.voxel_iou_distances(grids)
+    elif args.distances == "yes" or (args.distances == "auto" and s <= _MATRIX_LIMIT):
+        D = embedding.descriptor_distances(X)
+    else:
+        D = None
+    out.mkdir(parents=True, exist_ok=True)
+    if D is not None:
+        with atomic_output(out / "distances.npy", overwrite=args.force) as tmp:
+            with open(tmp, "wb") as fh:
+                np.save(fh, D)
+        rows = ["name," + ",".join(names)] + [f"{n}," + ",".join(f"{v:.6g}" for v in row) for n, row in zip(names, D)]
+        _write_text(out / "distances.csv", "\n".join(rows) + "\n", args.force)
+    else:
+        print(f"{s} shapes: no full distance matrix written (--distances yes asks for it)", file=sys.stderr)
+    if X is not None:
+        with atomic_output(out / "descriptors.npy", overwrite=args.force) as tmp:
+            with open(tmp, "wb") as fh:
+                np.save(fh, X)
+    if X is None:
+        coords = embedding.tsne_map(distances=D, perplexity=args.perplexity, random_state=args.seed)
+    else:
+        coords = embedding.tsne_map(X, perplexity=args.perplexity, random_state=args.seed)
+    _write_text(out / "map.csv", "name,x,y\n" + "".join(f"{n},{x:.6g},{y:.6g}\n" for n, (x, y) in zip(names, coords)), args.force)
+    what = "voxel IoU" if X is None else f"parts {args.parts or 'all'} ({len(desc.parts_)} indices), {','.join(desc.what_)}"
+    if args.png or args.svg:
+        meshes = _thumb_meshes(results, grids, args.thumbnails, None if desc is None else desc.parts_)
+        images = embedding.render_thumbnails(meshes, size=args.thumb_size, progress=True)
+        embedding.draw_map(coords, images, out / "map.png" if args.png else None, svg=out / "map.svg" if args.svg else None,
+                           title=f"t-SNE map of {s} shapes: {what}")
+    print(f"{s} shapes embedded ({what}) -> {out}")
+    return report_errors(errors)
+
+
+def _cmd_similar(args) -> int:
+    from .. import embedding
+
+    out = Path(args.output)
+    _check_outputs([out / "similar.csv"] + ([out / "similar.png"] if args.png else []), args.force)
+    query_files = collect([args.query])
+    if len(query_files) != 1:
+        raise ValueError(f"{args.query}: expected one shape file, found {len(query_files)}")
+    files = [f for f in collect(args.inputs) if f.resolve() != query_files[0].resolve()]
+    if not files:
+        raise ValueError(f"no shape files found in {', '.join(args.inputs)}")
+    abstractor, results, grids, errors = _abstract(args, query_files + files)
+    if not results or str(results[0].source) != str(query_files[0]):
+        err(f"{query_files[0]}: the query could not be used")
+        report_errors(errors)
+        return 2
+    query, results, qgrid, grids = results[0], results[1:], grids[:1], grids[1:]
+    k = min(args.k, len(results))
+    if k < 1:
+        err("no usable shapes to rank")
+        return report_errors(errors) or 1
+    desc, X, Q = _describe(args, abstractor, results, grids, [query])
+    if X is None:
+        d = embedding.voxel_iou_distances(qgrid, grids)[0]
+        order = np.argsort(d, kind="stable")[:k]
+        dist = d[order]
+    else:
+        nn = embedding.nearest_neighbors(X, k, queries=Q)
+        order, dist = nn.indices[0], nn.distances[0]
+    lines = ["rank,name,distance,source\n"] + [f"{i + 1},{results[j].name},{dv:.6g},{results[j].source}\n"
+                                                for i, (j, dv) in enumerate(zip(order, dist))]
+    out.mkdir(parents=True, exist_ok=True)
+    _write_text(out / "similar.csv", "".join(lines), args.force)
+    for i, (j, dv) in enumerate(zip(order, dist)):
+        print(f"{i + 1:3d}  {dv:10.4g}  {results[j].name}")
+    if args.png:
+        sel = None if desc is None else desc.parts_
+        meshes = _thumb_meshes([query] + [results[j] for j in order], np.concatenate([qgrid, grids[order]]), args.thumbnails, sel)
+        images = embedding.render_thumbnails(meshes, size=160)
+        what = "voxel IoU" if X is None else f"parts {args.parts or 'all'}, {','.join(desc.what_)}"
+        embedding.draw_matches(images[0], images[1:], [results[j].name for j in order], dist, out / "similar.png",
+                               query_name=query.name, title=f"nearest to {query.name} by {what}")
+    return report_errors(errors)
+
+
+def _common_options(p) -> None:
+    p.add_argument("--model", required=True, help="a model file, or a bundled model's name (primkit models)")
+    p.add_argument("--parts", default=None, help="parts to compare, by name or index: back,seat or 3,7 (default: all)")
+    p.add_argument("--what", default="size,position,orientation,presence",
+                   help="properties compared: any of size, position, orientation, presence (default: all)")
+    p.add_argument("--scale", default=None, metavar="NAME=VALUE,...",
+                   help="per-property scales: a difference of one scale counts 1 (defaults size=0.05, position=0.1 "
+                        "in canonical units, orientation=15 degrees, presence=0.5: an absent/present part costs 2)")
+    p.add_argument("--metric", choices=["descriptor", "voxel-iou"], default="descriptor",
+                   help="descriptor (the parts' cuboids) or voxel-iou (1 - IoU of the occupancy grids, the baseline)")
+    p.add_argument("--thumbnails", choices=["shape", "cuboids"], default="shape",
+                   help="draw each shape's voxel surface, or its cuboids (selected parts coloured)")
+    p.add_argument("--refine", type=int, default=0, metavar="N")
+    p.add_argument("--align", choices=["none", "auto"], default="none")
+    p.add_argument("-o", "--output", required=True, help="output folder")
+    p.add_argument("--no-png", dest="png", action="store_false", help="skip the picture")
+    p.add_argument("--force", action="store_true")
+    add_prepare_options(p)
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("embed", help="distances between shapes by chosen parts, and a t-SNE map with thumbnails")
+    p.add_argument("inputs", nargs="+", help="shape files or folders")
+    _common_options(p)
+    p.add_argument("--distances", choices=["auto", "yes", "no"], default="auto",
+                   help=f"write the full distance matrix (auto: up to {_MATRIX_LIMIT} shapes)")
+    p.add_argument("--perplexity", type=float, default=30.0)
+    p.add_argument("--seed", type=int, default=0, help="t-SNE random state")
+    p.add_argument("--svg", action="store_true", help="also write map.svg")
+    p.add_argument("--thumb-size", type=int, default=96, help="thumbnail size in pixels")
+    p.set_defaults(func=_cmd_embed)
+
+    p = subparsers.add_parser("similar", help="rank a collection by similarity to a query shape, by chosen parts")
+    p.add_argument("query", help="the query shape file")
+    p.add_argument("inputs", nargs="+", help="shape files or folders to rank (the query itself is left out)")
+    p.add_argument("-k", type=int, default=5, help="matches to report (default 5)")
+    _common_options(p)
+    p.set_defaults(func=_cmd_similar)
