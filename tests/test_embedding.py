@@ -1,0 +1,186 @@
+"""Per-part descriptors, distances, neighbours and the embed / similar commands."""
+
+import numpy as np
+import pytest
+
+from primkit import embedding
+from primkit.primitives import Cuboids, matrix_to_quaternion
+from primkit.embedding import PartDescriptor
+
+
+def axis_angle_quaternion(axis, degrees):
+    axis = np.asarray(axis, float) / np.linalg.norm(axis)
+    h = np.radians(degrees) / 2
+    return np.concatenate([[np.cos(h)], np.sin(h) * axis])
+
+
+def make(z, q, t, e):
+    return Cuboids(np.asarray(z, float), np.asarray(q, float), np.asarray(t, float), np.asarray(e, bool))
+
+
+IDENTITY = [1.0, 0.0, 0.0, 0.0]
+
+
+def two_part(z0=(0.1, 0.2, 0.3), t0=(0.0, 0.1, 0.0), q0=IDENTITY, present1=True, z1=(0.05, 0.05, 0.05), t1=(0.2, 0.0, 0.0)):
+    return make([z0, z1], [q0, IDENTITY], [t0, t1], [True, present1])
+
+
+def test_descriptor_matches_hand_computed_values():
+    a = two_part()
+    scales = {"size": 0.5, "position": 0.25, "orientation": 60.0, "presence": 2.0}
+    desc = PartDescriptor(parts="part0", scales=scales).fit([a])
+    x = desc.transform([a])[0]
+    # orientation block: identity / (2 sqrt 2 sin 30 deg) = identity / sqrt 2
+    expected = np.concatenate([np.array([0.1, 0.2, 0.3]) / 0.5, np.array([0.0, 0.1, 0.0]) / 0.25,
+                               np.eye(3).ravel() / np.sqrt(2.0), [1.0 / 2.0]])
+    assert np.allclose(x, expected)
+    assert desc.feature_names_[0] == "part0.size.x" and desc.feature_names_[-1] == "part0.presence"
+    assert len(desc.feature_names_) == 16
+
+
+def test_rotation_distance_is_the_chord_of_the_angle():
+    # a rotation of theta costs sin(theta/2) / sin(scale/2); of exactly the scale, 1
+    for theta in (10.0, 15.0, 90.0, 170.0):
+        a = two_part()
+        b = two_part(q0=axis_angle_quaternion([0.3, 1.0, -0.2], theta))
+        desc = PartDescriptor(parts=[0], what="orientation", scales={"orientation": 15.0}).fit([a, b])
+        d = embedding.descriptor_distances(desc.transform([a, b]))[0, 1]
+        assert d == pytest.approx(np.sin(np.radians(theta) / 2) / np.sin(np.radians(15.0) / 2), rel=1e-9)
+
+
+def test_quaternion_sign_does_not_matter():
+    q = axis_angle_quaternion([1.0, 2.0, 0.5], 70.0)
+    a, b = two_part(q0=q), two_part(q0=-q)
+    X = PartDescriptor().fit([a, b]).transform([a, b])
+    assert np.allclose(X[0], X[1], atol=1e-12)
+    assert embedding.descriptor_distances(X)[0, 1] == pytest.approx(0.0, abs=1e-12)
+    # and the round trip through a matrix (w >= 0) gives the same descriptor
+    c = two_part(q0=matrix_to_quaternion(a.rotations[0]))
+    assert np.allclose(PartDescriptor().fit([a]).transform([c])[0], X[0], atol=1e-12)
+
+
+def test_absent_part_costs_the_presence_penalty_plus_its_distance_from_the_average_part():
+    shapes = [two_part(z1=(0.05, 0.05, 0.05), t1=(0.2, 0.0, 0.0)), two_part(z1=(0.15, 0.05, 0.05), t1=(0.4, 0.0, 0.0)),
+              two_part(present1=False, z1=(9.0, 9.0, 9.0), t1=(-7.0, 3.0, 1.0))]
+    scales = {"size": 0.1, "position": 0.1, "orientation": 15.0, "presence": 0.5}
+    desc = PartDescriptor(parts="part1", scales=scales).fit(shapes)
+    # fill values: the mean of the present instances (identity rotations average to identity)
+    assert np.allclose(desc.fill_["size"][0], [0.1, 0.05, 0.05])
+    assert np.allclose(desc.fill_["position"][0], [0.3, 0.0, 0.0])
+    assert np.allclose(desc.fill_["orientation"][0], np.eye(3).ravel())
+    D = embedding.descriptor_distances(desc.transform(shapes))
+    # present (0.05, pos 0.2) against absent (filled with the mean): size 0.05/0.1, position 0.1/0.1, presence 1/0.5
+    assert D[0, 2] == pytest.approx(np.sqrt(0.5 ** 2 + 1.0 ** 2 + 2.0 ** 2))
+    # the absent part's own (garbage) values never enter
+    other = two_part(present1=False, z1=(0.01, 0.02, 0.03), t1=(1.0, 1.0, 1.0))
+    assert np.allclose(desc.transform([other]), desc.transform([shapes[2]]))
+    # presence alone: exactly the fixed penalty
+    only = PartDescriptor(parts="part1", what="presence", scales=scales).fit(shapes)
+    Dp = embedding.descriptor_distances(only.transform(shapes))
+    assert Dp[0, 2] == pytest.approx(2.0) and Dp[0, 1] == pytest.approx(0.0)
+
+
+def test_parts_by_name_and_unknown_names():
+    a, b = two_part(), two_part(t1=(0.5, 0.0, 0.0))
+    names = ["seat", "arms"]
+    by_name = PartDescriptor(parts="arms", part_names=names).fit([a, b])
+    by_index = PartDescriptor(parts="1", part_names=names).fit([a, b])
+    assert list(by_name.parts_) == [1]
+    assert np.array_equal(by_name.transform([a, b]), by_index.transform([a, b]))
+    assert by_name.feature_names_[0].startswith("arms.")
+    with pytest.raises(ValueError, match="seat, arms"):
+        PartDescriptor(parts="back", part_names=names).fit([a])
+    with pytest.raises(ValueError, match="unknown property"):
+        PartDescriptor(what="colour").fit([a])
+    with pytest.raises(ValueError, match="same number of part slots"):
+        PartDescriptor().fit([a, make([[0.1, 0.1, 0.1]], [IDENTITY], [[0, 0, 0]], [True])])
+
+
+def random_cuboids(rng, s, m=6):
+    out = []
+    for _ in range(s):
+        q = rng.normal(size=(m, 4))
+        out.append(make(rng.uniform(0.02, 0.3, (m, 3)), q, rng.uniform(-0.4, 0.4, (m, 3)), rng.random(m) < 0.7))
+    return out
+
+
+@pytest.mark.parametrize("algorithm", ["auto", "ball_tree", "kd_tree", "brute"])
+def test_nearest_neighbours_agree_with_brute_force(algorithm):
+    rng = np.random.default_rng(1)
+    cubs = random_cuboids(rng, 120)
+    X = PartDescriptor().fit_transform(cubs)
+    nn = embedding.nearest_neighbors(X, 3, algorithm=algorithm)
+    D = embedding.descriptor_distances(X)
+    np.fill_diagonal(D, np.inf)
+    order = np.argsort(D, axis=1)[:, :3]
+    assert np.array_equal(nn.indices, order)
+    assert np.allclose(nn.distances, np.take_along_axis(D, order, axis=1))
+    # queries from outside the collection
+    Q = PartDescriptor().fit(cubs).transform(random_cuboids(rng, 5))
+    nq = embedding.nearest_neighbors(X, 2, queries=Q, algorithm=algorithm)
+    Dq = embedding.descriptor_distances(Q, X)
+    assert np.array_equal(nq.indices, np.argsort(Dq, axis=1)[:, :2])
+
+
+def test_voxel_iou_distances_against_sets():
+    rng = np.random.default_rng(2)
+    grids = rng.random((5, 6, 6, 6)) < 0.3
+    grids[4] = False
+    D = embedding.voxel_iou_distances(grids, chunk=2)
+    for i in range(5):
+        for j in range(5):
+            a, b = grids[i].ravel(), grids[j].ravel()
+            union = np.sum(a | b)
+            expected = 0.0 if union == 0 else 1 - np.sum(a & b) / union
+            assert D[i, j] == pytest.approx(expected)
+
+
+def test_tsne_map_of_two_separated_groups():
+    rng = np.random.default_rng(3)
+    X = np.concatenate([rng.normal(0, 0.1, (15, 4)), rng.normal(5, 0.1, (15, 4))])
+    Y = embedding.tsne_map(X, random_state=0)
+    assert Y.shape == (30, 2)
+    nn = embedding.nearest_neighbors(Y, 1)
+    assert embedding.neighbour_agreement(nn.indices, np.repeat([0, 1], 15)) == 1.0
+    # precomputed and on-descriptor paths give maps of the right shape
+    assert embedding.tsne_map(X, random_state=0, precomputed_below=10).shape == (30, 2)
+
+
+def test_embed_and_similar_commands(tmp_path, capsys):
+    from primkit import synthetic
+    from primkit.cli import main
+
+    shapes = tmp_path / "chairs"
+    synthetic.write_collection(shapes, "chair", 6, seed=5)
+    cache = tmp_path / "cache"
+    out = tmp_path / "embed"
+    common = ["--model", "chair", "--cache", str(cache), "--workers", "1"]
+    assert main(["embed", str(shapes), *common, "--parts", "16,18", "--what", "orientation,size", "-o", str(out)]) == 0
+    D = np.load(out / "distances.npy")
+    X = np.load(out / "descriptors.npy")
+    assert D.shape == (6, 6) and np.allclose(D, D.T) and np.allclose(np.diag(D), 0)
+    assert np.allclose(D, embedding.descriptor_distances(X))
+    header = (out / "distances.csv").read_text().splitlines()[0].split(",")
+    assert header[1:] == [f"chair_{i:04d}" for i in range(6)]
+    assert len((out / "map.csv").read_text().splitlines()) == 7
+    assert (out / "map.png").stat().st_size > 5000
+    # outputs are not overwritten without --force
+    assert main(["embed", str(shapes), *common, "-o", str(out)]) == 2
+    # voxel IoU baseline
+    out2 = tmp_path / "iou"
+    assert main(["embed", str(shapes), *common, "--metric", "voxel-iou", "-o", str(out2), "--no-png"]) == 0
+    Di = np.load(out2 / "distances.npy")
+    assert np.all((Di >= 0) & (Di <= 1)) and np.allclose(np.diag(Di), 0)
+    capsys.readouterr()
+    # similar: the query is left out of its own ranking; the ranking follows the descriptor distances
+    out3 = tmp_path / "similar"
+    assert main(["similar", str(shapes / "chair_0000.ply"), str(shapes), *common, "--parts", "16,18",
+                 "--what", "orientation,size", "-k", "3", "-o", str(out3)]) == 0
+    rows = (out3 / "similar.csv").read_text().splitlines()[1:]
+    assert len(rows) == 3 and all("chair_0000" not in r for r in rows)
+    dist = [float(r.split(",")[2]) for r in rows]
+    assert dist == sorted(dist)
+    assert (out3 / "similar.png").stat().st_size > 2000
+    # unknown part name: one-line usage error
+    assert main(["similar", str(shapes / "chair_0000.ply"), str(shapes), *common, "--parts", "wings", "-o", str(tmp_path / "x")]) == 2
+    assert "unknown part 'wings'" in capsys.readouterr().err
