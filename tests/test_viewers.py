@@ -135,3 +135,67 @@ def test_viewer_opens_a_real_window_under_xvfb(tmp_path):
 
     img = np.asarray(Image.open(png).convert("RGB"))
     assert (np.abs(img.astype(int) - 255).sum(-1) > 30).mean() > 0.02  # something drawn
+
+
+def test_embedding_explorer_click_shows_nearest_neighbours(shapes, chairs, prepared_chairs):
+    ee, common = load_app("embedding_explorer"), load_app("common")
+    from primkit import embedding
+
+    shape_list, model = shapes
+    coords = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [1.0, 1.0]])  # a fixed map: no t-SNE needed here
+    explorer = ee.embedding_explorer(shape_list, model.part_names, neighbors=2, coords=coords, off_screen=True,
+                                     window_size=(500, 400))
+    p = explorer.plotter
+    p.render()
+    X = embedding.PartDescriptor(part_names=model.part_names).fit_transform([s.result for s in shape_list])
+    D = embedding.descriptor_distances(X)
+    for i in range(len(shape_list)):
+        x, y = common.display_position(p, explorer.positions[i])
+        assert explorer.pick_at(x, y) == i
+        # neighbours: brute force over the distance matrix, self excluded
+        want = [j for j in np.argsort(D[i], kind="stable") if j != i][:2]
+        assert sorted(explorer.neighbors.indices[i]) == sorted(want)
+        colours = [tuple(np.round(a.GetProperty().GetColor(), 3)) for a in explorer.map_actors]
+        assert colours[i] == tuple(np.round(ee._rgb(ee.ORANGE), 3))
+        assert all(colours[j] == tuple(np.round(ee._rgb(ee.BLUE), 3)) for j in want)
+        assert explorer.info.startswith(f"{shape_list[i].name}: nearest")
+        assert len(explorer.row_actors) == 2 * 3  # the chosen shape and 2 neighbours, each with a label
+    p.close()
+
+
+def test_deformation_viewer_blend_and_part_edit(shapes):
+    dv, common = load_app("deformation_viewer"), load_app("common")
+    from primkit import deformation
+
+    (a, b, *_), model = shapes
+    viewer = dv.deformation_viewer(a, b, model.part_names, off_screen=True, window_size=(600, 400))
+    rest = viewer.binding.vertices
+    _move_slider(viewer.sliders["blend"], 0.0)
+    assert np.allclose(viewer.result_poly.points - viewer.offset, rest, atol=1e-12)
+    _move_slider(viewer.sliders["blend"], 1.0)
+    full = np.asarray(viewer.result_poly.points) - viewer.offset
+    # at 1 the result is primkit.deformation.deform with the same binding
+    want = deformation.deform(rest, a.result.canonical, b.result.canonical, falloff=viewer.binding.falloff,
+                              faces=a.faces).vertices
+    assert np.allclose(full, want, atol=1e-9)
+    _move_slider(viewer.sliders["blend"], 0.5)
+    half = np.asarray(viewer.result_poly.points) - viewer.offset
+    assert np.allclose(half - rest, 0.5 * (full - rest), atol=1e-9)  # displacement linear in the blend
+    # edit: raising the chosen part at blend 0 moves its vertices up by that much
+    _move_slider(viewer.sliders["blend"], 0.0)
+    k = viewer.part
+    _move_slider(viewer.sliders["raise"], 0.1)
+    moved = np.asarray(viewer.result_poly.points) - viewer.offset
+    e = deformation.edit(rest, a.result.canonical, move={k: (0.0, 0.1, 0.0)}, falloff=viewer.binding.falloff)
+    assert np.allclose(moved, e.vertices, atol=1e-9) and not np.allclose(moved, rest)
+    assert "raise 0.10" in viewer.info
+    # clicking another source cuboid chooses it and resets the edit
+    p = viewer.plotter
+    p.render()
+    other = next(j for j in viewer.source_actors if j != k)
+    for j, actor in viewer.source_actors.items():
+        actor.SetVisibility(j == other)
+    x, y = common.display_position(p, a.result.canonical.translations[other] + viewer.offset - 2 * viewer.offset)
+    assert viewer.pick_at(x, y) == other and viewer.part == other
+    assert np.allclose(np.asarray(viewer.result_poly.points) - viewer.offset, rest, atol=1e-12)
+    p.close()
