@@ -1,0 +1,249 @@
+"""``primkit deform`` (a source mesh takes a target's part configuration) and ``primkit edit``
+(scale, turn and move named parts of one mesh): thin wrappers over :mod:`primkit.deformation`.
+
+Both abstract their inputs with ``--model``, work in the canonical frame of the source (so shapes
+of any size or placement compare alike), and write the result back in the source's own frame, with
+its faces and vertex order (and, when the output has the source's format, the attributes trimesh
+keeps, such as vertex colours), a PNG and a JSON file of quality measures beside it.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from ._common import err, report_errors, settings_from_args
+
+__all__ = ["register"]
+
+
+def _outputs(args) -> tuple[Path, Path | None, Path]:
+    out = Path(args.output)
+    png = None if args.png == "none" else Path(args.png) if args.png else out.with_suffix(".png")
+    js = Path(args.json) if args.json else out.with_suffix(".json")
+    for p in (out, png, js):
+        if p is not None and p.exists() and not args.force:
+            raise FileExistsError(f"{p}: exists (use --force to overwrite)")
+    return out, png, js
+
+
+def _abstract(args, paths):
+    """(abstractor, [(prepared shape, result)] in the order of ``paths``, errors)."""
+    from ..abstractor import Abstractor
+    from ..data import prepare_collection
+
+    abstractor = Abstractor.load(args.model)
+    settings = settings_from_args(args, abstractor.settings)
+    coll = prepare_collection(paths, settings, cache_dir=args.cache, workers=args.workers)
+    shapes = {str(s.source): s for s in coll}
+    if coll.errors:
+        return abstractor, None, coll.errors
+    ordered = [shapes[str(p)] for p in paths]
+    results = abstractor.predict(ordered, refine=args.refine)
+    return abstractor, list(zip(ordered, results)), []
+
+
+def _source_mesh(path):
+    from ..io import Mesh, ShapeFileError, read_shape
+
+    shape = read_shape(path)
+    if not isinstance(shape, Mesh):
+        raise ShapeFileError(path, "the source must be a triangle mesh (a point cloud or voxel grid has no surface to deform)")
+    return shape
+
+
+def write_like(source_path, path, vertices, faces, *, overwrite: bool = False) -> Path:
+    """Write ``vertices`` with the source's faces; when ``path`` has the source's suffix (PLY, OBJ,
+    GLB) and trimesh reads the source with the same vertices and faces, its other attributes
+    (vertex colours, texture coordinates) are kept. Otherwise :func:`primkit.io.write_mesh`."""
+    from .. import io
+
+    src, path = Path(source_path), Path(path)
+    if src.suffix.lower() == path.suffix.lower() and path.suffix.lower() in (".ply", ".obj", ".glb"):
+        try:
+            import trimesh
+
+            tm = trimesh.load(str(src), process=False, maintain_order=True, force="mesh")
+            same = len(tm.vertices) == len(vertices) and np.array_equal(np.asarray(tm.faces), np.asarray(faces))
+        except Exception:  # noqa: BLE001 - fall back to the plain writer
+            same = False
+        if same:
+            tm.vertices = np.asarray(vertices, float)
+            payload = tm.export(file_type=path.suffix.lower()[1:])
+            with io.atomic_output(path, overwrite=overwrite) as tmp:
+                Path(tmp).write_bytes(payload if isinstance(payload, bytes) else payload.encode())
+            return path
+    return io.write_mesh(path, vertices, faces, overwrite=overwrite)
+
+
+def _face_labels(labels, faces):
+    """A part per face from the vertices' parts (two corners agreeing win, else the first)."""
+    lab = np.asarray(labels)[np.asarray(faces)]
+    return np.where(lab[:, 1] == lab[:, 2], lab[:, 1], lab[:, 0])
+
+
+def _target_layer(shape):
+    from ..io import Mesh, read_shape
+    from ..render import mesh_layer, points_layer
+
+    try:
+        target = read_shape(shape.source)
+    except Exception:  # noqa: BLE001 - drawn from its samples instead
+        target = None
+    if isinstance(target, Mesh):
+        return mesh_layer(shape.frame.to_canonical(target.vertices), target.faces)
+    return points_layer(shape.points, point_size=2.0)
+
+
+def _summary_line(q) -> str:
+    d = q["distortion"]["all"]
+    return (f"flipped triangles {100 * q['flipped']:.3f}% (against the parts' own turns {100 * q['flipped_vs_parts']:.3f}%); "
+            f"edge-length distortion inside parts (vs each part's map): median {d['median']:.4f}, 99th pct {d['p99']:.4f}")
+
+
+def _named(q, names):
+    """Quality dict with part slots named ``<name>[<k>]`` for the JSON."""
+    out = dict(q)
+    for key in ("distortion", "stretch"):
+        out[key] = {(k if k == "all" else f"{names[k]}[{k}]"): v for k, v in q[key].items()}
+    return out
+
+
+def _cmd_deform(args) -> int:
+    from .. import deformation
+    from ..io import atomic_output
+    from ..render import CANONICAL_RADIUS, Tile, cuboid_layer, segmentation_layer, write_png
+
+    out, png, js = _outputs(args)
+    src, tgt = Path(args.source), Path(args.target)
+    abstractor, pairs, errors = _abstract(args, [src, tgt])
+    if errors:
+        return report_errors(errors)
+    (ss, rs), (ts, rt) = pairs
+    mesh = _source_mesh(src)
+    v = rs.frame.to_canonical(mesh.vertices)
+    d = deformation.deform(v, rs.canonical, rt.canonical, falloff=args.falloff)
+    q = d.quality(mesh.faces, target_points=ts.points, source_points=ss.points)
+    names = abstractor.part_names
+    tr = d.transfer
+    label = lambda ks: ", ".join(f"{names[k]}[{k}]" for k in ks) or "none"  # noqa: E731
+    print(f"parts moved onto the target's: {label(tr.paired)}")
+    for k, j in tr.source_only.items():
+        why = "too different in size" if k in tr.mismatched else "absent in the target"
+        what = f"follows {names[j]}[{j}]" if j is not None else "stays put"
+        print(f"  {names[k]}[{k}] ({why}) {what}")
+    if tr.target_only:
+        print(f"  only in the target (not represented): {label(tr.target_only)}")
+    print(f"Chamfer-L1 to the target (canonical frames, 10000+10000 samples): source {q['chamfer_source_target']:.4f} "
+          f"-> result {q['chamfer_result_target']:.4f}")
+    print(_summary_line(q) + f"; blending distance {d.binding.falloff:.4f}")
+    write_like(src, out, rs.frame.from_canonical(d.vertices), mesh.faces, overwrite=args.force)
+    report = {"source": str(src), "target": str(tgt), "model": str(args.model), "output": str(out),
+              "frame": "canonical frame of each shape (bbox centred, longest side 1)",
+              "chamfer": "Chamfer-L1 = (mean_A min_B |a-b| + mean_B min_A |b-a|) / 2, unsquared",
+              "falloff": d.binding.falloff, "parts": {**tr.to_dict(), "names": names}, "quality": _named(q, names)}
+    with atomic_output(js, overwrite=args.force) as tmp:
+        Path(tmp).write_text(json.dumps(report, indent=1))
+    if png is not None:
+        flab = _face_labels(d.binding.labels, mesh.faces)
+        count = rs.canonical.count
+        tiles = [Tile(f"source {ss.name}", [segmentation_layer(v, mesh.faces, flab, count), cuboid_layer(rs.canonical, opacity=0.25)]),
+                 Tile(f"target {ts.name}", [_target_layer(ts), cuboid_layer(rt.canonical, opacity=0.25)]),
+                 Tile("result", [segmentation_layer(d.vertices, mesh.faces, flab, count), cuboid_layer(rt.canonical, opacity=0.25)])]
+        write_png(png, tiles, overwrite=args.force, columns=3, radius=CANONICAL_RADIUS)
+    print(f"-> {out}, {js}" + (f", {png}" if png else ""))
+    return 0
+
+
+def _cmd_edit(args) -> int:
+    from .. import deformation
+    from ..io import atomic_output
+    from ..render import CANONICAL_RADIUS, Tile, cuboid_layer, segmentation_layer, write_png
+
+    out, png, js = _outputs(args)
+    src = Path(args.mesh)
+    abstractor, pairs, errors = _abstract(args, [src])
+    if errors:
+        return report_errors(errors)
+    names = abstractor.part_names
+    edits = {"scale": {}, "rotate": {}, "move": {}}
+    for kind in edits:
+        for text in getattr(args, kind) or []:
+            edits[kind].update(deformation.parse_edit(text, names, kind=kind))
+    if not any(edits.values()):
+        err("nothing to edit: give --scale, --rotate or --move")
+        return 2
+    (shape, res), = pairs
+    present = set(res.canonical.present.tolist())
+    for kind, chosen in edits.items():
+        missing = [k for k in chosen if k not in present]
+        if missing and len(missing) == len(chosen):
+            raise ValueError(f"--{kind}: {', '.join(f'{names[k]}[{k}]' for k in missing)} not present in {shape.name}'s abstraction")
+        for k in missing:  # a name covering several slots (legs) edits the present ones
+            del chosen[k]
+    mesh = _source_mesh(src)
+    v = shape.frame.to_canonical(mesh.vertices)
+    d = deformation.edit(v, res.canonical, **edits, falloff=args.falloff)
+    q = d.quality(mesh.faces)
+    e = d.edit
+    print("edited: " + ", ".join(f"{names[k]}[{k}]" for k in e.edited))
+    for j, below in e.carried.items():
+        print(f"  {names[j]}[{j}] carried along (rests on {', '.join(f'{names[k]}[{k}]' for k in below)})")
+    h0, h1 = np.ptp(v[:, 1]), np.ptp(d.vertices[:, 1])
+    print(f"height (canonical units, longest side 1): {h0:.4f} -> {h1:.4f} ({100 * (h1 / h0 - 1):+.1f}%)")
+    print(_summary_line(q) + f"; blending distance {d.binding.falloff:.4f}")
+    write_like(src, out, shape.frame.from_canonical(d.vertices), mesh.faces, overwrite=args.force)
+    report = {"source": str(src), "model": str(args.model), "output": str(out),
+              "edits": {kind: {f"{names[k]}[{k}]": np.atleast_1d(val).tolist() for k, val in chosen.items()}
+                        for kind, chosen in edits.items()},
+              "frame": "canonical frame of the shape (+Y up, +X front, longest side 1); edits in each part's "
+                       "(front, up, side) axes about the centre of its bottom face",
+              "edited": [int(k) for k in e.edited], "carried": {str(j): [int(k) for k in b] for j, b in e.carried.items()},
+              "height_before": float(h0), "height_after": float(h1), "falloff": d.binding.falloff,
+              "quality": _named(q, names)}
+    with atomic_output(js, overwrite=args.force) as tmp:
+        Path(tmp).write_text(json.dumps(report, indent=1))
+    if png is not None:
+        flab = _face_labels(d.binding.labels, mesh.faces)
+        count = res.canonical.count
+        tiles = [Tile(f"before {shape.name}", [segmentation_layer(v, mesh.faces, flab, count), cuboid_layer(res.canonical, opacity=0.25)]),
+                 Tile("after", [segmentation_layer(d.vertices, mesh.faces, flab, count), cuboid_layer(e.cuboids, opacity=0.25)])]
+        write_png(png, tiles, overwrite=args.force, columns=2, radius=CANONICAL_RADIUS)
+    print(f"-> {out}, {js}" + (f", {png}" if png else ""))
+    return 0
+
+
+def _common_options(p) -> None:
+    p.add_argument("--model", required=True, help="a model file, or a bundled model's name (chair, table, ...)")
+    p.add_argument("-o", "--output", required=True, help="the deformed mesh (.ply, .obj, .off, .glb, .stl)")
+    p.add_argument("--up", default=None, help="the inputs' up axis (default +y)")
+    p.add_argument("--front", default=None, help="the inputs' front axis (default +x; COSEG chairs: +z)")
+    p.add_argument("--refine", type=int, default=0, metavar="N", help="refine each abstraction with N gradient steps")
+    p.add_argument("--falloff", type=float, default=None,
+                   help="blending distance at seams, canonical units (default: widened to the seams' discrepancy)")
+    p.add_argument("--png", default=None, help="picture path (default OUTPUT with .png; 'none': no picture)")
+    p.add_argument("--json", default=None, help="quality measures (default OUTPUT with .json)")
+    p.add_argument("--cache", default=None)
+    p.add_argument("--workers", type=int, default=None)
+    p.add_argument("--force", action="store_true", help="replace existing outputs")
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("deform", help="deform a source mesh into a target shape's part configuration")
+    p.add_argument("source", help="the mesh to deform")
+    p.add_argument("target", help="the shape whose configuration it takes (mesh, points or voxels)")
+    _common_options(p)
+    p.set_defaults(func=_cmd_deform)
+
+    p = subparsers.add_parser("edit", help="scale, turn or move parts of a mesh (by part name or index)")
+    p.add_argument("mesh")
+    p.add_argument("--scale", action="append", metavar="PART=S|F,U,S",
+                   help="scale a part: one factor (uniform) or three along its front, up, side axes (legs=1,1.3,1)")
+    p.add_argument("--rotate", action="append", metavar="PART=DEG",
+                   help="turn a part about its side axis through its bottom face (positive tips it backwards)")
+    p.add_argument("--move", action="append", metavar="PART=F,U,S",
+                   help="move a part along its front, up, side axes (canonical units, longest side 1)")
+    _common_options(p)
+    p.set_defaults(func=_cmd_edit)
