@@ -270,7 +270,7 @@ class Neighbors:
     distances: np.ndarray
 
 
-def nearest_neighbors(X, k: int = 1, queries=None, algorithm: str = "auto") -> Neighbors:
+def nearest_neighbors(X, k: int = 1, queries=None, algorithm: str = "auto", working_memory: int = 64) -> Neighbors:
     """The ``k`` nearest descriptors of each query, through scikit-learn's neighbour index.
 
     Parameters
@@ -281,8 +281,14 @@ def nearest_neighbors(X, k: int = 1, queries=None, algorithm: str = "auto") -> N
         None: each shape of the collection, its own entry excluded.
     algorithm : str
         scikit-learn's ``"auto"``, ``"ball_tree"``, ``"kd_tree"`` or ``"brute"``. Brute force there
-        works through bounded chunks of the distance matrix, never the whole (s, s) matrix.
+        works through bounded chunks of the distance matrix, never the whole (s, s) matrix; for
+        descriptors of many parts (hundreds of columns) scikit-learn's ``"auto"`` picks it, as
+        trees lose their edge in high dimension (see ``benchmarks/bench_embed.py``).
+    working_memory : int
+        MiB for one chunk of brute-force distances (scikit-learn's ``working_memory``, 1 GiB by default there).
     """
+    import sklearn
+
     from sklearn.neighbors import NearestNeighbors
 
     X = np.asarray(X, float)
@@ -290,7 +296,8 @@ def nearest_neighbors(X, k: int = 1, queries=None, algorithm: str = "auto") -> N
     if not 1 <= k <= limit:
         raise ValueError(f"k must be between 1 and {limit} for a collection of {len(X)} shapes, got {k}")
     index = NearestNeighbors(n_neighbors=k, algorithm=algorithm).fit(X)
-    dist, idx = index.kneighbors(None if queries is None else np.asarray(queries, float), k)
+    with sklearn.config_context(working_memory=working_memory):
+        dist, idx = index.kneighbors(None if queries is None else np.asarray(queries, float), k)
     return Neighbors(idx, dist)
 
 
