@@ -6,8 +6,10 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 # open3d needs libusb and the GL/EGL loaders; pyvista renders off screen through EGL.
+# xvfb + xauth: real windows for the viewers (xvfb-run) and their window test; chromium: the
+# headless-browser check of `primkit report` pages.
 need=()
-for pkg in libgl1 libegl1 libopengl0 libusb-1.0-0 libfontconfig1 libgomp1; do
+for pkg in libgl1 libegl1 libopengl0 libusb-1.0-0 libfontconfig1 libgomp1 xvfb xauth chromium; do
   dpkg -s "$pkg" >/dev/null 2>&1 || need+=("$pkg")
 done
 if [ ${#need[@]} -gt 0 ]; then
