@@ -29,12 +29,12 @@ def _outputs(args) -> tuple[Path, Path | None, Path]:
     return out, png, js
 
 
-def _abstract(args, paths):
+def _abstract(args, paths, abstractor=None):
     """(abstractor, [(prepared shape, result)] in the order of ``paths``, errors)."""
     from ..abstractor import Abstractor
     from ..data import prepare_collection
 
-    abstractor = Abstractor.load(args.model)
+    abstractor = abstractor or Abstractor.load(args.model)
     settings = settings_from_args(args, abstractor.settings)
     coll = prepare_collection(paths, settings, cache_dir=args.cache, workers=args.workers)
     shapes = {str(s.source): s for s in coll}
@@ -163,18 +163,21 @@ def _cmd_edit(args) -> int:
     from ..render import CANONICAL_RADIUS, Tile, cuboid_layer, segmentation_layer, write_png
 
     out, png, js = _outputs(args)
+    from ..abstractor import Abstractor
+
     src = Path(args.mesh)
-    abstractor, pairs, errors = _abstract(args, [src])
-    if errors:
-        return report_errors(errors)
+    abstractor = Abstractor.load(args.model)
     names = abstractor.part_names
     edits = {"scale": {}, "rotate": {}, "move": {}}
-    for kind in edits:
+    for kind in edits:  # checked before any shape is read
         for text in getattr(args, kind) or []:
             edits[kind].update(deformation.parse_edit(text, names, kind=kind))
     if not any(edits.values()):
         err("nothing to edit: give --scale, --rotate or --move")
         return 2
+    abstractor, pairs, errors = _abstract(args, [src], abstractor)
+    if errors:
+        return report_errors(errors)
     (shape, res), = pairs
     present = set(res.canonical.present.tolist())
     for kind, chosen in edits.items():
