@@ -416,7 +416,8 @@ def draw_map(coords, images, path, *, colors=None, title: str = "", zoom: float 
     map's extent, per axis) from every thumbnail already drawn, so dense clusters stay readable.
 
     ``coords (s, 2) float``, ``images``: one RGBA thumbnail per shape (or None for a dot alone);
-    ``colors``: optional ``(s,)`` labels or colours for the dots under the thumbnails.
+    ``colors``: optional ``(s,) float`` values (a known attribute) that colour the dots and the
+    thumbnails' frames, with a colour bar.
     """
     import matplotlib
 
@@ -428,10 +429,13 @@ def draw_map(coords, images, path, *, colors=None, title: str = "", zoom: float 
 
     coords = np.asarray(coords, float)
     fig, ax = plt.subplots(figsize=(14, 14), dpi=100)
+    edge = None
     if colors is None:
         ax.scatter(coords[:, 0], coords[:, 1], s=12, c="0.6")
     else:
-        ax.scatter(coords[:, 0], coords[:, 1], s=40, c=colors, cmap="coolwarm")
+        dots = ax.scatter(coords[:, 0], coords[:, 1], s=40, c=colors, cmap="coolwarm")
+        edge = dots.to_rgba(np.asarray(colors, float))
+        fig.colorbar(dots, ax=ax, shrink=0.5, pad=0.01)
     # thumbnails drawn greedily in a fixed random order, skipping those that would mostly cover one
     # already drawn: the dots show every shape, the thumbnails stay readable
     unit = (coords - coords.min(axis=0)) / (np.ptp(coords, axis=0) + 1e-12)
@@ -440,7 +444,9 @@ def draw_map(coords, images, path, *, colors=None, title: str = "", zoom: float 
         if images[i] is None or (len(drawn) and np.min(np.abs(drawn - unit[i]).max(axis=1)) < spacing):
             continue
         drawn = np.vstack([drawn, unit[i]])
-        ax.add_artist(AnnotationBbox(OffsetImage(images[i], zoom=zoom), coords[i], frameon=False, pad=0.0))
+        framed = edge is not None
+        ax.add_artist(AnnotationBbox(OffsetImage(images[i], zoom=zoom), coords[i], frameon=framed, pad=0.05,
+                                     bboxprops={"edgecolor": edge[i], "linewidth": 2.0} if framed else None))
     pad = 0.06 * (np.ptp(coords, axis=0) + 1e-9)
     ax.set_xlim(coords[:, 0].min() - pad[0], coords[:, 0].max() + pad[0])
     ax.set_ylim(coords[:, 1].min() - pad[1], coords[:, 1].max() + pad[1])
