@@ -97,7 +97,7 @@ def abstraction_viewer(vertices, faces, cuboids, names=None, *, title: str = "",
     """
     names = list(names) if names is not None else [f"part{k}" for k in range(cuboids.count)]
     p = common.new_plotter(off_screen, window_size, f"primkit - {title or 'abstraction'}")
-    p.enable_depth_peeling()
+    # no depth peeling: with Mesa (llvmpipe, EGL or Xvfb) it hid every translucent cuboid
     mesh_actor = p.add_mesh(to_pyvista((vertices, faces)), color="lightgrey", smooth_shading=False, pickable=False)
     colors = part_colors(cuboids.count)
     part_actors = {}

@@ -132,7 +132,8 @@ def collection_browser(shapes, part_names=None, *, columns: int | None = None, m
     browser.info_actor = p.add_text("click a shape", position=(10, window_size[1] - 60), font_size=9, color="black")
     browser.set_mode(mode)
     lo, hi = (offsets.min(0) - 0.5), (offsets.max(0) + 0.5)
-    apply_camera(p, (lo + hi) / 2, _grid_radius(offsets, window_size))
+    radius = 1.12 * _grid_radius(offsets, window_size)  # room for the buttons under the grid
+    apply_camera(p, (lo + hi) / 2 - 0.1 * radius * CAMERA.basis()[1], radius)
     common.on_click(p, browser.pick_at)
     return browser
 

@@ -124,7 +124,7 @@ def deformation_viewer(source, target, part_names=None, *, part: int | None = No
     _, up, right = CAMERA.basis()
     offsets = [-STEP * right, np.zeros(3), STEP * right]
     p = common.new_plotter(off_screen, window_size, f"primkit - {title or 'deformation'}")
-    p.enable_depth_peeling()
+    # no depth peeling: with Mesa (llvmpipe, EGL or Xvfb) it hid every translucent cuboid
     colors = part_colors(sc.count)
     p.add_mesh(to_pyvista((sv + offsets[0], source.faces)), color="lightgrey", smooth_shading=False, pickable=False)
     p.add_mesh(to_pyvista((tv + offsets[1], target.faces)), color="lightgrey", smooth_shading=False, pickable=False)

@@ -62,6 +62,7 @@ def _common(p, model_required=True):
     p.add_argument("--png", default=None, help="write the viewer's first frame to this PNG instead of opening it")
     p.add_argument("--window", action="store_true", help="with --png: take the picture from a real window (needs X)")
     p.add_argument("--size", default="1280x900", help="window size WxH (default 1280x900)")
+    p.add_argument("--force", action="store_true", help="replace an existing --png file")
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -73,6 +74,9 @@ def _size(text: str) -> tuple[int, int]:
 
 
 def _run(args) -> int:
+    if args.png is not None and Path(args.png).exists() and not args.force:
+        err(f"{args.png}: exists (use --force to overwrite)")
+        return 2
     align = None if args.align == "none" else args.align
     off = args.png is not None and not args.window
     size = _size(args.size)
