@@ -187,10 +187,12 @@ def _deformation(shapes, similarity, folder: Path, overwrite: bool) -> dict:
             "paired": list(map(int, d.transfer.paired)), "quality": d.quality(a.faces)}
 
 
-def build_report(paths, model, output, *, refine: int = 0, align=None, overwrite: bool = False,
+def build_report(paths, model, output, *, refine: int = 0, align=None, overwrite: bool = False, settings=None,
+                 model_label: str | None = None,
                  cache_dir=None, workers=None, progress: bool = True) -> tuple[Report, list]:
     """Abstract, segment, embed and deform the shapes of ``paths`` with ``model`` and write the report.
 
+    ``settings``: :class:`primkit.data.PrepareSettings` (the inputs' axes); default the model's.
     Returns ``(report, errors)``; ``errors`` has one line per unusable input (the rest goes on).
     """
     from .abstractor import Abstractor
@@ -198,7 +200,7 @@ def build_report(paths, model, output, *, refine: int = 0, align=None, overwrite
     from .metrics import score
 
     abstractor = model if isinstance(model, Abstractor) else Abstractor.load(model)
-    coll = prepare_collection(paths, abstractor.settings, cache_dir=cache_dir, workers=workers, progress=progress)
+    coll = prepare_collection(paths, settings or abstractor.settings, cache_dir=cache_dir, workers=workers, progress=progress)
     prepared = list(coll)
     if not prepared:
         raise ValueError("no usable shapes for the report")
@@ -208,7 +210,7 @@ def build_report(paths, model, output, *, refine: int = 0, align=None, overwrite
         v, f, cub = _canonical_mesh(r, p)
         shapes.append(ReportShape(r.name, str(r.source), v, f, cub, _face_labels(v, f, cub),
                                   score(r.canonical, r.canonical_shape(p))))
-    meta = {"model": str(model if not isinstance(model, Abstractor) else "given"), "refine": refine,
+    meta = {"model": model_label or (str(model) if not isinstance(model, Abstractor) else "given"), "refine": refine,
             "align": align or "none"}
     report = write_report(output, shapes, results, abstractor.part_names, overwrite=overwrite, progress=progress,
                           meta=meta)

@@ -3,12 +3,13 @@ deform) on a collection, into a static HTML page (:func:`primkit.report.build_re
 
 from __future__ import annotations
 
-from ._common import collect, err, report_errors
+from ._common import collect, err, report_errors, settings_from_args
 
 __all__ = ["register"]
 
 
 def _run(args) -> int:
+    from ..abstractor import Abstractor
     from ..report import build_report
 
     files = collect(args.inputs)
@@ -17,7 +18,9 @@ def _run(args) -> int:
     if not files:
         err("no shape files found in " + " ".join(map(str, args.inputs)))
         return 2
-    report, errors = build_report(files, args.model, args.output, refine=args.refine,
+    model = Abstractor.load(args.model)
+    report, errors = build_report(files, model, args.output, refine=args.refine,
+                                  settings=settings_from_args(args, model.settings), model_label=args.model,
                                   align=None if args.align == "none" else args.align, overwrite=args.force,
                                   cache_dir=args.cache, workers=args.workers)
     for note in report.notes.values():
@@ -35,6 +38,8 @@ def register(subparsers) -> None:
     p.add_argument("--limit", type=int, default=0, help="at most this many shapes (0: all)")
     p.add_argument("--refine", type=int, default=0, metavar="N")
     p.add_argument("--align", choices=["none", "auto"], default="none")
+    p.add_argument("--up", default=None, help="the inputs' up axis (default +y)")
+    p.add_argument("--front", default=None, help="the inputs' front axis (default +x; COSEG chairs: +z)")
     p.add_argument("--cache", default=None)
     p.add_argument("--workers", type=int, default=None)
     p.add_argument("--force", action="store_true", help="replace an existing report")
