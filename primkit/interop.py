@@ -381,6 +381,18 @@ def _as_o3d(obj):
     return [points_to_o3d(obj)]
 
 
+def _set_view(control, geoms) -> None:
+    """Look from :data:`primkit.render.CAMERA`'s direction (front-right-above, +Y up) at the geometry."""
+    from .render import CAMERA
+
+    lo = np.min([g.get_min_bound() for g in geoms], axis=0)
+    hi = np.max([g.get_max_bound() for g in geoms], axis=0)
+    control.set_lookat((lo + hi) / 2)
+    control.set_front(np.asarray(CAMERA.direction, float) / np.linalg.norm(CAMERA.direction))
+    control.set_up(CAMERA.up)
+    control.set_zoom(0.8)
+
+
 def draw(*objects, png=None, window_size: tuple[int, int] = (800, 600), title: str = "primkit"):
     """Show primkit values (or Open3D geometry) in Open3D's viewer, or write a PNG without a window.
 
@@ -391,7 +403,8 @@ def draw(*objects, png=None, window_size: tuple[int, int] = (800, 600), title: s
     png : path, optional
         Write a picture instead of opening a window (Open3D's legacy ``Visualizer`` with an
         invisible window; works off screen through EGL as well as under X). The newer
-        ``OffscreenRenderer`` is avoided: it needs Vulkan and took seconds per frame on CPU.
+        ``OffscreenRenderer`` is avoided: it needs Vulkan and took seconds per frame on CPU. The
+        picture is taken from the camera direction of :data:`primkit.render.CAMERA`.
 
     Returns
     -------
@@ -412,6 +425,7 @@ def draw(*objects, png=None, window_size: tuple[int, int] = (800, 600), title: s
         for g in geoms:
             vis.add_geometry(g)
         vis.get_render_option().mesh_show_back_face = True
+        _set_view(vis.get_view_control(), geoms)
         vis.poll_events()
         vis.update_renderer()
         with atomic_output(png, overwrite=True) as tmp:

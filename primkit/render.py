@@ -248,7 +248,7 @@ def render_tiles(tiles, *, columns: int = 4, tile: int = 260, camera: Camera = C
             for layer in t.layers:
                 layer.add_to(plotter)
             if t.title:
-                plotter.add_text(t.title, font_size=font_size, color="black")
+                plotter.add_text(t.title, position=(0.03, 0.9), viewport=True, font_size=font_size, color="black")
             apply_camera(plotter, t.bounds().mean(0), r, camera)
         return np.asarray(plotter.screenshot(return_img=True))[..., :3].copy()
     finally:
@@ -297,7 +297,8 @@ class ThumbnailRenderer:
         for layer in tile.layers:
             layer.add_to(p)
         if tile.title:
-            p.add_text(tile.title, font_size=self.font_size, color="black", name="title")
+            p.add_text(tile.title, position=(0.03, 0.9), viewport=True, font_size=self.font_size, color="black",
+                       name="title")
         r = _common_radius([tile], radius if radius is not None else self.radius)
         apply_camera(p, tile.bounds().mean(0), r, self.camera)
         p.render()  # after the first picture, screenshot() alone returns the last frame drawn
