@@ -1,0 +1,145 @@
+"""``primkit train-image``: distil a volume model into an image model; and the image side of
+``primkit abstract`` (:func:`run_abstract_images`, called when ``--model`` is an image model).
+
+Thin wrappers over :mod:`primkit.views` (rendering) and :mod:`primkit.image_model` (training,
+inference, pictures).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from ._common import add_prepare_options, collect, err, report_errors, settings_from_args
+
+__all__ = ["register", "run_train_image", "run_abstract_images", "collect_images"]
+
+IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".webp", ".tif", ".tiff"}
+
+
+def collect_images(inputs) -> tuple[list[Path], list[str]]:
+    """Image files from files and folders (folders searched recursively, sorted); returns
+    ``(files, errors)`` with one error line per input that is neither."""
+    files, errors = [], []
+    for item in inputs:
+        p = Path(item)
+        if p.is_dir():
+            found = sorted(q for q in p.rglob("*") if q.is_file() and q.suffix.lower() in IMAGE_SUFFIXES)
+            if not found:
+                errors.append(f"{p}: no image files in this folder")
+            files.extend(found)
+        elif p.is_file():
+            files.append(p)
+        else:
+            errors.append(f"{p}: no such file or folder")
+    return files, errors
+
+
+def run_abstract_images(args) -> int:
+    """Abstract pictures with an image model: per image ``<name>.cuboids.json`` (canonical frame,
+    with the estimated viewpoint), ``<name>.cuboids.ply`` (coloured by part index) and, with
+    ``--png``, ``<name>.png``: the picture beside the same picture with the cuboid edges projected
+    through the predicted viewpoint and the training views' distance and field of view.
+
+    ``args``: ``.inputs`` (image files or folders), ``.model``, ``.output``, ``.force``, ``.png``.
+    """
+    from ..abstractor import part_colors
+    from ..image_model import ImageAbstractor, draw_over_image
+    from ..io import atomic_output, write_mesh
+
+    try:
+        model = ImageAbstractor.load(args.model)
+    except (FileNotFoundError, ValueError) as exc:
+        err(str(exc))
+        return 2
+    files, failed = collect_images(args.inputs)
+    results, errors = model.predict_files(files)
+    failed += errors
+    out = Path(args.output)
+    out.mkdir(parents=True, exist_ok=True)
+    vs = model.view_settings
+    for r in results:
+        paths = [out / f"{r.name}.cuboids.json", out / f"{r.name}.cuboids.ply"] + ([out / f"{r.name}.png"] if args.png else [])
+        existing = [p for p in paths if p.exists()]
+        if existing and not args.force:
+            failed.append(f"{existing[0]}: exists (use --force to overwrite)")
+            continue
+        with atomic_output(paths[0], overwrite=True) as tmp:
+            Path(tmp).write_text(json.dumps(r.to_dict(), indent=1))
+        v, f, part = r.cuboids.to_mesh()
+        write_mesh(paths[1], v, f, face_colors=part_colors(r.cuboids.count)[part], overwrite=True)
+        if args.png:
+            draw_over_image(r, paths[2], distance=float(sum(vs.distance) / 2), view_angle_deg=vs.view_angle_deg)
+        print(f"{r.name}: {int(r.cuboids.existence.sum())} parts, seen from azimuth {r.azimuth_deg:.0f} deg, "
+              f"elevation {r.elevation_deg:.0f} deg -> {paths[0]}")
+    return report_errors(failed)
+
+
+def run_train_image(args) -> int:
+    import numpy as np
+    import torch
+
+    from .. import data, views
+    from ..abstractor import Abstractor
+    from ..image_model import ImageAbstractor, ImageNetConfig, ImageTrainConfig, train_image_model
+
+    out = Path(args.output)
+    if out.exists() and not args.force:
+        err(f"{out}: exists (use --force to overwrite)")
+        return 2
+    try:
+        teacher = Abstractor.load(args.teacher)
+    except (FileNotFoundError, ValueError) as exc:
+        err(str(exc))
+        return 2
+    files = collect(args.inputs)
+    every = teacher.hold_out_every if args.hold_out is None else args.hold_out
+    train_files, _ = data.split_files(files, every)
+    if args.limit:
+        train_files = train_files[: args.limit]
+    coll = data.prepare_collection(train_files, settings_from_args(args, teacher.settings), cache_dir=args.cache,
+                                   workers=args.workers)
+    if len(coll) == 0:
+        err("no usable training shapes")
+        return 2
+    settings = views.ViewSettings(size=args.size)
+    occ = [s.occupancy for s in coll]
+    rendered = views.render_views(occ, args.views, settings=settings, palette="seen", seed=args.seed,
+                                  names=[data.shape_name(p) for p in coll.paths], progress=True)
+    targets = teacher.predict_canonical(np.stack(occ))
+    config = ImageTrainConfig(iterations=args.iterations, batch_size=args.batch_size, seed=args.seed)
+    result = train_image_model(rendered.images, rendered.shape_index, rendered.cameras, targets,
+                               ImageNetConfig(size=args.size, parts=teacher.parts), config)
+    teacher_card = teacher.metadata.get("card") or {}
+    meta = {
+        "teacher": str(args.teacher),
+        "teacher_card": teacher_card,
+        "part_names": teacher.metadata.get("part_names"),
+        "views": settings.to_dict(),
+        "training": {"config": config.to_dict(), "inputs": [str(i) for i in args.inputs], "hold_out_every": every,
+                     "shapes": len(coll), "views": len(rendered), "seconds": round(result.seconds, 1),
+                     "torch": torch.__version__, "final": result.history[-1],
+                     "terms": teacher_card.get("terms") or "as the training shapes' terms"},
+    }
+    ImageAbstractor(result.network, {}).save(out, meta, overwrite=args.force)
+    print(f"image model: {len(coll)} shapes, {len(rendered)} views, {result.seconds / 60:.1f} min, "
+          f"final loss {result.history[-1]['total']:.4f} -> {out}")
+    return report_errors(coll.errors)
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser("train-image", help="distil a volume model into an image model (rendered views)")
+    p.add_argument("inputs", nargs="+", help="shape files or folders (the teacher's category)")
+    p.add_argument("-o", "--output", required=True, help="the image model file to write (.safetensors)")
+    p.add_argument("--teacher", default="chair", help="the volume model to distil (a file or a bundled name)")
+    p.add_argument("--views", type=int, default=2, help="rendered views per shape (default 2)")
+    p.add_argument("--size", type=int, default=64, help="image side in pixels (default 64; divisible by 32)")
+    p.add_argument("--iterations", type=int, default=9000)
+    p.add_argument("--batch-size", type=int, default=64)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--hold-out", type=int, default=None,
+                   help="hold out every Nth sorted file (default: the teacher's own rule, so no held-out shape is seen)")
+    p.add_argument("--limit", type=int, default=0, help="use at most this many training shapes (0: all)")
+    p.add_argument("--force", action="store_true")
+    add_prepare_options(p)
+    p.set_defaults(func=run_train_image)

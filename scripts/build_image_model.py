@@ -1,0 +1,231 @@
+"""Build the bundled chair image model: render views, distil the chair volume model, evaluate.
+
+    python scripts/build_image_model.py render   # views of the teacher's training and held-out chairs
+    python scripts/build_image_model.py train    # distil (about 20 min on 2 CPU cores)
+    python scripts/build_image_model.py eval     # held-out chairs, unseen backgrounds; writes the card
+    python scripts/build_image_model.py all
+
+Data: ShapeNetVox32 chairs in ../shared/data/shapenetvox32/03001627, prepared through the cache
+``--cache`` (default /work/runs/cache), split with the teacher's own hold-out rule
+(:func:`primkit.data.split_files`, every 10th sorted file held out), so the image model never sees
+a chair the teacher held out. Views, teacher outputs and checkpoints go to ``--work`` (default
+/work/runs/image). The finished model is written to primkit/models/chair-image.safetensors.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from primkit import data, views  # noqa: E402
+from primkit.abstractor import Abstractor  # noqa: E402
+
+DATA = ROOT.parent / "shared" / "data" / "shapenetvox32" / "03001627"
+CHUNK = 500
+
+
+def _split(teacher):
+    files = sorted(DATA.glob("*/model.binvox"))
+    return data.split_files(files, teacher.hold_out_every)
+
+
+def _collection(files, cache):
+    coll = data.prepare_collection(files, data.PrepareSettings(), cache_dir=cache, progress=True)
+    if coll.errors:
+        print(f"{len(coll.errors)} files unusable, e.g. {coll.errors[0]}", file=sys.stderr)
+    return coll
+
+
+def render_split(coll, work: Path, tag: str, views_per_shape: int, palette: str, seed: int, settings, limit=None,
+                 reverse=False):
+    """Render in chunks of CHUNK shapes (each chunk a cache file) and return the joined views
+    (``reverse``: render the chunks last first, so that a second process can share the work)."""
+    n = len(coll) if limit is None else min(limit, len(coll))
+    parts = []
+    starts = list(range(0, n, CHUNK))
+    with views.ViewRenderer(settings) as renderer:
+        for start in starts[::-1] if reverse else starts:
+            idx = range(start, min(n, start + CHUNK))
+            path = work / f"views-{tag}-{start:05d}.npz"
+            names = [data.shape_name(coll.paths[i]) for i in idx]
+            if path.is_file() and views.load_views(path).names == names:
+                parts.append(views.load_views(path))
+                continue
+            t = time.time()
+            v = views.render_views((coll[i].occupancy for i in idx), views_per_shape, settings=settings,
+                                   palette=palette, seed=seed, names=names, renderer=renderer,
+                                   progress=True, first_index=start)
+            v.save(path)
+            parts.append(v)
+            print(f"{tag} {start}: {len(v)} views in {time.time() - t:.0f} s", flush=True)
+    if reverse:
+        parts = parts[::-1]
+    offsets = np.cumsum([0] + [len(p.names) for p in parts])
+    return views.RenderedViews(
+        np.concatenate([p.images for p in parts]),
+        np.concatenate([p.shape_index + o for p, o in zip(parts, offsets)]),
+        np.concatenate([p.cameras for p in parts]),
+        sum((p.names for p in parts), []), settings, palette, seed)
+
+
+def teacher_targets(teacher, coll, path: Path, limit=None):
+    """The teacher's raw outputs for the first ``limit`` shapes, cached in ``path``."""
+    n = len(coll) if limit is None else min(limit, len(coll))
+    if path.is_file():
+        z = dict(np.load(path))
+        if len(z["existence"]) == n:
+            return z
+    occ = np.stack([coll[i].occupancy for i in range(n)])
+    raw = teacher.predict_canonical(occ)
+    np.savez(path, **raw)
+    return raw
+
+
+def train(teacher, train_coll, work: Path, settings, args) -> None:
+    import torch
+
+    from primkit import image_model as im
+
+    torch.set_num_threads(args.threads)
+    views_train = render_split(train_coll, work, "train-seen", args.views, "seen", 0, settings, args.limit)
+    targets = teacher_targets(teacher, train_coll, work / "teacher-train.npz", args.limit)
+    config = im.ImageTrainConfig(iterations=args.iterations)
+    net_config = im.ImageNetConfig(size=settings.size)
+    print(f"distilling on {len(views_train)} views of {len(views_train.names)} chairs", flush=True)
+    result = im.train_image_model(views_train.images, views_train.shape_index, views_train.cameras, targets,
+                                  net_config, config)
+    model = im.ImageAbstractor(result.network, {})
+    meta = {
+        "teacher": "chair",
+        "part_names": teacher.metadata.get("part_names"),
+        "views": settings.to_dict(),
+        "training": {"config": config.to_dict(), "views": len(views_train), "shapes": len(views_train.names),
+                     "views_per_shape": args.views, "palette": "seen", "seed": 0, "seconds": round(result.seconds, 1),
+                     "device": "cpu", "threads": args.threads, "torch": torch.__version__,
+                     "final": result.history[-1], "history": result.history[:: max(1, len(result.history) // 60)]},
+    }
+    model.save(work / "chair-image.safetensors", meta, overwrite=True)
+    print(f"trained in {result.seconds / 60:.1f} min; final {result.history[-1]}", flush=True)
+
+
+def _param_errors(student: dict, target: dict) -> dict:
+    """Mean errors of the student's raw parts against the teacher's, over the parts the teacher uses."""
+    used = target["existence"] > 0.5
+    dot = np.abs((student["quaternions"] * target["quaternions"]).sum(-1)).clip(max=1.0)
+    return {
+        "existence_agreement": float(((student["existence"] > 0.5) == used).mean()),
+        "half_extent_l1": float(np.abs(student["half_extents"] - target["half_extents"])[used].mean()),
+        "translation_l1": float(np.abs(student["translations"] - target["translations"])[used].mean()),
+        "rotation_deg": float(np.degrees(2 * np.arccos(dot))[used].mean()),
+        "parts_compared": int(used.sum()),
+    }
+
+
+def _summary(scores, seconds_per_item) -> dict:
+    from primkit.metrics import summarize
+
+    s = summarize(scores)
+    return {"chamfer_l1": round(s["chamfer"]["mean"], 5), "iou": round(s["iou"]["mean"], 4),
+            "parts": round(s["parts"]["mean"], 2), "shapes": len(scores), "seconds_per_item": round(seconds_per_item, 4)}
+
+
+def evaluate(teacher, held_coll, work: Path, settings, args) -> dict:
+    from PIL import Image
+
+    from primkit import image_model as im
+    from primkit.metrics import ChamferConvention, score
+    from primkit.abstractor import AbstractionResult
+    from primkit.render import render_abstractions
+
+    model = im.ImageAbstractor.load(work / "chair-image.safetensors")
+    shapes = list(held_coll)
+    t = time.time()
+    teacher_results = teacher.predict(shapes)
+    teacher_seconds = (time.time() - t) / len(shapes)
+    teacher_scores = [score(r.canonical, s) for r, s in zip(teacher_results, shapes)]
+    targets = teacher_targets(teacher, held_coll, work / "teacher-held.npz")
+    report = {"convention": ChamferConvention().describe(), "held_out_total": len(shapes),
+              "teacher_on_grids": _summary(teacher_scores, teacher_seconds)}
+    print("teacher (32^3 grids):", report["teacher_on_grids"], flush=True)
+    for tag, palette, seed in (("unseen_backgrounds", "unseen", 1), ("seen_backgrounds", "seen", 2)):
+        v = render_split(held_coll, work, f"held-{palette}", 1, palette, seed, settings)
+        t = time.time()
+        raw = model.predict_raw(v.images)
+        results = model.predict(v.images, names=[v.names[i] for i in v.shape_index])
+        seconds = (time.time() - t) / len(v)
+        scores = [score(r.cuboids, shapes[i]) for r, i in zip(results, v.shape_index)]
+        errors = _param_errors(raw, {k: targets[k][v.shape_index] for k in targets})
+        az_err = np.abs((np.array([r.azimuth_deg for r in results]) - v.cameras[:, 0] + 180) % 360 - 180)
+        report[tag] = {**_summary(scores, seconds), "against_teacher": errors,
+                       "azimuth_error_deg_median": round(float(np.median(az_err)), 1)}
+        print(tag, report[tag], flush=True)
+        if palette == "unseen":
+            pics = work / "pictures"
+            pics.mkdir(exist_ok=True)
+            tiles = []
+            for r in results[:24]:
+                path = pics / f"{r.name}.png"
+                im.draw_over_image(r, path, distance=float(np.mean(settings.distance)),
+                                   view_angle_deg=settings.view_angle_deg)
+                tiles.append(Image.open(path).convert("RGB"))
+            w, h = tiles[0].size
+            sheet = Image.new("RGB", (w * 3, h * 8), (255, 255, 255))
+            for i, tile in enumerate(tiles):
+                sheet.paste(tile, ((i % 3) * w, (i // 3) * h))
+            sheet.save(work / "overlay-unseen.png")
+            sel = list(range(8))
+            held = [shapes[v.shape_index[i]] for i in sel]
+            student = [AbstractionResult(results[i].name, results[i].cuboids, results[i].cuboids, h.frame)
+                       for i, h in zip(sel, held)]
+            meshes = []
+            for h in held:  # the surface the pictures show, in the input's frame as render_abstractions wants
+                sv, sf = views.shape_surface(h.occupancy)
+                meshes.append((h.frame.from_canonical(sv), sf))
+            render_abstractions(student, meshes, work / "student-3d.png", canonical=True, note=" image")
+            render_abstractions([teacher_results[v.shape_index[i]] for i in sel], meshes, work / "teacher-3d.png",
+                                canonical=True, note=" volume")
+    (work / "eval.json").write_text(json.dumps(report, indent=1))
+    return report
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("stage", choices=["render", "train", "eval", "all"])
+    ap.add_argument("--work", default="/work/runs/image")
+    ap.add_argument("--cache", default="/work/runs/cache")
+    ap.add_argument("--views", type=int, default=2, help="views per training shape")
+    ap.add_argument("--limit", type=int, default=None, help="only the first N training shapes")
+    ap.add_argument("--reverse", action="store_true", help="render the training chunks last first (a second process)")
+    ap.add_argument("--iterations", type=int, default=9000)
+    ap.add_argument("--threads", type=int, default=2)
+    args = ap.parse_args(argv)
+    work = Path(args.work)
+    work.mkdir(parents=True, exist_ok=True)
+    teacher = Abstractor.load("chair")
+    train_files, held_files = _split(teacher)
+    train_coll, held_coll = _collection(train_files, args.cache), _collection(held_files, args.cache)
+    settings = views.ViewSettings()
+    if args.stage in ("render", "all"):
+        teacher_targets(teacher, train_coll, work / "teacher-train.npz", args.limit)
+        teacher_targets(teacher, held_coll, work / "teacher-held.npz")
+        if not args.reverse:
+            render_split(held_coll, work, "held-unseen", 1, "unseen", 1, settings)
+            render_split(held_coll, work, "held-seen", 1, "seen", 2, settings)
+        render_split(train_coll, work, "train-seen", args.views, "seen", 0, settings, args.limit, args.reverse)
+    if args.stage in ("train", "all"):
+        train(teacher, train_coll, work, settings, args)
+    if args.stage in ("eval", "all"):
+        evaluate(teacher, held_coll, work, settings, args)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

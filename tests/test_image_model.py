@@ -1,0 +1,167 @@
+"""Rendered views (determinism, camera projection) and the image abstractor (distillation loss,
+a short real training run, the command line on pictures)."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from primkit import data, io, synthetic, views
+from primkit import image_model as im
+from primkit.primitives import matrix_to_quaternion
+
+
+@pytest.fixture(scope="module")
+def grids():
+    shapes = synthetic.generate("chair", 3, seed=5)
+    return [data.prepare(io.Mesh(s.vertices, s.faces), data.PrepareSettings(samples=500)).occupancy for s in shapes]
+
+
+SMALL = views.ViewSettings(size=32, supersample=1)
+
+
+def test_same_seed_same_pixels_other_seed_other_pixels(grids):
+    a = views.render_views(grids[:2], 2, settings=SMALL, seed=3)
+    b = views.render_views(grids[:2], 2, settings=SMALL, seed=3)
+    c = views.render_views(grids[:2], 2, settings=SMALL, seed=4)
+    assert a.images.shape == (4, 32, 32, 3) and a.images.dtype == np.uint8
+    assert np.array_equal(a.images, b.images) and np.array_equal(a.cameras, b.cameras)
+    assert not np.array_equal(a.images, c.images)
+    # a view does not depend on the views rendered before it (rendering in chunks gives the same pixels)
+    d = views.render_views(grids[1:2], 2, settings=SMALL, seed=3, first_index=1)
+    assert np.array_equal(d.images, a.images[2:])
+
+
+def test_views_round_trip_through_npz(grids, tmp_path):
+    a = views.render_views(grids[:1], 2, settings=SMALL, seed=0, names=["c0"], palette="unseen")
+    a.save(tmp_path / "v.npz")
+    b = views.load_views(tmp_path / "v.npz")
+    assert np.array_equal(a.images, b.images) and b.names == ["c0"] and b.settings == SMALL and b.palette == "unseen"
+
+
+def test_projection_matches_the_rendered_silhouette(grids):
+    """The silhouette's bounding box (renderer) against the projected surface's (our camera maths)."""
+    settings = views.ViewSettings(size=64, supersample=1)
+    v, f = views.shape_surface(grids[0])
+    with views.ViewRenderer(settings) as r:
+        for az, el in ((0, 10), (70, 30), (200, 0)):
+            cam = views.Camera(az, el, 2.0, 35.0)
+            _, alpha = r.render(v, f, cam, np.random.default_rng(0))
+            rows, cols = np.nonzero(alpha > 0.5)
+            uv = views.project(v, cam, 64)
+            assert abs(cols.min() - uv[:, 0].min()) <= 1.5 and abs(cols.max() + 1 - uv[:, 0].max()) <= 1.5
+            assert abs(rows.min() - uv[:, 1].min()) <= 1.5 and abs(rows.max() + 1 - uv[:, 1].max()) <= 1.5
+
+
+def test_backgrounds_palettes_use_disjoint_hues():
+    import colorsys
+
+    for palette, lo, hi in (("seen", 0.0, 0.5), ("unseen", 0.5, 1.0)):
+        for seed in range(20):
+            bg = views.random_background(16, np.random.default_rng(seed), palette)
+            r, g, b = bg[0, 0]
+            h, s, _ = colorsys.rgb_to_hsv(r, g, b)
+            if s > 0.05:  # the hue of a grey is undefined
+                assert lo - 0.02 <= h <= hi + 0.02
+
+
+def _quat(axis, angle):
+    axis = np.asarray(axis, float) / np.linalg.norm(axis)
+    return np.r_[np.cos(angle / 2), np.sin(angle / 2) * axis]
+
+
+def test_rotation_distance_sign_and_closed_form():
+    rng = np.random.default_rng(0)
+    q = rng.normal(size=(5, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    q_ref = rng.normal(size=(5, 4))
+    q_ref /= np.linalg.norm(q_ref, axis=1, keepdims=True)
+    qt, rt = torch.tensor(q), torch.tensor(q_ref)
+    assert torch.allclose(im.rotation_distance(qt, rt), im.rotation_distance(-qt, rt))
+    assert torch.allclose(im.rotation_distance(qt, rt), im.rotation_distance(qt, -rt))
+    assert torch.allclose(im.rotation_distance(qt, qt), torch.zeros(5, dtype=torch.float64), atol=1e-12)
+    # two rotations theta apart: 1 - cos(theta / 2), whatever the axes (the relative rotation is built
+    # from a matrix product, independently of the quaternion algebra)
+    for theta in (0.3, 1.0, 2.5):
+        base = _quat([1, 2, 3], 0.7)
+        from primkit.primitives import quaternion_to_matrix
+
+        rel = quaternion_to_matrix(_quat([0, 1, -1], theta)[None])[0]
+        other = matrix_to_quaternion((quaternion_to_matrix(base[None])[0] @ rel)[None])[0]
+        d = float(im.rotation_distance(torch.tensor(base), torch.tensor(other)))
+        assert d == pytest.approx(1 - np.cos(theta / 2), abs=1e-9)
+
+
+def test_distillation_loss_does_not_see_the_quaternion_sign():
+    rng = np.random.default_rng(1)
+    b, m = 3, 4
+    q = torch.nn.functional.normalize(torch.tensor(rng.normal(size=(b, m, 4))), dim=-1)
+    teacher = {"half_extents": torch.rand(b, m, 3, dtype=torch.float64) * 0.3, "quaternions": q,
+               "translations": torch.rand(b, m, 3, dtype=torch.float64) - 0.5,
+               "existence": torch.rand(b, m, dtype=torch.float64)}
+    pred = {k: v.clone() for k, v in teacher.items()}
+    pred["quaternions"] = torch.nn.functional.normalize(q + 0.3 * torch.tensor(rng.normal(size=(b, m, 4))), dim=-1)
+    pred["existence_logits"] = torch.logit(teacher["existence"])
+    flipped = dict(pred, quaternions=-pred["quaternions"])
+    a, c = im.distillation_loss(pred, teacher), im.distillation_loss(flipped, teacher)
+    assert float(a["rotation"]) > 0.01
+    assert float(a["total"]) == pytest.approx(float(c["total"]), abs=1e-12)
+    # the teacher's own output costs nothing but the entropy of its soft existence
+    same = im.distillation_loss(dict(teacher, existence_logits=torch.logit(teacher["existence"])), teacher)
+    assert float(same["rotation"]) == pytest.approx(0, abs=1e-12) and float(same["translations"]) == 0
+
+
+def test_short_training_run_lowers_the_loss(grids):
+    settings = views.ViewSettings(size=32, supersample=1)
+    v = views.render_views(grids, 4, settings=settings, seed=0)
+    from primkit.abstractor import Abstractor
+
+    teacher = Abstractor.load("chair").predict_canonical(np.stack(grids))
+    config = im.ImageTrainConfig(iterations=60, batch_size=12, learning_rate=3e-3, log_every=1, shift_pixels=1)
+    res = im.train_image_model(v.images, v.shape_index, v.cameras, teacher,
+                               im.ImageNetConfig(size=32, channels=(8, 16, 16, 32, 32), fc_width=64), config,
+                               progress=False)
+    first = np.mean([h["total"] for h in res.history[:5]])
+    last = np.mean([h["total"] for h in res.history[-5:]])
+    assert last < 0.7 * first
+
+
+@pytest.fixture(scope="module")
+def tiny_model(tmp_path_factory):
+    net = im.ImageNet(im.ImageNetConfig(size=32, channels=(8, 8, 8, 8, 8), fc_width=16))
+    path = tmp_path_factory.mktemp("m") / "tiny.safetensors"
+    im.ImageAbstractor(net, {}).save(path, {"views": views.ViewSettings(size=32).to_dict()})
+    return path
+
+
+def test_run_abstract_images_writes_outputs_and_reports_bad_files(tiny_model, tmp_path, grids):
+    from types import SimpleNamespace
+
+    from PIL import Image
+
+    from primkit.cli.image import run_abstract_images
+
+    v = views.render_views(grids[:1], 1, settings=SMALL, seed=0)
+    Image.fromarray(v.images[0]).resize((80, 50)).save(tmp_path / "chair.png")
+    (tmp_path / "broken.png").write_bytes(b"not an image")
+    out = tmp_path / "out"
+    args = SimpleNamespace(inputs=[str(tmp_path / "chair.png"), str(tmp_path / "broken.png")], model=str(tiny_model),
+                           output=str(out), force=False, png=True)
+    assert run_abstract_images(args) == 1
+    d = json.loads((out / "chair.cuboids.json").read_text())
+    assert len(d["parts"]) == 20 and "viewpoint" in d
+    from primkit.primitives import Cuboids
+
+    assert Cuboids.from_dict(d).count == 20
+    assert (out / "chair.cuboids.ply").is_file()
+    assert Image.open(out / "chair.png").size == (2 * 32 * 4 + 8, 32 * 4)
+    args.inputs = [str(tmp_path / "chair.png")]
+    assert run_abstract_images(args) == 1  # outputs exist and no --force
+    args.force = True
+    assert run_abstract_images(args) == 0
+
+
+def test_a_volume_model_is_refused_as_an_image_model():
+    with pytest.raises(ValueError, match="not an image model"):
+        im.ImageAbstractor.load("chair")
