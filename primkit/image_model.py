@@ -186,8 +186,19 @@ def viewpoint_targets(cameras: np.ndarray) -> np.ndarray:
     return np.stack([np.cos(az), np.sin(az), el], axis=1)
 
 
+def _learning_rate(peak: float, progress: float) -> float:
+    """Linear warm-up over the first 5% of training, then a cosine decay to zero."""
+    if progress < 0.05:
+        return peak * (0.1 + 0.9 * progress / 0.05)
+    return peak * 0.5 * (1 + math.cos(math.pi * min(1.0, (progress - 0.05) / 0.95)))
+
+
 @dataclass(frozen=True)
 class ImageTrainConfig:
+    """Training schedule. ``time_limit_s`` (0: none) stops training after that many seconds and
+    runs the learning-rate schedule on whichever of iterations or time is further along (so a
+    time-limited run still ends with the rate decayed; it is then not bit-for-bit reproducible)."""
+
     iterations: int = 8000
     batch_size: int = 64
     learning_rate: float = 1e-3
@@ -195,6 +206,7 @@ class ImageTrainConfig:
     shift_pixels: int = 4
     seed: int = 0
     log_every: int = 50
+    time_limit_s: float = 0.0
     weights: DistillWeights = field(default_factory=DistillWeights)
 
     def to_dict(self) -> dict:
@@ -251,8 +263,6 @@ def train_image_model(images: np.ndarray, shape_index: np.ndarray, cameras: np.n
     net = network if network is not None else ImageNet(net_config)
     net.train()
     opt = torch.optim.AdamW(net.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay)
-    sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=config.learning_rate, total_steps=max(config.iterations, 1),
-                                                pct_start=0.05)
     imgs = torch.from_numpy(images)
     idx = torch.from_numpy(np.asarray(shape_index, np.int64))
     teach = {k: torch.from_numpy(np.asarray(teacher[k], np.float32)) for k in
@@ -260,8 +270,15 @@ def train_image_model(images: np.ndarray, shape_index: np.ndarray, cameras: np.n
     view = torch.from_numpy(viewpoint_targets(np.asarray(cameras, float)).astype(np.float32))
     history, start = [], time.time()
     bar = tqdm(range(config.iterations), desc="distilling", unit="it", disable=not progress)
-    running = None
+    running, values, last = None, None, -1
     for it in bar:
+        progress_ = it / max(config.iterations, 1)
+        if config.time_limit_s:
+            progress_ = max(progress_, (time.time() - start) / config.time_limit_s)
+            if progress_ >= 1.0:
+                break
+        for group in opt.param_groups:
+            group["lr"] = _learning_rate(config.learning_rate, progress_)
         batch = torch.randint(0, len(imgs), (config.batch_size,), generator=gen)
         x = _augment(_to_float(imgs[batch]), gen, config.shift_pixels)
         target = {k: v[idx[batch]] for k, v in teach.items()}
@@ -269,13 +286,14 @@ def train_image_model(images: np.ndarray, shape_index: np.ndarray, cameras: np.n
         opt.zero_grad(set_to_none=True)
         losses["total"].backward()
         opt.step()
-        sched.step()
-        values = {k: float(v.detach()) for k, v in losses.items()}
+        values, last = {k: float(v.detach()) for k, v in losses.items()}, it
         running = values if running is None else {k: 0.95 * running[k] + 0.05 * values[k] for k in values}
         if it % config.log_every == 0 or it == config.iterations - 1:
-            history.append({"iteration": it, **values})
+            history.append({"iteration": it, "lr": opt.param_groups[0]["lr"], **values})
             bar.set_postfix(loss=f"{running['total']:.4f}", t=f"{running['translations']:.3f}",
                             z=f"{running['half_extents']:.3f}")
+    if values is not None and history[-1]["iteration"] != last:
+        history.append({"iteration": last, "lr": opt.param_groups[0]["lr"], **values})
     net.eval()
     return ImageTrainResult(net, history, time.time() - start)
 

@@ -97,7 +97,7 @@ def train(teacher, train_coll, work: Path, settings, args) -> None:
     torch.set_num_threads(args.threads)
     views_train = render_split(train_coll, work, "train-seen", args.views, "seen", 0, settings, args.limit)
     targets = teacher_targets(teacher, train_coll, work / "teacher-train.npz", args.limit)
-    config = im.ImageTrainConfig(iterations=args.iterations)
+    config = im.ImageTrainConfig(iterations=args.iterations, time_limit_s=60 * args.minutes)
     net_config = im.ImageNetConfig(size=settings.size)
     print(f"distilling on {len(views_train)} views of {len(views_train.names)} chairs", flush=True)
     result = im.train_image_model(views_train.images, views_train.shape_index, views_train.cameras, targets,
@@ -146,17 +146,18 @@ def evaluate(teacher, held_coll, work: Path, settings, args) -> dict:
     from primkit.render import render_abstractions
 
     model = im.ImageAbstractor.load(work / "chair-image.safetensors")
-    shapes = list(held_coll)
+    n = len(held_coll) if args.eval_limit is None else min(args.eval_limit, len(held_coll))
+    shapes = [held_coll[i] for i in range(n)]
     t = time.time()
     teacher_results = teacher.predict(shapes)
     teacher_seconds = (time.time() - t) / len(shapes)
     teacher_scores = [score(r.canonical, s) for r, s in zip(teacher_results, shapes)]
-    targets = teacher_targets(teacher, held_coll, work / "teacher-held.npz")
-    report = {"convention": ChamferConvention().describe(), "held_out_total": len(shapes),
+    targets = teacher_targets(teacher, held_coll, work / "teacher-held.npz", n)
+    report = {"convention": ChamferConvention().describe(), "held_out_total": len(held_coll),
               "teacher_on_grids": _summary(teacher_scores, teacher_seconds)}
     print("teacher (32^3 grids):", report["teacher_on_grids"], flush=True)
     for tag, palette, seed in (("unseen_backgrounds", "unseen", 1), ("seen_backgrounds", "seen", 2)):
-        v = render_split(held_coll, work, f"held-{palette}", 1, palette, seed, settings)
+        v = render_split(held_coll, work, f"held-{palette}", 1, palette, seed, settings, n)
         t = time.time()
         raw = model.predict_raw(v.images)
         results = model.predict(v.images, names=[v.names[i] for i in v.shape_index])
@@ -193,7 +194,77 @@ def evaluate(teacher, held_coll, work: Path, settings, args) -> dict:
             render_abstractions([teacher_results[v.shape_index[i]] for i in sel], meshes, work / "teacher-3d.png",
                                 canonical=True, note=" volume")
     (work / "eval.json").write_text(json.dumps(report, indent=1))
+    write_bundled(teacher, model, report, work)
     return report
+
+
+def _line(label: str, m: dict) -> str:
+    return f"- {label}: Chamfer-L1 {m['chamfer_l1']:.4f}, IoU {m['iou']:.3f}, parts {m['parts']:.1f}, " \
+           f"{m['seconds_per_item'] * 1e3:.1f} ms/item"
+
+
+def write_bundled(teacher, model, report: dict, work: Path) -> Path:
+    """The evaluated model with its card, into primkit/models/chair-image.safetensors."""
+    from primkit.modelfile import update_metadata
+
+    tcard = teacher.metadata["card"]
+    tr = model.metadata["training"]
+    unseen, seen, tnet = report["unseen_backgrounds"], report["seen_backgrounds"], report["teacher_on_grids"]
+    ratio = unseen["chamfer_l1"] / tnet["chamfer_l1"]
+    command = "python scripts/build_image_model.py all   (or: primkit train-image ../shared/data/shapenetvox32/03001627 " \
+              "--teacher chair -o chair-image.safetensors)"
+    data_line = (f"{tr['views']} rendered views ({tr['views_per_shape']} per chair, 64x64, random azimuth, elevation "
+                 "0-40 deg, random lights, object colours and backgrounds of the 'seen' palette) of the "
+                 f"{tr['shapes']} ShapeNetVox32 chairs the chair model trained on (the voxel grids' contour surface); "
+                 "targets: the bundled chair model's cuboids on the same chairs")
+    done = tr["final"]["iteration"] + 1
+    limit = tr["config"]["time_limit_s"]
+    schedule = (f"{done} iterations" + (f" (of {tr['config']['iterations']} planned; stopped by a {limit / 60:.0f}-minute limit)"
+                                        if done < tr["config"]["iterations"] else "")
+                + f", batch {tr['config']['batch_size']}, AdamW "
+                f"{tr['config']['learning_rate']} with warm-up and cosine decay, weight decay {tr['config']['weight_decay']}, "
+                f"shifts of up to {tr['config']['shift_pixels']} px and brightness/contrast jitter, seed 0")
+    training_time = f"{tr['seconds'] / 60:.1f} min on cpu ({tr['threads']} threads), torch {tr['torch']}"
+    metrics = {
+        "convention": report["convention"],
+        "held_out": {"evaluated": unseen["shapes"], "held_out_total": report["held_out_total"],
+                     "views": "one per held-out chair, backgrounds of the 'unseen' palette (kinds and hues never in training)",
+                     "network": unseen, "seen_backgrounds": seen, "teacher_on_grids": tnet,
+                     "chamfer_ratio_to_teacher": round(ratio, 3)},
+    }
+    summary = ("chair image abstractor: 20 cuboid slots (the chair model's indices) from one 64x64 picture, "
+               "distilled from the bundled chair model.")
+    text = "\n".join([
+        "# primkit bundled model: chair-image", "", summary, "",
+        f"- Teacher: the bundled chair model ({tcard['summary']})",
+        f"- Data: {data_line}",
+        f"- Terms: {tcard['terms']}",
+        f"- Reproduce: `{command}`",
+        f"- Schedule: {schedule}",
+        f"- Training time: {training_time}",
+        f"- Metric convention: {report['convention']}",
+        "",
+        f"Held-out chairs ({unseen['shapes']} the teacher never trained on), one picture each, canonical frame:",
+        _line("image model, unseen backgrounds", unseen),
+        _line("image model, seen backgrounds", seen),
+        _line("chair volume model on the 32^3 grids", tnet),
+        f"- image / volume Chamfer: {ratio:.2f}; against the teacher's parts (unseen backgrounds): "
+        f"translation L1 {unseen['against_teacher']['translation_l1']:.3f}, half-extent L1 "
+        f"{unseen['against_teacher']['half_extent_l1']:.3f}, rotation {unseen['against_teacher']['rotation_deg']:.1f} deg, "
+        f"existence agreement {unseen['against_teacher']['existence_agreement']:.3f}; median azimuth error "
+        f"{unseen['azimuth_error_deg_median']:.0f} deg",
+        "",
+    ])
+    card = {"summary": summary, "data": data_line, "terms": tcard["terms"], "command": command, "schedule": schedule,
+            "training_time": training_time, "metrics": metrics, "teacher": "chair", "text": text}
+    out = ROOT / "primkit" / "models" / "chair-image.safetensors"
+    changes = {"card": card, "metrics": metrics, "teacher_card": {k: tcard[k] for k in ("summary", "data", "terms", "command")}}
+    model.metadata["training"]["data"] = {"source": "ShapeNetVox32 chairs, synset 03001627", "hold_out_every": 10,
+                                         "terms": tcard["terms"]}
+    changes["training"] = model.metadata["training"]
+    update_metadata(work / "chair-image.safetensors", out, changes, overwrite=True)
+    print(text)
+    return out
 
 
 def main(argv=None) -> int:
@@ -204,7 +275,9 @@ def main(argv=None) -> int:
     ap.add_argument("--views", type=int, default=2, help="views per training shape")
     ap.add_argument("--limit", type=int, default=None, help="only the first N training shapes")
     ap.add_argument("--reverse", action="store_true", help="render the training chunks last first (a second process)")
+    ap.add_argument("--eval-limit", type=int, default=None, help="evaluate on the first N held-out chairs only")
     ap.add_argument("--iterations", type=int, default=9000)
+    ap.add_argument("--minutes", type=float, default=0, help="stop training after this many minutes (0: no limit)")
     ap.add_argument("--threads", type=int, default=2)
     args = ap.parse_args(argv)
     work = Path(args.work)
