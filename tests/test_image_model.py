@@ -165,3 +165,27 @@ def test_run_abstract_images_writes_outputs_and_reports_bad_files(tiny_model, tm
 def test_a_volume_model_is_refused_as_an_image_model():
     with pytest.raises(ValueError, match="not an image model"):
         im.ImageAbstractor.load("chair")
+
+
+def test_train_image_command_writes_a_model_the_abstract_side_reads(tmp_path):
+    from types import SimpleNamespace
+
+    from PIL import Image
+
+    from primkit.cli import main
+    from primkit.cli.image import run_abstract_images
+
+    synthetic.write_collection(tmp_path / "chairs", "chair", 3, seed=2)
+    model = tmp_path / "img.safetensors"
+    argv = [str(tmp_path / "chairs"), "-o", str(model), "--teacher", "chair", "--views", "2", "--size", "32",
+            "--iterations", "3", "--batch-size", "4", "--hold-out", "0", "--workers", "1", "--samples", "500",
+            "--cache", str(tmp_path / "cache")]
+    assert main(["train-image", *argv]) == 0
+    assert main(["train-image", *argv]) == 2  # exists, no --force
+    meta = im.ImageAbstractor.load(model).metadata
+    assert meta["kind"] == "image-abstractor" and meta["training"]["views"] == 6 and meta["views"]["size"] == 32
+    Image.fromarray(np.full((40, 40, 3), 200, np.uint8)).save(tmp_path / "grey.png")
+    args = SimpleNamespace(inputs=[str(tmp_path / "grey.png")], model=str(model), output=str(tmp_path / "out"),
+                           force=False, png=False)
+    assert run_abstract_images(args) == 0
+    assert (tmp_path / "out" / "grey.cuboids.json").is_file() and not (tmp_path / "out" / "grey.png").exists()
