@@ -255,9 +255,14 @@ class Abstractor:
             results.append(AbstractionResult(s.name, cub.transformed(back), cub, s.frame, s.source, al, rf))
         return results
 
-    def abstract_files(self, paths, *, cache_dir=None, workers=None, progress=True, **kwargs):
-        """Prepare (through the cache) and abstract files; returns (results, errors)."""
-        coll = data.prepare_collection(paths, self.settings, cache_dir=cache_dir, workers=workers, progress=progress)
+    def abstract_files(self, paths, *, cache_dir=None, workers=None, progress=True, settings=None, **kwargs):
+        """Prepare (through the cache) and abstract files; returns (results, errors).
+
+        ``settings``: how to prepare the files (:class:`primkit.data.PrepareSettings`, e.g. the
+        inputs' up and front axes); the model's own by default. Its resolution must be the model's.
+        """
+        coll = data.prepare_collection(paths, settings or self.settings, cache_dir=cache_dir, workers=workers,
+                                       progress=progress)
         return self.predict(list(coll), **kwargs), coll.errors
 
 

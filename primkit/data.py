@@ -454,6 +454,36 @@ class PreparedCollection:
             yield self[i]
 
 
+def parallel_map(func, jobs, *, workers: int | None = None, progress: bool = True, desc: str = "", unit: str = "shape"):
+    """``func`` over ``jobs`` in worker processes, results in job order, with a progress bar.
+
+    ``workers``: processes (all cores by default); 1, or a single job, runs in this process.
+    ``func`` must be a module-level function and should return its errors rather than raise.
+    Processes are forked on Linux (fast, and safe here: workers run NumPy/Open3D/libigl code only).
+    """
+    from tqdm.auto import tqdm
+
+    jobs = list(jobs)
+    workers = workers or os.cpu_count() or 1
+    bar = tqdm(total=len(jobs), desc=desc, unit=unit, disable=not progress, file=sys.stderr)
+    try:
+        if workers == 1 or len(jobs) <= 1:
+            for job in jobs:
+                yield func(job)
+                bar.update()
+        else:
+            import multiprocessing as mp
+
+            ctx = mp.get_context("fork") if sys.platform.startswith("linux") else None
+            chunk = max(1, min(64, len(jobs) // (workers * 8) or 1))
+            with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=ctx) as pool:
+                for res in pool.map(func, jobs, chunksize=chunk):
+                    yield res
+                    bar.update()
+    finally:
+        bar.close()
+
+
 def prepare_collection(
     files_or_folder,
     settings: PrepareSettings = PrepareSettings(),
@@ -475,7 +505,6 @@ def prepare_collection(
     progress : bool
         Show a progress bar (tqdm, on stderr).
     """
-    from tqdm.auto import tqdm
 
     if isinstance(files_or_folder, (str, os.PathLike)):
         files = find_shape_files(files_or_folder)
@@ -483,24 +512,9 @@ def prepare_collection(
         files = [Path(p) for p in files_or_folder]
     cache = Path(cache_dir) if cache_dir is not None else default_cache_dir()
     cache.mkdir(parents=True, exist_ok=True)
-    workers = workers or os.cpu_count() or 1
     jobs = [(str(p), settings, str(cache)) for p in files]
-    bar = tqdm(total=len(jobs), desc="preparing", unit="shape", disable=not progress, file=sys.stderr)
-    results = {}
-    if workers == 1 or len(jobs) <= 1:
-        for job in jobs:
-            results[job[0]] = _prepare_cached(job)
-            bar.update()
-    else:
-        # fork is fast and safe here: workers only run NumPy/Open3D/libigl code
-        import multiprocessing as mp
-
-        ctx = mp.get_context("fork") if sys.platform.startswith("linux") else None
-        with ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
-            for res in pool.map(_prepare_cached, jobs, chunksize=max(1, min(64, len(jobs) // (workers * 8) or 1))):
-                results[res[0]] = res
-                bar.update()
-    bar.close()
+    results = {res[0]: res for res in parallel_map(_prepare_cached, jobs, workers=workers, progress=progress,
+                                                   desc="preparing", unit="shape")}
     paths, cache_files, errors = [], [], []
     for job in jobs:
         path, target, error = results[job[0]]
