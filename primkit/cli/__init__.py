@@ -105,7 +105,13 @@ def _align(args):
 
 def _cmd_abstract(args) -> int:
     from ..abstractor import Abstractor
+    from ..modelfile import read_metadata
+    from ..models import resolve_model
 
+    if read_metadata(resolve_model(args.model)).get("kind") == "image-abstractor":
+        from .image import run_abstract_images
+
+        return run_abstract_images(args)
     abstractor = Abstractor.load(args.model)
     results, errors = abstractor.abstract_files(collect(args.inputs), cache_dir=args.cache, workers=args.workers,
                                                 existence_threshold=args.threshold,
@@ -124,6 +130,27 @@ def _cmd_abstract(args) -> int:
         if r.refinement is not None:
             extra += f"; refined: loss {r.refinement['loss_before']:.2e} -> {r.refinement['loss_after']:.2e}"
         print(f"{r.name}: {int(r.cuboids.existence.sum())} parts{extra} -> {j}")
+    if args.png and results:
+        from ..io import read_mesh
+        from ..render import render_abstractions
+
+        picture = Path(args.output) / "abstractions.png"
+        if picture.exists() and not args.force:
+            failed.append(f"{picture}: exists (use --force to overwrite)")
+        else:
+            shown, meshes = [], []
+            for r in results:
+                try:  # meshes only (a point cloud or a voxel grid is left out of the picture)
+                    m = read_mesh(r.source)
+                except ValueError:
+                    continue
+                shown.append(r)
+                meshes.append((m.vertices, m.faces))
+                if len(shown) == 16:
+                    break
+            if shown:
+                render_abstractions(shown, meshes, picture)
+                print(f"picture: {picture}")
     return report_errors(failed)
 
 
@@ -190,6 +217,10 @@ def _cmd_models(args) -> int:
             for key in ("data", "terms", "schedule", "metrics"):
                 if key in card:
                     print(f"  {key}: {card[key] if isinstance(card[key], str) else json.dumps(card[key])}")
+        names = meta.get("part_names") or []
+        named = [f"{k} {n}" for k, n in enumerate(names) if n and not n.startswith("part")]
+        if named:
+            print(f"  part names: {', '.join(named)} (learned from {meta.get('part_naming', {}).get('shapes', '?')} labelled shapes)")
     return 0
 
 
@@ -258,13 +289,15 @@ def build_parser() -> argparse.ArgumentParser:
     add_prepare_options(p)
     p.set_defaults(func=_cmd_train)
 
-    p = sub.add_parser("abstract", help="abstract shapes with a trained model: JSON + coloured cuboid mesh per shape")
+    p = sub.add_parser("abstract", help="abstract shapes (or pictures, with an image model) with a trained model: JSON + coloured cuboid mesh per shape")
     p.add_argument("inputs", nargs="+")
     p.add_argument("--model", required=True, help="a model file, or a bundled model's name (primkit models)")
     p.add_argument("--refine", type=int, default=0, metavar="N", help="N gradient steps per shape on its own losses (0: off)")
     p.add_argument("--align", choices=["none", "auto"], default="none",
                    help="auto: try the 24 axis-aligned orientations and keep the one the model explains best")
     p.add_argument("-o", "--output", required=True, help="output folder")
+    p.add_argument("--png", action="store_true", help="also draw the shapes beside their cuboids (abstractions.png; "
+                   "for an image model, each picture with its cuboids drawn over it)")
     p.add_argument("--threshold", type=float, default=0.5, help="existence probability above which a part exists")
     p.add_argument("--prune", type=float, default=0.6, help="drop parts more than this fraction inside others (0: off)")
     p.add_argument("--cache", default=None)
