@@ -26,7 +26,7 @@ src, tgt = model.predict(shapes)
 v = src.frame.to_canonical(a.vertices)  # work in the canonical frame (+Y up, longest side 1)
 
 # 1. deformation transfer: the source takes the target's configuration
-d = deformation.deform(v, src.canonical, tgt.canonical)
+d = deformation.deform(v, src.canonical, tgt.canonical, faces=a.faces, unfold=True)  # unfold: re-solve flipped spots
 q = d.quality(a.faces, target_points=shapes[1].points, source_points=shapes[0].points)
 print(f"Chamfer-L1 to the target: source {q['chamfer_source_target']:.4f} -> result {q['chamfer_result_target']:.4f}; "
       f"flipped triangles {100 * q['flipped']:.2f}%")
@@ -35,7 +35,7 @@ io.write_mesh(out / "deformed.off", src.frame.from_canonical(d.vertices), a.face
 # 2. part edit: slots 3, 5, 9 and 10 are the bundled chair model's legs (16 the seat, 18 the back)
 c = src.canonical
 legs = [k for k in (3, 5, 9, 10) if c.existence[k]]
-e = deformation.edit(v, c, scale={k: (1.0, 1.3, 1.0) for k in legs})
+e = deformation.edit(v, c, scale={k: (1.0, 1.3, 1.0) for k in legs}, faces=a.faces, unfold=True)
 h0, h1 = np.ptp(v[:, 1]), np.ptp(e.vertices[:, 1])
 print(f"legs {legs} 30% longer: height {h0:.3f} -> {h1:.3f}; carried along: {sorted(e.edit.carried)}")
 io.write_mesh(out / "longer_legs.off", src.frame.from_canonical(e.vertices), a.faces, overwrite=True)

@@ -266,3 +266,25 @@ def test_cli_deform_writes_source_topology(tmp_path):
     assert q["chamfer_result_target"] < q["chamfer_source_target"]
     assert main(["deform", str(pa), str(pb), "--model", "chair", "-o", str(out), "--png", "none",
                  "--cache", str(tmp_path / "cache")]) == 2  # exists, no --force
+
+
+def test_unfold_removes_flips_and_keeps_parts_away_from_them():
+    """A two-part column whose upper part is pushed down by more than the blending width folds the
+    seam; :func:`unfold` re-solves only neighbourhoods of the folds: afterwards no triangle is
+    flipped, vertices it did not touch are exactly where the blend put them, the upper end still
+    moves rigidly with its cuboid, and a fold-free blend is left alone (identity exact)."""
+    lo_box = ([-0.1, -0.5, -0.1], [0.1, 0.0, 0.1])
+    hi_box = ([-0.1, 0.0, -0.1], [0.1, 0.5, 0.1])
+    v, f = box_mesh([-0.1, -0.5, -0.1], [0.1, 0.5, 0.1], n=20)
+    cub = boxes_cuboids([lo_box, hi_box])
+    tgt = Cuboids(cub.half_extents, cub.quaternions, cub.translations + [[0, 0, 0], [0, -0.3, 0]], cub.existence)
+    plain = D.deform(v, cub, tgt, falloff=0.05, faces=f)
+    assert plain.resolved is None and D.flipped_fraction(v, plain.vertices, f) > 0  # the blend folds
+    fixed = D.deform(v, cub, tgt, falloff=0.05, faces=f, unfold=True)
+    assert D.flipped_fraction(v, fixed.vertices, f) == 0.0
+    keep = ~fixed.resolved
+    assert keep.any() and np.array_equal(fixed.vertices[keep], plain.vertices[keep])
+    top = v[:, 1] > 0.45
+    assert np.allclose(fixed.vertices[top], v[top] + [0, -0.3, 0])
+    same = D.deform(v, cub, cub, faces=f, unfold=True)
+    assert not same.resolved.any() and np.allclose(same.vertices, v, atol=1e-15, rtol=0)

@@ -124,7 +124,7 @@ def _cmd_deform(args) -> int:
     (ss, rs), (ts, rt) = pairs
     mesh = _source_mesh(src)
     v = rs.frame.to_canonical(mesh.vertices)
-    d = deformation.deform(v, rs.canonical, rt.canonical, falloff=args.falloff)
+    d = deformation.deform(v, rs.canonical, rt.canonical, falloff=args.falloff, faces=mesh.faces, unfold=True)
     q = d.quality(mesh.faces, target_points=ts.points, source_points=ss.points)
     names = abstractor.part_names
     tr = d.transfer
@@ -188,7 +188,7 @@ def _cmd_edit(args) -> int:
             del chosen[k]
     mesh = _source_mesh(src)
     v = shape.frame.to_canonical(mesh.vertices)
-    d = deformation.edit(v, res.canonical, **edits, falloff=args.falloff)
+    d = deformation.edit(v, res.canonical, **edits, falloff=args.falloff, faces=mesh.faces, unfold=True)
     q = d.quality(mesh.faces)
     e = d.edit
     print("edited: " + ", ".join(f"{names[k]}[{k}]" for k in e.edited))
