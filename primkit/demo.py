@@ -8,7 +8,9 @@
    with the training plot ``OUT/chair-demo.training.png``);
 3. abstract the held-out chairs (``OUT/abstractions/*.cuboids.json`` and coloured ``.ply``);
 4. score them (Chamfer, IoU, parts, and how consistently each labelled part gets the same
-   primitive index) into ``OUT/report.json``, and draw ``OUT/abstractions.png``.
+   primitive index) into ``OUT/report.json``, and draw ``OUT/abstractions.png``;
+5. run the applications on the held-out chairs with the bundled chair model (abstract, segment,
+   embed, deform) into one static page, ``OUT/report/index.html`` (:mod:`primkit.report`).
 """
 
 from __future__ import annotations
@@ -116,5 +118,25 @@ def run_demo(output="primkit-demo", *, quick: bool = False, force: bool = False,
           f"Chamfer {summ['chamfer']['mean']:.4f} ({conv.describe()})")
     print("part -> primitive index agreement across held-out chairs: "
           + ", ".join(f"{k} {v['agreement']:.0%} (#{v['index']})" for k, v in agreement["per_label"].items()))
-    print(f"wrote {out}/bundled.png, {out}/abstractions.png, {out}/report.json, {out}/abstractions/, {model_path}")
+    report_dir = _chain_step(out, test_dir, cache, force)
+    print(f"wrote {out}/bundled.png, {out}/abstractions.png, {out}/report.json, {out}/abstractions/, {model_path}"
+          + (f"; open {report_dir}/index.html" if report_dir else ""))
     return 0
+
+
+def _chain_step(out: Path, folder: Path, cache: Path, force: bool):
+    """The applications on the held-out chairs with the bundled chair model, into one HTML page:
+    abstraction, co-segmentation, similarity map and a deformation transfer (:mod:`primkit.report`)."""
+    from .models import bundled_models
+    from .report import build_report
+
+    if "chair" not in bundled_models():
+        print("[report] no bundled chair model installed; skipped", file=sys.stderr)
+        return None
+    print("[report] abstract, segment, embed and deform the held-out chairs with the bundled chair model", file=sys.stderr)
+    target = out / "report"
+    _, errors = build_report(folder, "chair", target, refine=50, overwrite=True, model_label="chair (bundled)",
+                             cache_dir=cache, progress=False)
+    for e in errors:
+        print(f"primkit: skipped {e}", file=sys.stderr)
+    return target

@@ -36,8 +36,8 @@ def _print_evaluation(report, shapes) -> None:
     labels = report["labels"]
     print(f"\nground-truth labels: {', '.join(labels)}; accuracy by faces and by surface area (face-area weighted)")
     protocols = report["protocols"]
-    header = f"{'shape':24s}" + "".join(f"  {p[:18]:>18s}" for p in protocols)
-    print(header + "\n" + f"{'':24s}" + "".join(f"  {'faces   area':>18s}" for _ in protocols))
+    header = f"{'shape':24s}" + "".join(f"  {p:>19s}" for p in protocols)
+    print(header + "\n" + f"{'':24s}" + "".join(f"  {'faces     area':>19s}" for _ in protocols))
     for name in shapes:
         row = f"{name[:24]:24s}"
         for entry in protocols.values():
