@@ -184,3 +184,23 @@ def test_embed_and_similar_commands(tmp_path, capsys):
     # unknown part name: one-line usage error
     assert main(["similar", str(shapes / "chair_0000.ply"), str(shapes), *common, "--parts", "wings", "-o", str(tmp_path / "x")]) == 2
     assert "unknown part 'wings'" in capsys.readouterr().err
+
+
+def test_embed_refine_passes_through(tmp_path):
+    """``--refine N`` gives the descriptors of the library's refined cuboids, which differ from the network's."""
+    from primkit import data, synthetic
+    from primkit.abstractor import Abstractor
+    from primkit.cli import main
+
+    shapes = tmp_path / "chairs"
+    synthetic.write_collection(shapes, "chair", 4, seed=7)
+    cache = tmp_path / "cache"
+    common = ["--model", "chair", "--cache", str(cache), "--workers", "1", "--parts", "16,18", "--no-png"]
+    assert main(["embed", str(shapes), *common, "--refine", "5", "-o", str(tmp_path / "r")]) == 0
+    assert main(["embed", str(shapes), *common, "-o", str(tmp_path / "n")]) == 0
+    model = Abstractor.load("chair")
+    coll = data.prepare_collection(sorted(shapes.glob("*.ply")), model.settings, cache_dir=cache, workers=1)
+    expected = PartDescriptor("16,18").fit_transform(model.predict(list(coll), refine=5))
+    got = np.load(tmp_path / "r" / "descriptors.npy")
+    assert np.allclose(got, expected, atol=1e-5)
+    assert not np.allclose(got, np.load(tmp_path / "n" / "descriptors.npy"), atol=1e-5)
