@@ -288,3 +288,57 @@ def test_unfold_removes_flips_and_keeps_parts_away_from_them():
     assert np.allclose(fixed.vertices[top], v[top] + [0, -0.3, 0])
     same = D.deform(v, cub, cub, faces=f, unfold=True)
     assert not same.resolved.any() and np.allclose(same.vertices, v, atol=1e-15, rtol=0)
+
+
+def test_lengthen_legs_below_the_seat_on_a_procedural_chair():
+    """``lengthen`` legs by 30%: the chair grows by 0.3 x (seat underside - floor), computed from
+    the generator's ``leg_length``, and the back's edges keep their lengths (within 1%), also
+    when the rear-leg cuboids reach up past the seat into the back (as the model's do on real
+    chairs)."""
+    from primkit import synthetic
+
+    s = synthetic.chair(seed=5, swivel=False, has_arms=False, leg_splay_deg=0.0)
+    names = list(s.part_names)
+    lab = np.asarray(s.face_labels)
+    v, f = np.asarray(s.vertices, float), np.asarray(s.faces)
+    legs = [n for n in names if n.startswith("leg_")]
+    boxes = []
+    for n in legs + ["seat", "back"]:  # a cuboid per labelled part: the bounding box of its vertices
+        pv = v[np.unique(f[lab == names.index(n)])]
+        boxes.append([pv.min(0), pv.max(0)])
+    top = boxes[-1][1][1]
+    for b in boxes[: len(legs)]:
+        if b[0][0] < 0:  # rear legs (back at -X): cuboids running up into the back posts
+            b[1][1] = 0.5 * (top + boxes[len(legs)][1][1])
+    cub = boxes_cuboids(boxes)
+    seat, back = len(legs), len(legs) + 1
+    d = D.edit(v, cub, lengthen={k: 1.3 for k in range(len(legs))}, faces=f, unfold=True)
+    L = d.edit.lengthening
+    assert L.support == seat
+    assert sorted(d.edit.carried) == [seat, back]
+    # the generator normalises its metre-like units: the seat (no arms) is the widest part along Z
+    unit = np.ptp(v[:, 2]) / s.attributes["seat_width"]
+    expected = 0.3 * unit * s.attributes["leg_length"]  # leg_length: floor to seat underside
+    dh = np.ptp(d.vertices[:, 1]) - np.ptp(v[:, 1])
+    assert abs(dh - expected) < 0.02 * expected
+    assert np.isclose(d.vertices[:, 1].min(), v[:, 1].min())  # the feet stay on the floor
+    in_back = d.binding.labels == back
+    dist = D.edge_distortion(v, d.vertices, f, np.where(in_back, 1, -1))
+    assert dist[1]["edges"] > 0 and dist[1]["max"] < 0.01
+    assert D.flipped_fraction(v, d.vertices, f) < 0.001
+    # the legs really are 30% longer below the seat: a foot-to-underside vertical span
+    leg = np.isin(d.binding.labels, range(len(legs))) & (v[:, 1] < L.cut - 0.05) & (v[:, 1] > L.floor + 0.05)
+    ratio = (d.vertices[leg, 1] - L.floor) / (v[leg, 1] - L.floor)
+    assert leg.any() and np.allclose(ratio, 1.3, atol=0.02)
+
+
+def test_lengthen_is_checked():
+    v, f, cub = stool()
+    with pytest.raises(ValueError, match="cannot also be scaled"):
+        D.edit_cuboids(cub, lengthen={0: 1.3}, scale={0: 2.0})
+    with pytest.raises(ValueError, match="> 0"):
+        D.edit_cuboids(cub, lengthen={0: -1.0})
+    e = D.edit_cuboids(cub, lengthen={0: 1.5})  # the stool's seat is held up: cut at its bottom
+    assert e.lengthening.support == 1 and np.isclose(e.lengthening.cut, 0.0)
+    assert np.allclose(e.cuboids.half_extents[0], [0.05, 0.375, 0.05])
+    assert np.allclose(e.transforms[1, :3, 3], [0.0, 0.25, 0.0])

@@ -168,12 +168,12 @@ def _cmd_edit(args) -> int:
     src = Path(args.mesh)
     abstractor = Abstractor.load(args.model)
     names = abstractor.part_names
-    edits = {"scale": {}, "rotate": {}, "move": {}}
+    edits = {"scale": {}, "rotate": {}, "move": {}, "lengthen": {}}
     for kind in edits:  # checked before any shape is read
         for text in getattr(args, kind) or []:
             edits[kind].update(deformation.parse_edit(text, names, kind=kind))
     if not any(edits.values()):
-        err("nothing to edit: give --scale, --rotate or --move")
+        err("nothing to edit: give --scale, --rotate, --move or --lengthen")
         return 2
     abstractor, pairs, errors = _abstract(args, [src], abstractor)
     if errors:
@@ -196,6 +196,11 @@ def _cmd_edit(args) -> int:
         print(f"  {names[j]}[{j}] carried along (rests on {', '.join(f'{names[k]}[{k}]' for k in below)})")
     h0, h1 = np.ptp(v[:, 1]), np.ptp(d.vertices[:, 1])
     print(f"height (canonical units, longest side 1): {h0:.4f} -> {h1:.4f} ({100 * (h1 / h0 - 1):+.1f}%)")
+    if e.lengthening is not None:
+        L = e.lengthening
+        held = "given" if L.support is None else f"underside of {names[L.support]}[{L.support}]"
+        print(f"lengthened between the floor at {L.floor:.4f} and the cut plane at {L.cut:.4f} ({held}); "
+              f"expected rise {max(L.rise(k) for k in L.factors):.4f}")
     print(_summary_line(q) + f"; blending distance {d.binding.falloff:.4f}")
     write_like(src, out, shape.frame.from_canonical(d.vertices), mesh.faces, overwrite=args.force)
     report = {"source": str(src), "model": str(args.model), "output": str(out),
@@ -248,5 +253,8 @@ def register(subparsers) -> None:
                    help="turn a part about its side axis through its bottom face (positive tips it backwards)")
     p.add_argument("--move", action="append", metavar="PART=F,U,S",
                    help="move a part along its front, up, side axes (canonical units, longest side 1)")
+    p.add_argument("--lengthen", action="append", metavar="PART=F",
+                   help="lengthen parts below the underside of what they hold up (legs=1.3: the legs' length "
+                        "below the seat grows 30%%, the feet stay, the seat and all above rise rigidly)")
     _common_options(p)
     p.set_defaults(func=_cmd_edit)
