@@ -523,8 +523,9 @@ class Lengthening:
     cut : float
         Height of the cut plane (the underside of ``support``, or given).
     support : int or None
-        The slot the lengthened parts hold up, whose underside gave ``cut`` (None when ``cut``
-        was given or no part rests on them; then ``cut`` is the top of the lengthened parts).
+        The slot the lengthened parts hold up (it rises by the full rise; its underside gives
+        ``cut`` unless that was given). None when no part rests on them; then ``cut`` defaults
+        to the top of the lengthened parts.
     up : (3,) float
         Unit up direction.
     """
@@ -690,8 +691,9 @@ def edit_cuboids(cuboids: Cuboids, *, scale=None, rotate=None, move=None, length
                 continue
             shifts = []
             for k in below:  # the point of k nearest j's centre, moved by k's total transform
-                if k in lengthen:  # the stretch's displacement at j's centre height
-                    shifts.append(stretch.displacement(cuboids.translations[j][None], k)[0])
+                if k in lengthen:  # the full rise for the support, else the stretch at j's centre
+                    shifts.append(stretch.rise(k) * up if j == stretch.support
+                                  else stretch.displacement(cuboids.translations[j][None], k)[0])
                     continue
                 c = cuboids.subset([k])
                 local = np.clip(world_to_local(cuboids.translations[j][None], c)[0, 0], -c.half_extents[0], c.half_extents[0])
@@ -707,17 +709,13 @@ def _lengthening(cuboids: Cuboids, factors: dict, up, contact: float, floor, cut
     parts = sorted(factors)
     if floor is None:
         floor = min(_bottom_height(cuboids, k, up) for k in parts)
-    support = None
+    lowest = min(float(cuboids.translations[k] @ up) for k in parts)
+    held = [int(j) for j in cuboids.present if int(j) not in factors
+            and float(cuboids.translations[j] @ up) > lowest
+            and min(_gap(cuboids, int(j), k) for k in parts) < contact]
+    support = max(held, key=lambda j: _footprint(cuboids, j, up)) if held else None
     if cut is None:
-        lowest = min(float(cuboids.translations[k] @ up) for k in parts)
-        held = [int(j) for j in cuboids.present if int(j) not in factors
-                and float(cuboids.translations[j] @ up) > lowest
-                and min(_gap(cuboids, int(j), k) for k in parts) < contact]
-        if held:
-            support = max(held, key=lambda j: _footprint(cuboids, j, up))
-            cut = _bottom_height(cuboids, support, up)
-        else:
-            cut = max(_top_height(cuboids, k, up) for k in parts)
+        cut = _bottom_height(cuboids, support, up) if held else max(_top_height(cuboids, k, up) for k in parts)
     if not cut > floor:
         raise ValueError(f"the cut plane (height {cut:.4f}) must lie above the floor (height {floor:.4f})")
     return Lengthening({k: float(factors[k]) for k in parts}, float(floor), float(cut), support, np.asarray(up, float))
@@ -1078,8 +1076,6 @@ def _lengthen_on_mesh(v, faces, cuboids: Cuboids, e: Edit, **edits) -> Edit:
     area-weighted median height of the support's downward-facing triangles (normal within 45
     degrees of down). The network's cuboids are loose: on the 10 COSEG chairs the seat cuboid's
     bottom is 0.01-0.1 (canonical units) off the ground-truth seat underside, the mesh's 0-0.03."""
-    from dataclasses import replace
-
     L = e.lengthening
     up = L.up
     labels = assign_points(v, cuboids)
@@ -1105,8 +1101,7 @@ def _lengthen_on_mesh(v, faces, cuboids: Cuboids, e: Edit, **edits) -> Edit:
         cut = L.cut
     if not cut > (floor if floor is not None else L.floor):
         return e  # the mesh disagrees with the cuboids; keep the cuboids' planes
-    out = edit_cuboids(cuboids, floor=floor, cut=cut, **kwargs)
-    return replace(out, lengthening=replace(out.lengthening, support=L.support))
+    return edit_cuboids(cuboids, floor=floor, cut=cut, **kwargs)
 
 
 def _seam_transforms(vertices, cuboids: Cuboids, e: Edit) -> np.ndarray:
