@@ -207,6 +207,7 @@ class ImageTrainConfig:
     seed: int = 0
     log_every: int = 50
     time_limit_s: float = 0.0
+    colour_shuffle: bool = False
     weights: DistillWeights = field(default_factory=DistillWeights)
 
     def to_dict(self) -> dict:
@@ -215,9 +216,14 @@ class ImageTrainConfig:
         return d
 
 
-def _augment(x: torch.Tensor, gen: torch.Generator, shift: int) -> torch.Tensor:
-    """Random shift (edge-padded) and brightness / contrast jitter of a ``(B, 3, S, S)`` batch."""
+def _augment(x: torch.Tensor, gen: torch.Generator, shift: int, colour: bool = False) -> torch.Tensor:
+    """Random shift (edge-padded) and brightness / contrast jitter of a ``(B, 3, S, S)`` batch;
+    with ``colour``, also a random permutation of the colour channels and per-channel gains."""
     b, _, s, _ = x.shape
+    if colour:
+        perm = torch.argsort(torch.rand(b, 3, generator=gen), dim=1)
+        x = torch.gather(x, 1, perm[:, :, None, None].expand_as(x))
+        x = x * (0.75 + 0.5 * torch.rand(b, 3, 1, 1, generator=gen))
     if shift:
         padded = F.pad(x, (shift,) * 4, mode="replicate")
         dx = torch.randint(0, 2 * shift + 1, (b,), generator=gen)
@@ -280,7 +286,7 @@ def train_image_model(images: np.ndarray, shape_index: np.ndarray, cameras: np.n
         for group in opt.param_groups:
             group["lr"] = _learning_rate(config.learning_rate, progress_)
         batch = torch.randint(0, len(imgs), (config.batch_size,), generator=gen)
-        x = _augment(_to_float(imgs[batch]), gen, config.shift_pixels)
+        x = _augment(_to_float(imgs[batch]), gen, config.shift_pixels, config.colour_shuffle)
         target = {k: v[idx[batch]] for k, v in teach.items()}
         losses = distillation_loss(net(x), target, view[batch], config.weights)
         opt.zero_grad(set_to_none=True)

@@ -1,9 +1,13 @@
 """Build the bundled chair image model: render views, distil the chair volume model, evaluate.
 
-    python scripts/build_image_model.py render   # views of the teacher's training and held-out chairs
-    python scripts/build_image_model.py train    # distil (about 20 min on 2 CPU cores)
-    python scripts/build_image_model.py eval     # held-out chairs, unseen backgrounds; writes the card
-    python scripts/build_image_model.py all
+    python scripts/build_image_model.py render                  # views of training and held-out chairs
+    python scripts/build_image_model.py train --minutes 20      # distil (stage 1)
+    cp /work/runs/image/chair-image.safetensors /work/runs/image/stage1.safetensors
+    python scripts/build_image_model.py train --resume /work/runs/image/stage1.safetensors \
+        --minutes 6 --lr 3e-4 --colour-shuffle                  # stage 2: colour-channel shuffling
+    python scripts/build_image_model.py eval --eval-limit 200   # held-out chairs; writes the bundled file
+
+(the bundled model's recipe; ``all`` runs render, train and eval in one go with the options given).
 
 Data: ShapeNetVox32 chairs in ../shared/data/shapenetvox32/03001627, prepared through the cache
 ``--cache`` (default /work/runs/cache), split with the teacher's own hold-out rule
@@ -89,6 +93,16 @@ def teacher_targets(teacher, coll, path: Path, limit=None):
     return raw
 
 
+def model_history(path):
+    """The training record of the model a run continued from (None for a fresh run)."""
+    if not path:
+        return None
+    from primkit.modelfile import read_metadata
+
+    t = read_metadata(path)["training"]
+    return {k: t[k] for k in ("config", "seconds", "final", "resumed_from") if k in t}
+
+
 def train(teacher, train_coll, work: Path, settings, args) -> None:
     import torch
 
@@ -97,11 +111,13 @@ def train(teacher, train_coll, work: Path, settings, args) -> None:
     torch.set_num_threads(args.threads)
     views_train = render_split(train_coll, work, "train-seen", args.views, "seen", 0, settings, args.limit)
     targets = teacher_targets(teacher, train_coll, work / "teacher-train.npz", args.limit)
-    config = im.ImageTrainConfig(iterations=args.iterations, time_limit_s=60 * args.minutes)
+    config = im.ImageTrainConfig(iterations=args.iterations, time_limit_s=60 * args.minutes,
+                                 learning_rate=args.lr, colour_shuffle=args.colour_shuffle)
+    start = im.ImageAbstractor.load(args.resume).network if args.resume else None
     net_config = im.ImageNetConfig(size=settings.size)
     print(f"distilling on {len(views_train)} views of {len(views_train.names)} chairs", flush=True)
     result = im.train_image_model(views_train.images, views_train.shape_index, views_train.cameras, targets,
-                                  net_config, config)
+                                  net_config, config, network=start)
     model = im.ImageAbstractor(result.network, {})
     meta = {
         "teacher": "chair",
@@ -110,7 +126,7 @@ def train(teacher, train_coll, work: Path, settings, args) -> None:
         "training": {"config": config.to_dict(), "views": len(views_train), "shapes": len(views_train.names),
                      "views_per_shape": args.views, "palette": "seen", "seed": 0, "seconds": round(result.seconds, 1),
                      "device": "cpu", "threads": args.threads, "torch": torch.__version__,
-                     "final": result.history[-1], "history": result.history[:: max(1, len(result.history) // 60)]},
+                     "final": result.history[-1], "resumed_from": model_history(args.resume), "history": result.history[:: max(1, len(result.history) // 60)]},
     }
     model.save(work / "chair-image.safetensors", meta, overwrite=True)
     print(f"trained in {result.seconds / 60:.1f} min; final {result.history[-1]}", flush=True)
@@ -211,8 +227,10 @@ def write_bundled(teacher, model, report: dict, work: Path) -> Path:
     tr = model.metadata["training"]
     unseen, seen, tnet = report["unseen_backgrounds"], report["seen_backgrounds"], report["teacher_on_grids"]
     ratio = unseen["chamfer_l1"] / tnet["chamfer_l1"]
-    command = "python scripts/build_image_model.py all   (or: primkit train-image ../shared/data/shapenetvox32/03001627 " \
-              "--teacher chair -o chair-image.safetensors)"
+    command = ("python scripts/build_image_model.py render; python scripts/build_image_model.py train --minutes 20 "
+               "--threads 1; cp /work/runs/image/chair-image.safetensors /work/runs/image/stage1.safetensors; "
+               "python scripts/build_image_model.py train --resume /work/runs/image/stage1.safetensors --minutes 6 "
+               "--lr 3e-4 --colour-shuffle --threads 1; python scripts/build_image_model.py eval --eval-limit 200")
     data_line = (f"{tr['views']} rendered views ({tr['views_per_shape']} per chair, 64x64, random azimuth, elevation "
                  "0-40 deg, random lights, object colours and backgrounds of the 'seen' palette) of the "
                  f"{tr['shapes']} ShapeNetVox32 chairs the chair model trained on (the voxel grids' contour surface); "
@@ -224,7 +242,15 @@ def write_bundled(teacher, model, report: dict, work: Path) -> Path:
                 + f", batch {tr['config']['batch_size']}, AdamW "
                 f"{tr['config']['learning_rate']} with warm-up and cosine decay, weight decay {tr['config']['weight_decay']}, "
                 f"shifts of up to {tr['config']['shift_pixels']} px and brightness/contrast jitter, seed 0")
-    training_time = f"{tr['seconds'] / 60:.1f} min on cpu ({tr['threads']} threads), torch {tr['torch']}"
+    if tr["config"].get("colour_shuffle"):
+        schedule += ", colour channels permuted and their gains jittered"
+    first = tr.get("resumed_from")
+    seconds = tr["seconds"]
+    if first:
+        seconds += first["seconds"]
+        schedule = (f"stage 1: {first['final']['iteration'] + 1} iterations, AdamW {first['config']['learning_rate']} "
+                    f"with warm-up and cosine decay, no colour-channel shuffling; stage 2 (continued): " + schedule)
+    training_time = f"{seconds / 60:.1f} min on cpu ({tr['threads']} threads), torch {tr['torch']}"
     metrics = {
         "convention": report["convention"],
         "held_out": {"evaluated": unseen["shapes"], "held_out_total": report["held_out_total"],
@@ -277,6 +303,9 @@ def main(argv=None) -> int:
     ap.add_argument("--reverse", action="store_true", help="render the training chunks last first (a second process)")
     ap.add_argument("--eval-limit", type=int, default=None, help="evaluate on the first N held-out chairs only")
     ap.add_argument("--iterations", type=int, default=9000)
+    ap.add_argument("--lr", type=float, default=1e-3)
+    ap.add_argument("--colour-shuffle", action="store_true", help="permute colour channels and jitter their gains")
+    ap.add_argument("--resume", default=None, help="continue from this image model file")
     ap.add_argument("--minutes", type=float, default=0, help="stop training after this many minutes (0: no limit)")
     ap.add_argument("--threads", type=int, default=2)
     args = ap.parse_args(argv)
