@@ -14,12 +14,16 @@ from primkit.presets import PRESETS
 EXPECTED = {"chair", "table", "airplane", "animal"}
 
 
+def _kind(path):
+    return modelfile.read_metadata(path).get("kind", "volume")
+
+
 def test_every_preset_is_bundled_with_a_card():
     models = bundled_models()
-    assert set(models) == EXPECTED == set(PRESETS)
-    total = 0
-    for name, path in models.items():
-        total += path.stat().st_size
+    volume = {n: p for n, p in models.items() if _kind(p) == "volume"}
+    assert set(volume) == EXPECTED == set(PRESETS)
+    total = sum(p.stat().st_size for p in models.values())
+    for name, path in volume.items():
         meta = modelfile.read_metadata(path)
         assert meta["format_version"] == modelfile.FORMAT_VERSION
         card = meta["card"]
@@ -29,7 +33,22 @@ def test_every_preset_is_bundled_with_a_card():
         assert held["evaluated"] > 0 and 0 < held["network"]["iou"] <= 1
         assert meta["training"]["data"]["hold_out_every"] == PRESETS[name].hold_out_every
         assert card["text"].startswith(f"# primkit bundled model: {name}")
+        names = meta["part_names"]  # learned on procedural shapes (scripts/name_bundled_models.sh)
+        assert len(names) == Abstractor.load(path).parts and meta["part_naming"]["shapes"] > 0
     assert total < 4 * 2**20  # small enough for a wheel
+
+
+def test_image_models_name_their_teacher_and_its_terms():
+    images = {n: p for n, p in bundled_models().items() if _kind(p) == "image-abstractor"}
+    assert "chair-image" in images
+    for name, path in images.items():
+        meta = modelfile.read_metadata(path)
+        card = meta["card"]
+        teacher = modelfile.read_metadata(bundled_models()[meta["teacher"]])
+        assert card["terms"] == teacher["card"]["terms"]  # distilled from ShapeNet-trained weights
+        assert card["text"].startswith(f"# primkit bundled model: {name}")
+        held = card["metrics"]["held_out"]
+        assert held["evaluated"] > 0 and 0 < held["network"]["iou"] <= 1
 
 
 def test_shapenet_models_say_research_only():
