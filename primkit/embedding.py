@@ -54,6 +54,21 @@ matrix only when asked.
 
 The baseline the paper compares with is :func:`voxel_iou_distances` (1 - IoU of the prepared
 occupancy grids, also in the canonical frame).
+
+Measured (400 procedural chairs, ``synthetic.write_collection(..., "chair", 400)``, 28.5% with
+arms, so nearest neighbours agree on "has arms" by chance 0.592; back tilt 0-25 degrees)::
+
+    model                          all parts: arms   back,seat: arms   back orientation: Spearman
+    bundled chair                       0.978             0.743                 0.875
+    bundled chair, refine=100           0.968             0.625                 0.995
+    trained on these chairs             0.948             0.845                 0.985
+    trained on these chairs, refine     0.938             0.840                 0.989
+
+(Spearman between the distance to the most upright chair and the true tilt.) Use refinement
+for orientations: the network alone reads the back's lean at about 0.7 degree per degree of tilt
+with 2.9 degrees of scatter; 100 steps bring it to 0.97 with 0.5. No model here has an arm
+part: arms are covered by the front legs and by a seat cuboid that thickens, so the seat still
+carries a little of "has arms" (least after refinement, which fits the seat to the seat).
 """
 
 from __future__ import annotations

@@ -217,7 +217,7 @@ def _common_options(p) -> None:
                    help="draw each shape's voxel surface, or its cuboids (selected parts coloured)")
     p.add_argument("--refine", type=int, default=0, metavar="N",
                    help="fit each shape's cuboids to its own surface with N gradient steps before comparing "
-                        "(0: the network's answer). Slower (about 1.3 s per shape for 100 steps on one core) "
+                        "(0: the network's answer). Slower (roughly 0.4-1.3 s per shape for 100 steps on one core) "
                         "but orientations then follow the shape: use it for --what orientation")
     p.add_argument("--align", choices=["none", "auto"], default="none")
     p.add_argument("-o", "--output", required=True, help="output folder")
