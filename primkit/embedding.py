@@ -386,40 +386,22 @@ def render_thumbnails(meshes, size: int = 96, progress: bool = False) -> list[np
     """Small pictures of meshes in the canonical frame: ``(size, size, 4) uint8`` RGBA each.
 
     ``meshes``: ``(vertices, faces)`` or ``(vertices, faces, (f, 3) uint8 face colours)``. One
-    off-screen pyvista plotter is reused; the camera is fixed (parallel projection, the same view
-    direction and scale for every shape), so sizes compare across thumbnails.
+    off-screen plotter is reused (:class:`primkit.render.ThumbnailRenderer`); every thumbnail is
+    framed on the canonical frame's origin at one scale, so sizes compare across thumbnails.
     """
     from tqdm import tqdm
 
-    import os
+    from .render import CAMERA, ThumbnailRenderer, Tile, mesh_layer
 
-    if not os.environ.get("DISPLAY"):  # off screen through EGL, without first trying an X server
-        os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
-    import pyvista as pv
-
-    plotter = pv.Plotter(off_screen=True, window_size=(size, size))
-    plotter.set_background("white")
-    view = np.array([1.0, 0.6, 1.2]) / np.linalg.norm([1.0, 0.6, 1.2])
+    frame = np.array([[-0.5] * 3, [0.5] * 3])  # centred on the origin of the canonical frame
+    radius = 0.62 / (1.0 + CAMERA.margin)  # a viewport half-height of 0.62: a unit-size shape with room
     images = []
-    for item in tqdm(meshes, desc="thumbnails", unit="shape", disable=not progress):
-        plotter.clear_actors()
-        v, f = item[0], item[1]
-        if len(f):
-            f = np.asarray(f, np.int64)
-            mesh = pv.PolyData(np.asarray(v, float), np.hstack([np.full((len(f), 1), 3), f]).ravel())
-            if len(item) > 2 and item[2] is not None:
-                mesh.cell_data["rgb"] = np.asarray(item[2], np.uint8)
-                plotter.add_mesh(mesh, scalars="rgb", rgb=True)
-            else:
-                plotter.add_mesh(mesh, color="#b8c4d6")
-        plotter.camera.position = tuple(view * 3.0)
-        plotter.camera.focal_point = (0.0, 0.0, 0.0)
-        plotter.camera.up = (0.0, 1.0, 0.0)
-        plotter.camera.parallel_projection = True
-        plotter.camera.parallel_scale = 0.62
-        plotter.camera.clipping_range = (0.1, 10.0)
-        images.append(np.asarray(plotter.screenshot(transparent_background=True, return_img=True)))
-    plotter.close()
+    with ThumbnailRenderer(size=size) as renderer:
+        for item in tqdm(meshes, desc="thumbnails", unit="shape", disable=not progress):
+            v, f = item[0], item[1]
+            colors = item[2] if len(item) > 2 else None
+            layers = [mesh_layer(v, f, colors, color="#b8c4d6")] if len(f) else []
+            images.append(renderer.render(Tile("", layers, frame=frame), radius=radius, transparent=True))
     return images
 
 

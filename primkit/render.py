@@ -289,8 +289,10 @@ class ThumbnailRenderer:
         self.plotter = pv.Plotter(off_screen=True, window_size=(size, size), border=False)
         self.plotter.set_background(background)
 
-    def render(self, tile: Tile, path=None, *, radius: float | None = None, overwrite: bool = False) -> np.ndarray:
-        """The picture of one tile, (size, size, 3) uint8; also written to ``path`` when given.
+    def render(self, tile: Tile, path=None, *, radius: float | None = None, overwrite: bool = False,
+               transparent: bool = False) -> np.ndarray:
+        """The picture of one tile, (size, size, 3) uint8 ((size, size, 4) RGBA with a transparent
+        background when ``transparent``); also written to ``path`` when given.
         ``radius`` (or the renderer's) fixes the scale; None frames the tile alone."""
         p = self.plotter
         p.clear_actors()
@@ -302,7 +304,8 @@ class ThumbnailRenderer:
         r = _common_radius([tile], radius if radius is not None else self.radius)
         apply_camera(p, tile.bounds().mean(0), r, self.camera)
         p.render()  # after the first picture, screenshot() alone returns the last frame drawn
-        image = np.asarray(p.screenshot(return_img=True))[..., :3].copy()
+        image = np.asarray(p.screenshot(return_img=True, transparent_background=transparent))
+        image = image.copy() if transparent else image[..., :3].copy()
         if path is not None:
             _save_image(image, path, overwrite)
         return image

@@ -44,7 +44,6 @@ __all__ = [
     "point_labels",
     "vertex_labels",
     "face_labels",
-    "face_areas",
     "Segmentation",
     "segment_mesh",
     "Segmenter",
@@ -116,13 +115,6 @@ def face_labels(vertices, faces, cuboids: primitives.Cuboids) -> np.ndarray:
     return np.where(tie, centroid, winner)
 
 
-def face_areas(vertices, faces) -> np.ndarray:
-    """Area of each triangle. vertices : (n, 3) float, faces : (f, 3) int -> (f,) float"""
-    v = np.asarray(vertices, float)
-    f = np.asarray(faces, np.int64)
-    return 0.5 * np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1)
-
-
 @dataclass(frozen=True, eq=False)
 class Segmentation:
     """The co-segmentation of one mesh by its abstraction.
@@ -154,7 +146,7 @@ class Segmentation:
     @property
     def face_areas(self) -> np.ndarray:
         """(f,) float"""
-        return face_areas(self.vertices, self.faces)
+        return io.Mesh(self.vertices, self.faces).face_areas()
 
     def part_areas(self) -> np.ndarray:
         """Surface area assigned to each index: ``(m,) float`` (zero for parts holding no face)."""
