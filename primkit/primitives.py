@@ -786,18 +786,34 @@ def cuboid_distance_sq_torch(
     half_extents: torch.Tensor,
     quaternions: torch.Tensor,
     translations: torch.Tensor,
+    *,
+    parts_first: bool = False,
 ) -> torch.Tensor:
     """Squared distance from each point to each solid cuboid (0 inside).
 
     points (B, n, 3), half_extents (B, m, 3), quaternions (B, m, 4), translations (B, m, 3)
-    ->  (B, n, m). No square root, so the gradient is finite everywhere (and continuous: the
-    kink of ``max(., 0)`` is squared away and ``|x|`` only kinks at 0, inside the cuboid).
+    ->  (B, n, m), or (B, m, n) with ``parts_first``. No square root, so the gradient is finite
+    everywhere (and continuous: the kink of ``max(., 0)`` is squared away and ``|x|`` only kinks
+    at 0, inside the cuboid).
+
+    Computed coordinate-planar, as ``(B, m, 3, n)`` local coordinates ``R^T x - R^T t`` from one
+    batched matrix product: the per-point sums then run over a middle axis with ``n`` contiguous
+    values, which vectorises (a trailing axis of length 3, as in :func:`world_to_local_torch`'s
+    layout, made this 4x slower on CPU).
     """
     if half_extents.shape != translations.shape:
         raise ValueError("`half_extents` must be (B, m, 3), matching `translations`")
-    local = world_to_local_torch(points, quaternions, translations)  # (B, m, n, 3)
-    excess = (local.abs() - half_extents[:, :, None, :]).clamp_min(0.0)
-    return excess.square().sum(dim=-1).transpose(1, 2)
+    if points.ndim != 3 or points.shape[-1] != 3:
+        raise ValueError("`points` must be (B, n, 3)")
+    if quaternions.ndim != 3 or quaternions.shape[-1] != 4:
+        raise ValueError("`quaternions` must be (B, m, 4)")
+    if translations.shape != quaternions.shape[:2] + (3,):
+        raise ValueError("`translations` must be (B, m, 3), matching `quaternions`")
+    rot_t = quaternion_to_matrix_torch(quaternions).transpose(-1, -2)  # (B, m, 3, 3), R^T
+    local = rot_t @ points.transpose(1, 2)[:, None] - rot_t @ translations[..., None]  # (B, m, 3, n)
+    excess = (local.abs() - half_extents[..., None]).clamp_min(0.0)
+    d2 = excess.square().sum(dim=2)  # (B, m, n)
+    return d2 if parts_first else d2.transpose(1, 2)
 
 
 def _sample_surface_from_uv_torch(

@@ -193,6 +193,23 @@ def test_lookup_at_cell_centres_and_upper_bound(meshes):
     assert (looked - exact).max() < 1.0 / 16
 
 
+def test_lookup_is_the_minimum_over_the_eight_surrounding_cells(meshes):
+    """Against the definition, in NumPy: min over the 8 cells around x (indices clamped) of |x - closest|^2."""
+    v, f = meshes["torus"]
+    res = 16
+    grid = geometry.distance_grid(v, f, res)
+    pts = np.random.default_rng(6).uniform(-0.7, 0.7, size=(400, 3))
+    base = np.floor((pts + 0.5) * res - 0.5).astype(int)
+    ref = np.full(len(pts), np.inf)
+    for corner in np.ndindex(2, 2, 2):
+        idx = np.clip(base + corner, 0, res - 1)
+        cp = grid.closest[idx[:, 0], idx[:, 1], idx[:, 2]].astype(float)
+        ref = np.minimum(ref, ((pts - cp) ** 2).sum(1))
+    closest = torch.as_tensor(grid.closest, dtype=torch.float64)[None]
+    got = lookup_distance_sq(closest, torch.as_tensor(pts)[None])[0].numpy()
+    np.testing.assert_allclose(got, ref, rtol=1e-12, atol=1e-15)
+
+
 def test_lookup_gradient_matches_finite_differences(meshes):
     v, f = meshes["sphere"]
     grid = geometry.distance_grid(v, f, 16)

@@ -32,6 +32,22 @@ def test_coverage_loss_matches_numpy_union_distance():
         assert np.isclose(got[b].item(), ref, rtol=1e-10)
 
 
+def test_nearest_cuboid_recomputation_is_the_plain_minimum_with_its_gradient():
+    """The coverage loss finds each point's nearest cuboid without a graph and differentiates that
+    cuboid only: values and gradients must equal autograd through the plain minimum over cuboids."""
+    z, q, t = (x.requires_grad_() for x in random_cuboids(3, 6, seed=4))
+    present = torch.tensor([[1, 1, 0, 1, 1, 1], [1] * 6, [0, 1, 1, 1, 1, 0]], dtype=torch.float64)
+    pts = (torch.rand(3, 400, 3, dtype=torch.float64, generator=torch.Generator().manual_seed(5)) - 0.5).requires_grad_()
+    ours = losses.coverage_loss(pts, z, q, t, present)
+    plain = (primitives.cuboid_distance_sq_torch(pts, z, q, t) + (1 - present)[:, None, :] * losses._ABSENT).min(-1).values.mean(1)
+    assert torch.allclose(ours, plain, rtol=1e-12, atol=1e-15)
+    weights = torch.tensor([1.0, 2.0, 0.5], dtype=torch.float64)
+    g_ours = torch.autograd.grad((ours * weights).sum(), (pts, z, q, t))
+    g_plain = torch.autograd.grad((plain * weights).sum(), (pts, z, q, t))
+    for a, b in zip(g_ours, g_plain):
+        assert torch.allclose(a, b, rtol=1e-10, atol=1e-14)
+
+
 def test_consistency_loss_matches_weighted_brute_force(prepared_chairs):
     closest = torch.from_numpy(np.stack([p.closest for p in prepared_chairs[:2]])).double()
     z, q, t = random_cuboids(2, 4, seed=1)
