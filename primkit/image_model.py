@@ -197,7 +197,11 @@ def _learning_rate(peak: float, progress: float) -> float:
 class ImageTrainConfig:
     """Training schedule. ``time_limit_s`` (0: none) stops training after that many seconds and
     runs the learning-rate schedule on whichever of iterations or time is further along (so a
-    time-limited run still ends with the rate decayed; it is then not bit-for-bit reproducible)."""
+    time-limited run still ends with the rate decayed; it is then not bit-for-bit reproducible).
+
+    ``swap_backgrounds`` (0 to 1): the fraction of each batch whose background is replaced by a
+    fresh one from :func:`training_backgrounds` (needs views rendered with foregrounds); the rest
+    keep the background they were rendered with."""
 
     iterations: int = 8000
     batch_size: int = 64
@@ -208,6 +212,7 @@ class ImageTrainConfig:
     log_every: int = 50
     time_limit_s: float = 0.0
     colour_shuffle: bool = False
+    swap_backgrounds: float = 0.0
     weights: DistillWeights = field(default_factory=DistillWeights)
 
     def to_dict(self) -> dict:
@@ -235,6 +240,66 @@ def _augment(x: torch.Tensor, gen: torch.Generator, shift: int, colour: bool = F
     return ((x - mean) * gain + mean + bias).clamp(0, 1)
 
 
+def _hsv_to_rgb(h: torch.Tensor, s: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+    """``(..., 3)`` RGB from hue, saturation, value tensors of the same shape, all in [0, 1]."""
+    k = torch.stack([(5 + h * 6) % 6, (3 + h * 6) % 6, (1 + h * 6) % 6], dim=-1)
+    return v[..., None] - v[..., None] * s[..., None] * torch.clamp(torch.minimum(k, 4 - k), 0, 1)
+
+
+def training_backgrounds(count: int, size: int, gen: torch.Generator, hues=None) -> torch.Tensor:
+    """Fresh random backgrounds ``(count, 3, size, size)`` in [0, 1] for background swapping.
+
+    The kinds and colours of the training palette (:func:`primkit.views.random_background` with
+    ``palette="seen"``: solid colours, linear gradients, smooth noise of 2-5 cells, hues in
+    ``views.PALETTE_HUES["seen"]``), plus two kinds of clutter the palette lacks, in seen colours
+    over a gradient: a few large soft-edged discs, or many small ones (confetti: fine detail
+    without the regular pattern of stripes or checkers). None of the held-out palette's kinds
+    (radial gradients, stripes, checkers, fine noise) or hues is drawn here. Drawn in torch, a
+    batch at a time, so that every training step sees new backgrounds at no rendering cost.
+    """
+    from .views import PALETTE_HUES
+
+    lo, hi = hues if hues is not None else PALETTE_HUES["seen"]
+
+    def colours(n):
+        r = torch.rand(n, 3, generator=gen)
+        return _hsv_to_rgb(lo + (hi - lo) * r[:, 0], 0.2 + 0.7 * r[:, 1], 0.25 + 0.75 * r[:, 2])  # (n, 3)
+
+    a, b = colours(count), colours(count)
+    axis = torch.linspace(0, 1, size)
+    yy, xx = torch.meshgrid(axis, axis, indexing="ij")
+    kind = torch.randint(0, 5, (count,), generator=gen)  # solid, gradient, noise, discs, confetti
+    theta = 2 * math.pi * torch.rand(count, generator=gen)
+    grad = torch.cos(theta)[:, None, None] * xx + torch.sin(theta)[:, None, None] * yy
+    lo_, hi_ = grad.amin(dim=(1, 2), keepdim=True), grad.amax(dim=(1, 2), keepdim=True)
+    w = (grad - lo_) / (hi_ - lo_).clamp(min=1e-9)
+    cells = int(torch.randint(2, 6, (1,), generator=gen))
+    noise = F.interpolate(torch.rand(count, 1, cells + 1, cells + 1, generator=gen), size=(size, size),
+                          mode="bilinear", align_corners=True)[:, 0]
+    lo_, hi_ = noise.amin(dim=(1, 2), keepdim=True), noise.amax(dim=(1, 2), keepdim=True)
+    noise = (noise - lo_) / (hi_ - lo_).clamp(min=1e-9)
+    w = torch.where((kind == 0)[:, None, None], torch.zeros_like(w), w)
+    w = torch.where((kind == 2)[:, None, None], noise, w)
+    bg = a[:, :, None, None] * (1 - w[:, None]) + b[:, :, None, None] * w[:, None]
+    for which, discs, radii in ((3, (2, 7), (0.05, 0.3)), (4, (15, 40), (0.025, 0.07))):
+        clutter = kind == which
+        if not clutter.any():
+            continue
+        for _ in range(int(torch.randint(*discs, (1,), generator=gen))):
+            centre = torch.rand(count, 2, generator=gen)
+            radius = radii[0] + (radii[1] - radii[0]) * torch.rand(count, generator=gen)
+            d = torch.sqrt((xx - centre[:, 0, None, None]) ** 2 + (yy - centre[:, 1, None, None]) ** 2)
+            disc = torch.clamp((radius[:, None, None] - d) * size / 2, 0, 1) * clutter[:, None, None]
+            bg = bg * (1 - disc[:, None]) + colours(count)[:, :, None, None] * disc[:, None]
+    return bg
+
+
+def composite(foreground: torch.Tensor, alpha: torch.Tensor, background: torch.Tensor) -> torch.Tensor:
+    """``foreground + background * (1 - alpha)``: premultiplied ``(B, 3, S, S)`` foregrounds and
+    ``(B, 1, S, S)`` coverage, all float in [0, 1], over ``(B, 3, S, S)`` backgrounds."""
+    return foreground + background * (1 - alpha)
+
+
 @dataclass
 class ImageTrainResult:
     network: ImageNet
@@ -248,7 +313,8 @@ def _to_float(images_uint8: torch.Tensor) -> torch.Tensor:
 
 def train_image_model(images: np.ndarray, shape_index: np.ndarray, cameras: np.ndarray, teacher: dict,
                       net_config: ImageNetConfig = ImageNetConfig(), config: ImageTrainConfig = ImageTrainConfig(),
-                      *, progress: bool = True, network: ImageNet | None = None) -> ImageTrainResult:
+                      *, progress: bool = True, network: ImageNet | None = None,
+                      foreground: np.ndarray | None = None, alpha: np.ndarray | None = None) -> ImageTrainResult:
     """Train an :class:`ImageNet` to reproduce the teacher on rendered views.
 
     Parameters
@@ -258,6 +324,9 @@ def train_image_model(images: np.ndarray, shape_index: np.ndarray, cameras: np.n
     cameras : (k, 4) float, camera arrays (:class:`primkit.views.Camera`)
     teacher : dict of (s, m, ...) arrays, :meth:`primkit.abstractor.Abstractor.predict_canonical`
     network : continue training this network instead of a new one
+    foreground : (k, S, S, 3) uint8, alpha : (k, S, S) uint8, optional
+        The views' shapes alone (:class:`primkit.views.RenderedViews` rendered with
+        ``keep_foreground=True``); needed when ``config.swap_backgrounds > 0``.
     """
     from tqdm.auto import tqdm
 
@@ -270,6 +339,14 @@ def train_image_model(images: np.ndarray, shape_index: np.ndarray, cameras: np.n
     net.train()
     opt = torch.optim.AdamW(net.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay)
     imgs = torch.from_numpy(images)
+    swap = float(config.swap_backgrounds)
+    if swap > 0:
+        if foreground is None or alpha is None:
+            raise ValueError("swap_backgrounds needs the views' foreground and alpha (render with keep_foreground=True)")
+        fgs, alphas = torch.from_numpy(np.asarray(foreground)), torch.from_numpy(np.asarray(alpha))
+        if fgs.shape != imgs.shape or alphas.shape != imgs.shape[:3]:
+            raise ValueError(f"foreground {tuple(fgs.shape)} and alpha {tuple(alphas.shape)} do not match the images "
+                             f"{tuple(imgs.shape)}")
     idx = torch.from_numpy(np.asarray(shape_index, np.int64))
     teach = {k: torch.from_numpy(np.asarray(teacher[k], np.float32)) for k in
              ("half_extents", "quaternions", "translations", "existence")}
@@ -286,7 +363,12 @@ def train_image_model(images: np.ndarray, shape_index: np.ndarray, cameras: np.n
         for group in opt.param_groups:
             group["lr"] = _learning_rate(config.learning_rate, progress_)
         batch = torch.randint(0, len(imgs), (config.batch_size,), generator=gen)
-        x = _augment(_to_float(imgs[batch]), gen, config.shift_pixels, config.colour_shuffle)
+        x = _to_float(imgs[batch])
+        if swap > 0:
+            k = int(round(swap * len(batch)))
+            a = alphas[batch[:k]].float()[:, None] / 255.0
+            x[:k] = composite(_to_float(fgs[batch[:k]]), a, training_backgrounds(k, x.shape[-1], gen))
+        x = _augment(x, gen, config.shift_pixels, config.colour_shuffle)
         target = {k: v[idx[batch]] for k, v in teach.items()}
         losses = distillation_loss(net(x), target, view[batch], config.weights)
         opt.zero_grad(set_to_none=True)

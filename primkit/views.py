@@ -27,6 +27,10 @@ Decisions:
   noise with hues in [0, 0.5); ``palette="unseen"`` (evaluation) uses radial gradients, stripes,
   checkers and fine noise with hues in [0.5, 1). Neither the kinds nor the colours of the unseen
   backgrounds occur in training.
+* **Foregrounds for background swapping.** ``render_views(..., keep_foreground=True)`` also keeps
+  each view's shape alone (``foreground``: colour premultiplied by coverage, and ``alpha``), so
+  that training can lay a fresh background under every view at every step
+  (:func:`primkit.image_model.train_image_model`) instead of learning one fixed background per view.
 * **Anti-aliasing** by rendering at ``supersample`` times the size and averaging blocks.
 * **Determinism.** Every random choice of view ``j`` of shape ``i`` comes from
   ``np.random.default_rng([seed, i, j])``, so a view does not depend on which other views are
@@ -59,6 +63,8 @@ __all__ = [
 ]
 
 PALETTES = ("seen", "unseen")
+#: hue ranges (HSV hue in [0, 1)) of the background palettes
+PALETTE_HUES = {"seen": (0.0, 0.5), "unseen": (0.5, 1.0)}
 
 
 @dataclass(frozen=True)
@@ -174,7 +180,7 @@ def random_background(size: int, rng: np.random.Generator, palette: str = "seen"
     (see the module docstring: ``"seen"`` for training, ``"unseen"`` held out for evaluation)."""
     if palette not in PALETTES:
         raise ValueError(f"palette must be one of {PALETTES}, got {palette!r}")
-    hues = (0.0, 0.5) if palette == "seen" else (0.5, 1.0)
+    hues = PALETTE_HUES[palette]
     a, b = _colour(rng, hues), _colour(rng, hues)
     yy, xx = np.mgrid[0:size, 0:size] / max(size - 1, 1)
     if palette == "seen":
@@ -215,6 +221,11 @@ class RenderedViews:
     settings : ViewSettings
     palette : str
     seed : int
+    foreground : (k, S, S, 3) uint8 or None, the shape alone: colour times coverage (premultiplied)
+    alpha : (k, S, S) uint8 or None, the shape's coverage of each pixel (255: fully covered)
+
+    ``images`` is ``foreground + background * (1 - alpha)`` (up to rounding), so with the two
+    optional arrays a view can be laid over any background (:meth:`composite`).
     """
 
     images: np.ndarray
@@ -224,12 +235,26 @@ class RenderedViews:
     settings: ViewSettings
     palette: str
     seed: int
+    foreground: np.ndarray | None = None
+    alpha: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.images)
 
     def camera(self, i: int) -> Camera:
         return Camera.from_array(self.cameras[i])
+
+    def composite(self, backgrounds: np.ndarray) -> np.ndarray:
+        """The views laid over other backgrounds.
+
+        backgrounds : (k, S, S, 3) float in [0, 1], one per view. Returns ``(k, S, S, 3) uint8``.
+        Needs views rendered with ``keep_foreground=True``.
+        """
+        if self.foreground is None:
+            raise ValueError("these views were rendered without keep_foreground=True")
+        a = self.alpha[..., None] / 255.0
+        img = self.foreground / 255.0 + np.asarray(backgrounds, float) * (1 - a)
+        return np.clip(np.round(img * 255), 0, 255).astype(np.uint8)
 
     def save(self, path) -> None:
         """Write an ``.npz`` file (atomically; replaces an existing one: it is a cache)."""
@@ -238,10 +263,11 @@ class RenderedViews:
         from .io import atomic_output
 
         meta = {"names": list(self.names), "settings": self.settings.to_dict(), "palette": self.palette, "seed": self.seed}
+        extra = {} if self.foreground is None else {"foreground": self.foreground, "alpha": self.alpha}
         with atomic_output(path, overwrite=True) as tmp:
             with open(tmp, "wb") as fh:
                 np.savez(fh, images=self.images, shape_index=self.shape_index, cameras=self.cameras,
-                         meta=np.array(json.dumps(meta)))
+                         meta=np.array(json.dumps(meta)), **extra)
 
 
 def load_views(path) -> RenderedViews:
@@ -250,8 +276,9 @@ def load_views(path) -> RenderedViews:
 
     with np.load(path) as z:
         meta = json.loads(str(z["meta"]))
+        fg = (z["foreground"], z["alpha"]) if "foreground" in z.files else (None, None)
         return RenderedViews(z["images"], z["shape_index"], z["cameras"], meta["names"],
-                             ViewSettings.from_dict(meta["settings"]), meta["palette"], int(meta["seed"]))
+                             ViewSettings.from_dict(meta["settings"]), meta["palette"], int(meta["seed"]), *fg)
 
 
 class ViewRenderer:
@@ -327,6 +354,7 @@ def render_views(
     renderer: ViewRenderer | None = None,
     progress: bool = False,
     first_index: int = 0,
+    keep_foreground: bool = False,
 ) -> RenderedViews:
     """Render ``views_per_shape`` random views of each shape.
 
@@ -343,13 +371,16 @@ def render_views(
     first_index : int
         Number the shapes from here in the seed (to render a long list in chunks with the same
         pixels as in one go).
+    keep_foreground : bool
+        Also keep each view's shape alone (``foreground``, ``alpha``) for background swapping.
+        The composited ``images`` are the same pixels either way.
     """
     if palette not in PALETTES:
         raise ValueError(f"palette must be one of {PALETTES}, got {palette!r}")
     own = renderer is None
     renderer = renderer or ViewRenderer(settings)
     settings = renderer.settings
-    images, index, cams = [], [], []
+    images, index, cams, fgs, alphas = [], [], [], [], []
     shapes = 0
     try:
         from tqdm.auto import tqdm
@@ -364,6 +395,9 @@ def render_views(
                 bg = random_background(settings.size, rng, palette)
                 img = rgb * alpha[..., None] + bg * (1 - alpha[..., None])
                 images.append(np.clip(np.round(img * 255), 0, 255).astype(np.uint8))
+                if keep_foreground:
+                    fgs.append(np.clip(np.round(rgb * alpha[..., None] * 255), 0, 255).astype(np.uint8))
+                    alphas.append(np.clip(np.round(alpha * 255), 0, 255).astype(np.uint8))
                 index.append(i)
                 cams.append(cam.as_array())
     finally:
@@ -372,8 +406,10 @@ def render_views(
     count = len(index)
     names = list(names) if names is not None else [f"shape{i}" for i in range(shapes)]
     s = settings.size
+    fg = ((np.array(fgs, np.uint8).reshape(count, s, s, 3), np.array(alphas, np.uint8).reshape(count, s, s))
+          if keep_foreground else (None, None))
     return RenderedViews(np.array(images, np.uint8).reshape(count, s, s, 3), np.array(index, np.int64),
-                         np.array(cams, float).reshape(count, 4), names, settings, palette, int(seed))
+                         np.array(cams, float).reshape(count, 4), names, settings, palette, int(seed), *fg)
 
 
 def render_views_cached(path, occupancies, views_per_shape: int = 1, **kwargs) -> RenderedViews:
@@ -385,7 +421,8 @@ def render_views_cached(path, occupancies, views_per_shape: int = 1, **kwargs) -
         views = load_views(path)
         same = (views.settings == kwargs.get("settings", ViewSettings()) and views.palette == kwargs.get("palette", "seen")
                 and views.seed == kwargs.get("seed", 0) and (names is None or list(names) == views.names)
-                and len(views) == len(views.names) * views_per_shape)
+                and len(views) == len(views.names) * views_per_shape
+                and (views.foreground is not None or not kwargs.get("keep_foreground")))
         if same:
             return views
     views = render_views(occupancies, views_per_shape, **kwargs)

