@@ -761,6 +761,16 @@ def quaternion_to_matrix_torch(q: torch.Tensor) -> torch.Tensor:
     return torch.stack([torch.stack(r, dim=-1) for r in rows], dim=-2)
 
 
+def _check_points_and_poses(points, quaternions, translations) -> None:
+    """Shapes of the torch functions' batched inputs: (B, n, 3), (B, m, 4), (B, m, 3)."""
+    if points.ndim != 3 or points.shape[-1] != 3:
+        raise ValueError("`points` must be (B, n, 3)")
+    if quaternions.ndim != 3 or quaternions.shape[-1] != 4:
+        raise ValueError("`quaternions` must be (B, m, 4)")
+    if translations.shape != quaternions.shape[:2] + (3,):
+        raise ValueError("`translations` must be (B, m, 3), matching `quaternions`")
+
+
 def world_to_local_torch(
     points: torch.Tensor, quaternions: torch.Tensor, translations: torch.Tensor
 ) -> torch.Tensor:
@@ -770,12 +780,7 @@ def world_to_local_torch(
     """
     import torch
 
-    if points.ndim != 3 or points.shape[-1] != 3:
-        raise ValueError("`points` must be (B, n, 3)")
-    if quaternions.ndim != 3 or quaternions.shape[-1] != 4:
-        raise ValueError("`quaternions` must be (B, m, 4)")
-    if translations.shape != quaternions.shape[:2] + (3,):
-        raise ValueError("`translations` must be (B, m, 3), matching `quaternions`")
+    _check_points_and_poses(points, quaternions, translations)
     rot = quaternion_to_matrix_torch(quaternions)  # (B, m, 3, 3)
     d = points[:, None, :, :] - translations[:, :, None, :]
     return torch.einsum("bmji,bmnj->bmni", rot, d)
@@ -803,12 +808,7 @@ def cuboid_distance_sq_torch(
     """
     if half_extents.shape != translations.shape:
         raise ValueError("`half_extents` must be (B, m, 3), matching `translations`")
-    if points.ndim != 3 or points.shape[-1] != 3:
-        raise ValueError("`points` must be (B, n, 3)")
-    if quaternions.ndim != 3 or quaternions.shape[-1] != 4:
-        raise ValueError("`quaternions` must be (B, m, 4)")
-    if translations.shape != quaternions.shape[:2] + (3,):
-        raise ValueError("`translations` must be (B, m, 3), matching `quaternions`")
+    _check_points_and_poses(points, quaternions, translations)
     rot_t = quaternion_to_matrix_torch(quaternions).transpose(-1, -2)  # (B, m, 3, 3), R^T
     local = rot_t @ points.transpose(1, 2)[:, None] - rot_t @ translations[..., None]  # (B, m, 3, n)
     excess = (local.abs() - half_extents[..., None]).clamp_min(0.0)
