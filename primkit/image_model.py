@@ -246,6 +246,12 @@ def _hsv_to_rgb(h: torch.Tensor, s: torch.Tensor, v: torch.Tensor) -> torch.Tens
     return v[..., None] - v[..., None] * s[..., None] * torch.clamp(torch.minimum(k, 4 - k), 0, 1)
 
 
+def _stretch(w: torch.Tensor) -> torch.Tensor:
+    """Each ``(S, S)`` map of a ``(B, S, S)`` batch rescaled to span [0, 1]."""
+    lo, hi = w.amin(dim=(1, 2), keepdim=True), w.amax(dim=(1, 2), keepdim=True)
+    return (w - lo) / (hi - lo).clamp(min=1e-9)
+
+
 def training_backgrounds(count: int, size: int, gen: torch.Generator, hues=None) -> torch.Tensor:
     """Fresh random backgrounds ``(count, 3, size, size)`` in [0, 1] for background swapping.
 
@@ -270,14 +276,10 @@ def training_backgrounds(count: int, size: int, gen: torch.Generator, hues=None)
     yy, xx = torch.meshgrid(axis, axis, indexing="ij")
     kind = torch.randint(0, 5, (count,), generator=gen)  # solid, gradient, noise, discs, confetti
     theta = 2 * math.pi * torch.rand(count, generator=gen)
-    grad = torch.cos(theta)[:, None, None] * xx + torch.sin(theta)[:, None, None] * yy
-    lo_, hi_ = grad.amin(dim=(1, 2), keepdim=True), grad.amax(dim=(1, 2), keepdim=True)
-    w = (grad - lo_) / (hi_ - lo_).clamp(min=1e-9)
+    w = _stretch(torch.cos(theta)[:, None, None] * xx + torch.sin(theta)[:, None, None] * yy)
     cells = int(torch.randint(2, 6, (1,), generator=gen))
-    noise = F.interpolate(torch.rand(count, 1, cells + 1, cells + 1, generator=gen), size=(size, size),
-                          mode="bilinear", align_corners=True)[:, 0]
-    lo_, hi_ = noise.amin(dim=(1, 2), keepdim=True), noise.amax(dim=(1, 2), keepdim=True)
-    noise = (noise - lo_) / (hi_ - lo_).clamp(min=1e-9)
+    noise = _stretch(F.interpolate(torch.rand(count, 1, cells + 1, cells + 1, generator=gen), size=(size, size),
+                                   mode="bilinear", align_corners=True)[:, 0])
     w = torch.where((kind == 0)[:, None, None], torch.zeros_like(w), w)
     w = torch.where((kind == 2)[:, None, None], noise, w)
     bg = a[:, :, None, None] * (1 - w[:, None]) + b[:, :, None, None] * w[:, None]

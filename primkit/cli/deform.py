@@ -84,6 +84,15 @@ def _face_labels(labels, faces):
     return np.where(lab[:, 1] == lab[:, 2], lab[:, 1], lab[:, 0])
 
 
+def _parts_tile(title, vertices, faces, face_parts, cuboids, count=None):
+    """A picture tile: the mesh coloured by part, under translucent ``cuboids``; ``count`` is the
+    number of part colours (default ``cuboids.count``)."""
+    from ..render import Tile, cuboid_layer, segmentation_layer
+
+    count = cuboids.count if count is None else count
+    return Tile(title, [segmentation_layer(vertices, faces, face_parts, count), cuboid_layer(cuboids, opacity=0.25)])
+
+
 def _target_layer(shape):
     from ..io import Mesh, read_shape
     from ..render import mesh_layer, points_layer
@@ -114,7 +123,7 @@ def _named(q, names):
 def _cmd_deform(args) -> int:
     from .. import deformation
     from ..io import atomic_output
-    from ..render import CANONICAL_RADIUS, Tile, cuboid_layer, segmentation_layer, write_png
+    from ..render import CANONICAL_RADIUS, Tile, cuboid_layer, write_png
 
     out, png, js = _outputs(args)
     src, tgt = Path(args.source), Path(args.target)
@@ -148,10 +157,9 @@ def _cmd_deform(args) -> int:
         Path(tmp).write_text(json.dumps(report, indent=1))
     if png is not None:
         flab = _face_labels(d.binding.labels, mesh.faces)
-        count = rs.canonical.count
-        tiles = [Tile(f"source {ss.name}", [segmentation_layer(v, mesh.faces, flab, count), cuboid_layer(rs.canonical, opacity=0.25)]),
+        tiles = [_parts_tile(f"source {ss.name}", v, mesh.faces, flab, rs.canonical),
                  Tile(f"target {ts.name}", [_target_layer(ts), cuboid_layer(rt.canonical, opacity=0.25)]),
-                 Tile("result", [segmentation_layer(d.vertices, mesh.faces, flab, count), cuboid_layer(rt.canonical, opacity=0.25)])]
+                 _parts_tile("result", d.vertices, mesh.faces, flab, rt.canonical, rs.canonical.count)]
         write_png(png, tiles, overwrite=args.force, columns=3, radius=CANONICAL_RADIUS)
     print(f"-> {out}, {js}" + (f", {png}" if png else ""))
     return 0
@@ -160,7 +168,7 @@ def _cmd_deform(args) -> int:
 def _cmd_edit(args) -> int:
     from .. import deformation
     from ..io import atomic_output
-    from ..render import CANONICAL_RADIUS, Tile, cuboid_layer, segmentation_layer, write_png
+    from ..render import CANONICAL_RADIUS, write_png
 
     out, png, js = _outputs(args)
     from ..abstractor import Abstractor
@@ -215,9 +223,8 @@ def _cmd_edit(args) -> int:
         Path(tmp).write_text(json.dumps(report, indent=1))
     if png is not None:
         flab = _face_labels(d.binding.labels, mesh.faces)
-        count = res.canonical.count
-        tiles = [Tile(f"before {shape.name}", [segmentation_layer(v, mesh.faces, flab, count), cuboid_layer(res.canonical, opacity=0.25)]),
-                 Tile("after", [segmentation_layer(d.vertices, mesh.faces, flab, count), cuboid_layer(e.cuboids, opacity=0.25)])]
+        tiles = [_parts_tile(f"before {shape.name}", v, mesh.faces, flab, res.canonical),
+                 _parts_tile("after", d.vertices, mesh.faces, flab, e.cuboids, res.canonical.count)]
         write_png(png, tiles, overwrite=args.force, columns=2, radius=CANONICAL_RADIUS)
     print(f"-> {out}, {js}" + (f", {png}" if png else ""))
     return 0
