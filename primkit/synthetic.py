@@ -821,18 +821,47 @@ def _derived_seed(seed: int, index: int) -> int:
     return int(np.random.SeedSequence([seed, index]).generate_state(1, dtype=np.uint32)[0])
 
 
-def generate(category: str, count: int, seed: int = 0) -> list[LabelledShape]:
+def generate(category: str, count: int, seed: int = 0, *, rates: dict | None = None) -> list[LabelledShape]:
     """``count`` shapes of ``category``; shape ``i`` comes from a seed derived from (seed, i).
 
     The shape's own ``seed`` field holds that derived seed, so ``chair(shapes[i].seed)``
-    regenerates shape ``i`` alone.
+    regenerates shape ``i`` alone (with ``rates``, pass its drawn values too:
+    ``chair(s.seed, has_arms=s.attributes["has_arms"])``).
+
+    Parameters
+    ----------
+    rates : dict of str to float, optional
+        The fraction of shapes that have a yes/no attribute, replacing the generator's own rate:
+        ``{"has_arms": 0.5}`` gives a collection in which about half the chairs have arms (the
+        generator's default is about 30%). Each shape draws these from its own stream, seeded by
+        ``(seed, i)`` and separate from the one its other attributes come from, so a shape keeps
+        every other attribute whatever the rates.
     """
     make = _check_category(category)
     if count < 0:
         raise ValueError(f"`count` must be non-negative, got {count}")
     if seed < 0:
         raise ValueError(f"`seed` must be non-negative, got {seed}")
-    return [make(_derived_seed(seed, i)) for i in range(count)]
+    rates = dict(rates or {})
+    if rates:
+        defaults = make(0).attributes
+        for key, rate in rates.items():
+            if not isinstance(defaults.get(key), bool):
+                yes_no = sorted(k for k, v in defaults.items() if isinstance(v, bool))
+                raise ValueError(f"`rates` takes yes/no attributes of {category} ({', '.join(yes_no)}), got {key!r}")
+            if not 0.0 <= float(rate) <= 1.0:
+                raise ValueError(f"rate of {key!r} must lie in [0, 1], got {rate!r}")
+    shapes = []
+    for i in range(count):
+        overrides = {}
+        if rates:
+            draws = np.random.default_rng([seed, i, _RATES_STREAM]).random(len(rates))
+            overrides = {key: bool(u < float(rate)) for (key, rate), u in zip(sorted(rates.items()), draws)}
+        shapes.append(make(_derived_seed(seed, i), **overrides))
+    return shapes
+
+
+_RATES_STREAM = 0x72617465  # tells the ``rates`` draws' seed apart from the shapes' own
 
 
 # ---------------------------------------------------------------------------------------------
@@ -847,14 +876,14 @@ def _write_atomic(path: Path, data: bytes) -> None:
 
 
 def write_collection(
-    folder, category: str, count: int, seed: int = 0, *, overwrite: bool = False
+    folder, category: str, count: int, seed: int = 0, *, rates: dict | None = None, overwrite: bool = False
 ) -> list[Path]:
     """Generate ``count`` shapes and write them to ``folder``; returns the mesh paths.
 
     For shape ``i`` three files are written: ``<category>_<i:04d>.ply`` (the mesh, binary PLY,
     vertex and face order as generated), ``<category>_<i:04d>.seg`` (one part index per line,
     in face order) and ``<category>_<i:04d>.json`` (``category``, ``part_names``,
-    ``part_groups``, ``attributes``, ``seed``). Existing files are refused with
+    ``part_groups``, ``attributes``, ``seed``). ``rates`` is :func:`generate`'s. Existing files are refused with
     :class:`FileExistsError` (before anything is written) unless ``overwrite`` is set. Every
     file is written atomically.
     """
@@ -869,9 +898,10 @@ def write_collection(
                     raise FileExistsError(
                         f"{path} already exists; pass overwrite=True to replace it"
                     )
+    shapes = generate(category, count, seed, rates=rates)  # bad rates fail before anything is written
     folder.mkdir(parents=True, exist_ok=True)
     mesh_paths = []
-    for stem, shape in zip(stems, generate(category, count, seed)):
+    for stem, shape in zip(stems, shapes):
         mesh = trimesh.Trimesh(shape.vertices, shape.faces, process=False)
         _write_atomic(stem.with_suffix(".ply"), mesh.export(file_type="ply"))
         labels = "".join(f"{label}\n" for label in shape.face_labels.tolist())

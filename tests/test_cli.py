@@ -162,3 +162,16 @@ def test_unknown_model_name_lists_the_bundled_ones(tmp_path, capsys):
     out = capsys.readouterr().out
     for name in bundled_models():
         assert f"== {name}" in out
+
+
+def test_generate_rates_and_their_bad_forms(tmp_path, capsys):
+    out = tmp_path / "armed"
+    assert main(["generate", "chair", "-n", "3", "-o", str(out), "--rate", "has_arms=1"]) == 0
+    assert all(json.loads(p.read_text())["attributes"]["has_arms"] for p in sorted(out.glob("*.json")))
+    capsys.readouterr()
+    for bad, words in ((["--rate", "has_arms=lots"], "ATTRIBUTE=FRACTION"), (["--rate", "wheels=0.5"], "yes/no"),
+                       (["--rate", "has_arms=2"], "[0, 1]")):
+        assert main(["generate", "chair", "-n", "1", "-o", str(tmp_path / "bad"), *bad]) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.startswith("primkit: error: ") and words in err and "\n" not in err
+    assert not (tmp_path / "bad").exists()

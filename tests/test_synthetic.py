@@ -135,6 +135,28 @@ def test_overrides_fix_one_attribute_and_keep_the_others():
     assert synthetic.chair(3, back_tilt_deg=12.5).attributes["back_tilt_deg"] == 12.5
 
 
+def test_rates_set_the_share_of_a_yes_no_attribute_and_keep_the_others():
+    plain = synthetic.generate("chair", 24, seed=6)
+    every = synthetic.generate("chair", 24, seed=6, rates={"has_arms": 1.0})
+    none = synthetic.generate("chair", 24, seed=6, rates={"has_arms": 0.0, "swivel": 0.0})
+    half = synthetic.generate("chair", 24, seed=6, rates={"has_arms": 0.5})
+    assert all(s.attributes["has_arms"] for s in every)
+    assert not any(s.attributes["has_arms"] or s.attributes["swivel"] for s in none)
+    assert 4 <= sum(s.attributes["has_arms"] for s in half) <= 20  # binomial(24, 0.5): outside only ~1e-3
+    for a, b in zip(plain, half):
+        assert a.seed == b.seed
+        assert {k: v for k, v in a.attributes.items() if k != "has_arms"} == \
+               {k: v for k, v in b.attributes.items() if k != "has_arms"}
+    again = synthetic.chair(half[3].seed, has_arms=half[3].attributes["has_arms"])
+    np.testing.assert_array_equal(again.vertices, half[3].vertices)
+    assert [s.attributes for s in synthetic.generate("chair", 24, seed=6, rates={"has_arms": 0.5})] == \
+           [s.attributes for s in half]
+    with pytest.raises(ValueError, match="yes/no"):
+        synthetic.generate("chair", 2, rates={"seat_width": 0.5})
+    with pytest.raises(ValueError, match=r"\[0, 1\]"):
+        synthetic.generate("chair", 2, rates={"has_arms": 1.5})
+
+
 def test_bad_arguments_are_refused():
     with pytest.raises(TypeError, match="wheels"):
         synthetic.chair(0, wheels=5)

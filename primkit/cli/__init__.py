@@ -21,7 +21,14 @@ from ._common import add_prepare_options, collect, err, report_errors, settings_
 def _cmd_generate(args) -> int:
     from ..synthetic import write_collection
 
-    paths = write_collection(args.output, args.category, args.count, seed=args.seed, overwrite=args.force)
+    rates = {}
+    for text in args.rate or []:
+        key, _, value = text.partition("=")
+        try:
+            rates[key] = float(value)
+        except ValueError:
+            raise ValueError(f"--rate wants ATTRIBUTE=FRACTION (for example has_arms=0.5), got {text!r}") from None
+    paths = write_collection(args.output, args.category, args.count, seed=args.seed, rates=rates, overwrite=args.force)
     print(f"wrote {len(paths)} {args.category} shapes (.ply + .seg labels + .json attributes) to {args.output}")
     return 0
 
@@ -258,6 +265,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-n", "--count", type=int, default=10)
     p.add_argument("-o", "--output", required=True)
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--rate", action="append", metavar="ATTRIBUTE=FRACTION",
+                   help="fraction of shapes with a yes/no attribute, e.g. --rate has_arms=0.5 (repeatable)")
     p.add_argument("--force", action="store_true")
     p.set_defaults(func=_cmd_generate)
 
