@@ -93,9 +93,7 @@ class AbstractionResult:
         folder.mkdir(parents=True, exist_ok=True)
         json_path = folder / f"{self.name}.cuboids.json"
         mesh_path = folder / f"{self.name}.cuboids{mesh_format}"
-        for p in (json_path, mesh_path):
-            if p.exists() and not overwrite:
-                raise FileExistsError(f"{p}: exists (use --force to overwrite)")
+        io.refuse_existing((json_path, mesh_path), overwrite)
         with io.atomic_output(json_path, overwrite=overwrite) as tmp:
             Path(tmp).write_text(json.dumps(self.to_dict(), indent=1))
         v, f, part = self.cuboids.to_mesh()

@@ -76,6 +76,7 @@ __all__ = [
     "write_labels",
     "write_points",
     "atomic_output",
+    "refuse_existing",
 ]
 
 MESH_SUFFIXES = (".obj", ".ply", ".off", ".stl", ".glb", ".gltf")
@@ -423,6 +424,20 @@ def read_labels(path, face_count: int | None = None) -> np.ndarray:
 # writing
 
 
+def refuse_existing(paths, overwrite: bool = False) -> None:
+    """Raise ``FileExistsError("<path>: exists (use --force to overwrite)")`` for the first of
+    ``paths`` (one path or several; None entries skipped) that exists, unless ``overwrite``.
+
+    Writers call it before they start work, so that nothing a user made is replaced without
+    ``--force``; :func:`atomic_output` makes the same check when it writes.
+    """
+    if overwrite:
+        return
+    for path in [paths] if isinstance(paths, (str, os.PathLike)) else paths:
+        if path is not None and os.path.lexists(path):
+            raise FileExistsError(f"{path}: exists (use --force to overwrite)")
+
+
 @contextmanager
 def atomic_output(path, *, overwrite=False):
     """Write a file so that it appears complete or not at all.
@@ -445,13 +460,11 @@ def atomic_output(path, *, overwrite=False):
       An empty file to write to.
     """
     path = Path(path)
-    if not overwrite and os.path.lexists(path):
-        raise FileExistsError(f"{path}: exists (use --force to overwrite)")
+    refuse_existing(path, overwrite)
     temporary = _create_temporary(path)
     try:
         yield temporary
-        if not overwrite and os.path.lexists(path):  # appeared while we were writing
-            raise FileExistsError(f"{path}: exists (use --force to overwrite)")
+        refuse_existing(path, overwrite)  # appeared while we were writing
         os.replace(temporary, path)
     except BaseException:
         try:

@@ -158,8 +158,7 @@ def _similarity(shapes, results, part_names, folder: Path, thumbs: dict, overwri
     images = [np.asarray(Image.open(thumbs[(i, "cuboids")]).convert("RGB")) if (i, "cuboids") in thumbs else None
               for i in range(len(shapes))]
     path = folder / "similarity.png"
-    if path.exists() and not overwrite:
-        raise FileExistsError(f"{path}: exists (use --force to overwrite)")
+    io.refuse_existing(path, overwrite)
     embedding.draw_map(coords, images, path, title="t-SNE of the part descriptors (all parts)", zoom=0.45)
     D = embedding.descriptor_distances(X)
     return {"map": path, "coords": coords, "neighbors": near, "distances": D}
@@ -223,8 +222,7 @@ def write_report(output, shapes, results, part_names, *, overwrite: bool = False
     abstracted (:class:`ReportShape`, with the :class:`~primkit.abstractor.AbstractionResult` s)."""
     out = Path(output)
     page = out / "index.html"
-    if page.exists() and not overwrite:
-        raise FileExistsError(f"{page}: exists (use --force to overwrite)")
+    io.refuse_existing(page, overwrite)
     images = out / "images"
     images.mkdir(parents=True, exist_ok=True)
     notes = {}

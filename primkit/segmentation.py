@@ -168,9 +168,7 @@ class Segmentation:
         folder = Path(folder)
         folder.mkdir(parents=True, exist_ok=True)
         paths = {"labels": folder / f"{self.name}.seg", "mesh": folder / f"{self.name}.parts.ply"}
-        for p in paths.values():
-            if p.exists() and not overwrite:
-                raise FileExistsError(f"{p}: exists (use --force to overwrite)")
+        io.refuse_existing(paths.values(), overwrite)
         if semantic:
             names, labels = self.semantic_labels()
             colors = part_colors(len(names) + 1)[labels]

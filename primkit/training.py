@@ -284,8 +284,8 @@ def train(
     if world > 1 and torch.device(device).type == "cuda":
         device = f"cuda:{int(os.environ.get('LOCAL_RANK', rank))}"
     output = Path(output) if output is not None else None
-    if output is not None and rank == 0 and output.exists() and not overwrite:
-        raise FileExistsError(f"{output}: exists (use --force to overwrite)")
+    if output is not None and rank == 0:
+        io.refuse_existing(output, overwrite)
     ckpt_path = output.with_name(output.name + ".checkpoint.safetensors") if output is not None else None
 
     # tiny N(0, 0.02) activations turn into denormal floats, which made CPU steps up to 5x slower

@@ -23,6 +23,7 @@ from primkit.io import (
     read_points,
     read_shape,
     read_voxels,
+    refuse_existing,
     write_labels,
     write_mesh,
     write_points,
@@ -654,3 +655,14 @@ def test_shared_shapenetvox32_sample(synset):
         mean = np.mean(extents, axis=0)
         assert mean[1] > mean[0] and mean[1] > mean[2]
         assert np.mean(back_low_x) > 0.8
+
+
+def test_refuse_existing_names_the_first_existing_path(tmp_path):
+    made = tmp_path / "made.txt"
+    made.write_text("mine")
+    refuse_existing([None, tmp_path / "new.txt"])
+    refuse_existing(made, overwrite=True)
+    for paths in (made, str(made), [tmp_path / "new.txt", None, made]):
+        with pytest.raises(FileExistsError, match=r"made\.txt: exists \(use --force to overwrite\)"):
+            refuse_existing(paths)
+    assert made.read_text() == "mine"

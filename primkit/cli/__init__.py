@@ -45,12 +45,11 @@ def _cmd_train(args) -> int:
     from dataclasses import replace
 
     from ..data import PrepareSettings, prepare_collection, split_files
+    from ..io import refuse_existing
     from ..training import ShapeTensors, TrainConfig, train
 
     out = Path(args.output)
-    if out.exists() and not args.force:
-        err(f"{out}: exists (use --force to overwrite)")
-        return 2
+    refuse_existing(out, args.force)
     preset = None
     config = TrainConfig()
     hold_out = 0
@@ -138,12 +137,14 @@ def _cmd_abstract(args) -> int:
             extra += f"; refined: loss {r.refinement['loss_before']:.2e} -> {r.refinement['loss_after']:.2e}"
         print(f"{r.name}: {int(r.cuboids.existence.sum())} parts{extra} -> {j}")
     if args.png and results:
-        from ..io import read_mesh
+        from ..io import read_mesh, refuse_existing
         from ..render import render_abstractions
 
         picture = Path(args.output) / "abstractions.png"
-        if picture.exists() and not args.force:
-            failed.append(f"{picture}: exists (use --force to overwrite)")
+        try:
+            refuse_existing(picture, args.force)
+        except FileExistsError as exc:
+            failed.append(str(exc))
         else:
             shown, meshes = [], []
             for r in results:

@@ -20,12 +20,12 @@ __all__ = ["register"]
 
 
 def _outputs(args) -> tuple[Path, Path | None, Path]:
+    from ..io import refuse_existing
+
     out = Path(args.output)
     png = None if args.png == "none" else Path(args.png) if args.png else out.with_suffix(".png")
     js = Path(args.json) if args.json else out.with_suffix(".json")
-    for p in (out, png, js):
-        if p is not None and p.exists() and not args.force:
-            raise FileExistsError(f"{p}: exists (use --force to overwrite)")
+    refuse_existing((out, png, js), args.force)
     return out, png, js
 
 

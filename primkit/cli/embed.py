@@ -79,12 +79,6 @@ def _thumb_meshes(results, grids, kind, selected):
     return meshes
 
 
-def _check_outputs(paths, force):
-    for p in paths:
-        if p.exists() and not force:
-            raise FileExistsError(f"{p}: exists (use --force to overwrite)")
-
-
 def _write_text(path, text, force):
     from ..io import atomic_output
 
@@ -106,13 +100,13 @@ def _describe(args, abstractor, results, grids, queries=None):
 
 def _cmd_embed(args) -> int:
     from .. import embedding
-    from ..io import atomic_output
+    from ..io import atomic_output, refuse_existing
 
     out = Path(args.output)
     names_out = ["distances.npy", "distances.csv", "map.csv"] + (["map.png"] if args.png else []) + (["map.svg"] if args.svg else [])
     if args.metric == "descriptor":
         names_out += ["descriptors.npy"]
-    _check_outputs([out / n for n in names_out], args.force)
+    refuse_existing([out / n for n in names_out], args.force)
     files = collect(args.inputs)
     if not files:
         raise ValueError(f"no shape files found in {', '.join(args.inputs)}")
@@ -160,9 +154,10 @@ def _cmd_embed(args) -> int:
 
 def _cmd_similar(args) -> int:
     from .. import embedding
+    from ..io import refuse_existing
 
     out = Path(args.output)
-    _check_outputs([out / "similar.csv"] + ([out / "similar.png"] if args.png else []), args.force)
+    refuse_existing([out / "similar.csv"] + ([out / "similar.png"] if args.png else []), args.force)
     query_files = collect([args.query])
     if len(query_files) != 1:
         raise ValueError(f"{args.query}: expected one shape file, found {len(query_files)}")

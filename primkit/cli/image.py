@@ -45,7 +45,7 @@ def run_abstract_images(args) -> int:
     """
     from ..abstractor import part_colors
     from ..image_model import ImageAbstractor, draw_over_image
-    from ..io import atomic_output, write_mesh
+    from ..io import atomic_output, refuse_existing, write_mesh
 
     try:
         model = ImageAbstractor.load(args.model)
@@ -60,9 +60,10 @@ def run_abstract_images(args) -> int:
     vs = model.view_settings
     for r in results:
         paths = [out / f"{r.name}.cuboids.json", out / f"{r.name}.cuboids.ply"] + ([out / f"{r.name}.png"] if args.png else [])
-        existing = [p for p in paths if p.exists()]
-        if existing and not args.force:
-            failed.append(f"{existing[0]}: exists (use --force to overwrite)")
+        try:
+            refuse_existing(paths, args.force)
+        except FileExistsError as exc:
+            failed.append(str(exc))
             continue
         with atomic_output(paths[0], overwrite=True) as tmp:
             Path(tmp).write_text(json.dumps(r.to_dict(), indent=1))
@@ -82,11 +83,10 @@ def run_train_image(args) -> int:
     from .. import data, views
     from ..abstractor import Abstractor
     from ..image_model import ImageAbstractor, ImageNetConfig, ImageTrainConfig, train_image_model
+    from ..io import refuse_existing
 
     out = Path(args.output)
-    if out.exists() and not args.force:
-        err(f"{out}: exists (use --force to overwrite)")
-        return 2
+    refuse_existing(out, args.force)
     try:
         teacher = Abstractor.load(args.teacher)
     except (FileNotFoundError, ValueError) as exc:

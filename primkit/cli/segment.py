@@ -130,14 +130,13 @@ def _cmd_segment(args) -> int:
 def _cmd_name_parts(args) -> int:
     import numpy as np
 
+    from ..io import refuse_existing
     from ..modelfile import update_metadata
     from ..parts import names_from_labels
     from ..segmentation import Segmenter, read_ground_truth
 
     out = Path(args.output)
-    if out.exists() and not args.force:
-        err(f"{out}: exists (use --force to overwrite)")
-        return 2
+    refuse_existing(out, args.force)
     segmenter = Segmenter(args.model, up=args.up, front=args.front, refine=args.refine)
     segs, errors = segmenter.segment_files(collect(args.inputs), cache_dir=args.cache, workers=args.workers)
     failed = list(errors)

@@ -74,9 +74,9 @@ def _size(text: str) -> tuple[int, int]:
 
 
 def _run(args) -> int:
-    if args.png is not None and Path(args.png).exists() and not args.force:
-        err(f"{args.png}: exists (use --force to overwrite)")
-        return 2
+    from ..io import refuse_existing
+
+    refuse_existing(args.png, args.force)
     align = None if args.align == "none" else args.align
     off = args.png is not None and not args.window
     size = _size(args.size)
