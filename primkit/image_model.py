@@ -33,6 +33,11 @@ no shape information)::
                                          1 - cos(theta / 2), theta the angle between the rotations)
     viewpoint   squared error of (cos az, sin az, el)
 
+Optionally (``ImageTrainConfig.geometric > 0``, with each training shape's surface points and
+closest-point grid), the student is also held to the shape itself: the method's coverage and
+consistency losses (:mod:`primkit.losses`) of its cuboids against the true shape, over the parts
+the teacher uses. The teacher's own errors are then no longer a floor for the student's.
+
 The cuboid symmetries (a cuboid turned by 90 degrees with two extents swapped is the same solid)
 are not factored out: the teacher is a continuous function of the shape and picks one
 representation per part slot consistently, so matching it index by index is well posed.
@@ -50,6 +55,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from . import losses as method_losses
 from . import primitives
 
 __all__ = [
@@ -201,7 +207,12 @@ class ImageTrainConfig:
 
     ``swap_backgrounds`` (0 to 1): the fraction of each batch whose background is replaced by a
     fresh one from :func:`training_backgrounds` (needs views rendered with foregrounds); the rest
-    keep the background they were rendered with."""
+    keep the background they were rendered with.
+
+    ``geometric`` (0: off): weight of the method's coverage + consistency losses of the student's
+    cuboids against the shape in the picture (needs the shapes' surface points and closest-point
+    grids); ``geometric_points`` surface points per shape and ``geometric_samples`` samples per
+    cuboid enter each step."""
 
     iterations: int = 8000
     batch_size: int = 64
@@ -213,6 +224,9 @@ class ImageTrainConfig:
     time_limit_s: float = 0.0
     colour_shuffle: bool = False
     swap_backgrounds: float = 0.0
+    geometric: float = 0.0
+    geometric_points: int = 1000
+    geometric_samples: int = 150
     weights: DistillWeights = field(default_factory=DistillWeights)
 
     def to_dict(self) -> dict:
@@ -302,6 +316,18 @@ def composite(foreground: torch.Tensor, alpha: torch.Tensor, background: torch.T
     return foreground + background * (1 - alpha)
 
 
+def _geometric_loss(pred: dict, used: torch.Tensor, points: torch.Tensor, closest: torch.Tensor,
+                    samples_per_cuboid: int, gen: torch.Generator) -> torch.Tensor:
+    """Mean over the batch of coverage + consistency (:mod:`primkit.losses`) of the predicted cuboids
+    against the true shapes, the parts in ``used (B, m) bool`` present."""
+    present = used.float()
+    z, q, t = pred["half_extents"], pred["quaternions"], pred["translations"]
+    coverage = method_losses.coverage_loss(points, z, q, t, present)
+    samples, weights = primitives.sample_surface_torch(z, q, t, samples_per_cuboid, generator=gen)
+    consistency = method_losses.consistency_loss(closest, samples, weights, present)
+    return (coverage + consistency).mean()
+
+
 @dataclass
 class ImageTrainResult:
     network: ImageNet
@@ -316,7 +342,8 @@ def _to_float(images_uint8: torch.Tensor) -> torch.Tensor:
 def train_image_model(images: np.ndarray, shape_index: np.ndarray, cameras: np.ndarray, teacher: dict,
                       net_config: ImageNetConfig = ImageNetConfig(), config: ImageTrainConfig = ImageTrainConfig(),
                       *, progress: bool = True, network: ImageNet | None = None,
-                      foreground: np.ndarray | None = None, alpha: np.ndarray | None = None) -> ImageTrainResult:
+                      foreground: np.ndarray | None = None, alpha: np.ndarray | None = None,
+                      surface_points: np.ndarray | None = None, closest: np.ndarray | None = None) -> ImageTrainResult:
     """Train an :class:`ImageNet` to reproduce the teacher on rendered views.
 
     Parameters
@@ -329,6 +356,9 @@ def train_image_model(images: np.ndarray, shape_index: np.ndarray, cameras: np.n
     foreground : (k, S, S, 3) uint8, alpha : (k, S, S) uint8, optional
         The views' shapes alone (:class:`primkit.views.RenderedViews` rendered with
         ``keep_foreground=True``); needed when ``config.swap_backgrounds > 0``.
+    surface_points : (s, n, 3) float, closest : (s, R, R, R, 3) float, optional
+        Each teacher row's shape in the canonical frame (:class:`primkit.data.PreparedShape`'s
+        ``points`` and ``closest``); needed when ``config.geometric > 0``.
     """
     from tqdm.auto import tqdm
 
@@ -352,6 +382,16 @@ def train_image_model(images: np.ndarray, shape_index: np.ndarray, cameras: np.n
     idx = torch.from_numpy(np.asarray(shape_index, np.int64))
     teach = {k: torch.from_numpy(np.asarray(teacher[k], np.float32)) for k in
              ("half_extents", "quaternions", "translations", "existence")}
+    if config.geometric > 0:
+        if surface_points is None or closest is None:
+            raise ValueError("`geometric` > 0 needs the shapes' surface_points and closest grids")
+        pts_all = torch.from_numpy(np.asarray(surface_points, np.float32))
+        closest_all = torch.from_numpy(np.asarray(closest, np.float32))
+        rows = len(teach["existence"])
+        if pts_all.dim() != 3 or pts_all.shape[0] != rows or pts_all.shape[-1] != 3:
+            raise ValueError(f"`surface_points` must be ({rows}, n, 3), got {tuple(pts_all.shape)}")
+        if closest_all.dim() != 5 or closest_all.shape[0] != rows or closest_all.shape[-1] != 3:
+            raise ValueError(f"`closest` must be ({rows}, R, R, R, 3), got {tuple(closest_all.shape)}")
     view = torch.from_numpy(viewpoint_targets(np.asarray(cameras, float)).astype(np.float32))
     history, start = [], time.time()
     bar = tqdm(range(config.iterations), desc="distilling", unit="it", disable=not progress)
@@ -372,7 +412,16 @@ def train_image_model(images: np.ndarray, shape_index: np.ndarray, cameras: np.n
             x[:k] = composite(_to_float(fgs[batch[:k]]), a, training_backgrounds(k, x.shape[-1], gen))
         x = _augment(x, gen, config.shift_pixels, config.colour_shuffle)
         target = {k: v[idx[batch]] for k, v in teach.items()}
-        losses = distillation_loss(net(x), target, view[batch], config.weights)
+        pred = net(x)
+        losses = distillation_loss(pred, target, view[batch], config.weights)
+        if config.geometric > 0:
+            shapes = idx[batch]
+            pick = torch.randint(0, pts_all.shape[1], (len(batch), config.geometric_points), generator=gen)
+            points = torch.gather(pts_all[shapes], 1, pick[..., None].expand(-1, -1, 3))
+            geo = _geometric_loss(pred, target["existence"] > 0.5, points, closest_all[shapes],
+                                  config.geometric_samples, gen)
+            losses["geometric"] = geo
+            losses["total"] = losses["total"] + config.geometric * geo
         opt.zero_grad(set_to_none=True)
         losses["total"].backward()
         opt.step()

@@ -125,13 +125,19 @@ def train(teacher, train_coll, work: Path, settings, args) -> None:
     targets = teacher_targets(teacher, train_coll, work / "teacher-train.npz", args.limit)
     config = im.ImageTrainConfig(iterations=args.iterations, time_limit_s=60 * args.minutes,
                                  learning_rate=args.lr, colour_shuffle=args.colour_shuffle,
-                                 swap_backgrounds=args.swap_backgrounds)
+                                 swap_backgrounds=args.swap_backgrounds, geometric=args.geometric)
+    geometry = {}
+    if args.geometric:
+        n = len(targets["existence"])
+        shapes = [train_coll[i] for i in range(n)]  # surface points subsampled to keep memory small
+        geometry = {"surface_points": np.stack([s.points[:2000] for s in shapes]),
+                    "closest": np.stack([s.closest for s in shapes])}
     start = im.ImageAbstractor.load(args.resume).network if args.resume else None
     net_config = im.ImageNetConfig(size=settings.size)
     print(f"distilling on {len(views_train)} views of {len(views_train.names)} chairs", flush=True)
     result = im.train_image_model(views_train.images, views_train.shape_index, views_train.cameras, targets,
                                   net_config, config, network=start, foreground=views_train.foreground,
-                                  alpha=views_train.alpha)
+                                  alpha=views_train.alpha, **geometry)
     model = im.ImageAbstractor(result.network, {})
     meta = {
         "teacher": "chair",
@@ -274,6 +280,9 @@ def write_bundled(teacher, model, report: dict, work: Path) -> Path:
         if c.get("swap_backgrounds"):
             text += (f", {c['swap_backgrounds']:.0%} of each batch laid over fresh training backgrounds "
                      "(seen-palette kinds and hues plus soft discs; primkit.image_model.training_backgrounds)")
+        if c.get("geometric"):
+            text += (f", plus {c['geometric']:g} x the method's coverage + consistency losses of the student's cuboids "
+                     "against the true chair")
         return text
 
     schedule = "; ".join(f"stage {i + 1}{' (continued)' if i else ''}: {describe(t)}" for i, t in enumerate(stages))
@@ -336,6 +345,8 @@ def main(argv=None) -> int:
     ap.add_argument("--colour-shuffle", action="store_true", help="permute colour channels and jitter their gains")
     ap.add_argument("--swap-backgrounds", type=float, default=0.0,
                     help="fraction of each batch laid over fresh training backgrounds (0 to 1)")
+    ap.add_argument("--geometric", type=float, default=0.0,
+                    help="weight of coverage + consistency against the true shape (0: distillation only)")
     ap.add_argument("--resume", default=None, help="continue from this image model file")
     ap.add_argument("--minutes", type=float, default=0, help="stop training after this many minutes (0: no limit)")
     ap.add_argument("--threads", type=int, default=2)

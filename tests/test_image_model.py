@@ -7,15 +7,20 @@ import numpy as np
 import pytest
 import torch
 
-from primkit import data, io, synthetic, views
+from primkit import data, io, primitives, synthetic, views
 from primkit import image_model as im
 from primkit.primitives import matrix_to_quaternion
 
 
 @pytest.fixture(scope="module")
-def grids():
+def chairs():
     shapes = synthetic.generate("chair", 3, seed=5)
-    return [data.prepare(io.Mesh(s.vertices, s.faces), data.PrepareSettings(samples=500)).occupancy for s in shapes]
+    return [data.prepare(io.Mesh(s.vertices, s.faces), data.PrepareSettings(samples=500)) for s in shapes]
+
+
+@pytest.fixture(scope="module")
+def grids(chairs):
+    return [c.occupancy for c in chairs]
 
 
 SMALL = views.ViewSettings(size=32, supersample=1)
@@ -158,21 +163,78 @@ def test_distillation_loss_does_not_see_the_quaternion_sign():
     assert float(same["rotation"]) == pytest.approx(0, abs=1e-12) and float(same["translations"]) == 0
 
 
-@pytest.mark.parametrize("swap", [0.0, 0.75])
-def test_short_training_run_lowers_the_loss(grids, swap):
+@pytest.mark.parametrize("swap, geometric", [(0.0, 0.0), (0.75, 0.0), (0.0, 5.0)])
+def test_short_training_run_lowers_the_loss(chairs, swap, geometric):
     settings = views.ViewSettings(size=32, supersample=1)
-    v = views.render_views(grids, 4, settings=settings, seed=0, keep_foreground=swap > 0)
+    v = views.render_views([c.occupancy for c in chairs], 4, settings=settings, seed=0, keep_foreground=swap > 0)
     from primkit.abstractor import Abstractor
 
-    teacher = Abstractor.load("chair").predict_canonical(np.stack(grids))
+    teacher = Abstractor.load("chair").predict_canonical(np.stack([c.occupancy for c in chairs]))
     config = im.ImageTrainConfig(iterations=60, batch_size=12, learning_rate=3e-3, log_every=1, shift_pixels=1,
-                                 swap_backgrounds=swap)
+                                 swap_backgrounds=swap, geometric=geometric, geometric_points=200, geometric_samples=30)
     res = im.train_image_model(v.images, v.shape_index, v.cameras, teacher,
                                im.ImageNetConfig(size=32, channels=(8, 16, 16, 32, 32), fc_width=64), config,
-                               progress=False, foreground=v.foreground, alpha=v.alpha)
-    first = np.mean([h["total"] for h in res.history[:5]])
-    last = np.mean([h["total"] for h in res.history[-5:]])
-    assert last < 0.7 * first
+                               progress=False, foreground=v.foreground, alpha=v.alpha,
+                               surface_points=np.stack([c.points for c in chairs]),
+                               closest=np.stack([c.closest for c in chairs]))
+    for term in ("total", "geometric") if geometric else ("total",):
+        first = np.mean([h[term] for h in res.history[:5]])
+        last = np.mean([h[term] for h in res.history[-5:]])
+        assert last < 0.7 * first, term
+
+
+def _box_shape():
+    """A 1 x 0.6 x 0.4 box, prepared (canonical frame: centred, longest side 1, so half-extents 0.5, 0.3, 0.2)."""
+    import trimesh
+
+    box = trimesh.creation.box(extents=(2.0, 1.2, 0.8))
+    return data.prepare(io.Mesh(np.asarray(box.vertices), np.asarray(box.faces)), data.PrepareSettings(samples=600))
+
+
+def _pred(z, t):
+    z, t = torch.tensor(np.array(z), dtype=torch.float32)[None], torch.tensor(np.array(t), dtype=torch.float32)[None]
+    q = torch.zeros(1, len(z[0]), 4)
+    q[..., 0] = 1.0
+    return {"half_extents": z, "quaternions": q, "translations": t}
+
+
+def test_geometric_loss_against_brute_force_on_a_box():
+    shape = _box_shape()
+    pts = torch.from_numpy(shape.points)[None]
+    closest = torch.from_numpy(shape.closest)[None]
+    box = np.array([0.5, 0.3, 0.2])
+    gen = torch.Generator().manual_seed(0)
+    far = (np.array([0.05, 0.05, 0.05]), np.array([2.0, 2.0, 2.0]))  # far outside the shape's grid
+    exact = _pred([box, far[0]], [np.zeros(3), far[1]])
+    used_one = torch.tensor([[True, False]])
+    # the box explains itself: no coverage error, and its surface lies on the shape's (up to the
+    # closest-point grid's resolution: a lookup is off by a fraction of a 1/32 cell along the face)
+    assert float(im._geometric_loss(exact, used_one, pts, closest, 150, gen)) < 0.25 * (1 / 32) ** 2
+    # a part the teacher does not use costs nothing; used, the far cube's consistency counts
+    assert float(im._geometric_loss(exact, torch.tensor([[True, True]]), pts, closest, 150, gen)) > 1.0
+    # a shrunken box, brute force: coverage is the mean squared excess of the shape's points over the
+    # smaller box; consistency the area-weighted mean squared distance of the smaller box's surface
+    # (dense samples) to the box's, which from inside is min over axes of (extent - |x|). The loss
+    # reads distances off a 32^3 closest-point grid: measured 8% long in distance here, hence rel=0.15.
+    small = 0.9 * box
+    excess = np.clip(np.abs(shape.points) - small, 0, None)
+    coverage = float((excess ** 2).sum(1).mean())
+    inner = primitives.Cuboids(small[None], np.array([[1.0, 0, 0, 0]]), np.zeros((1, 3)), np.array([True]))
+    dense = primitives.sample_surface(inner, 6000, seed=1)
+    d = (box - np.abs(dense.points.reshape(-1, 3))).min(1)
+    consistency = float((dense.weights.reshape(-1) * d ** 2).sum() / dense.weights.sum())
+    got = float(im._geometric_loss(_pred([small, far[0]], [np.zeros(3), far[1]]), used_one, pts, closest, 150, gen))
+    assert got == pytest.approx(coverage + consistency, rel=0.15)
+
+
+def test_geometric_training_needs_the_shapes(grids):
+    v = views.render_views(grids[:1], 2, settings=SMALL, seed=0)
+    teacher = {"half_extents": np.full((1, 2, 3), 0.1), "quaternions": np.tile([1.0, 0, 0, 0], (1, 2, 1)),
+               "translations": np.zeros((1, 2, 3)), "existence": np.ones((1, 2))}
+    config = im.ImageTrainConfig(iterations=1, batch_size=2, geometric=1.0)
+    with pytest.raises(ValueError, match="surface_points"):
+        im.train_image_model(v.images, v.shape_index, v.cameras, teacher, im.ImageNetConfig(size=32, parts=2), config,
+                             progress=False)
 
 
 @pytest.fixture(scope="module")
@@ -227,11 +289,12 @@ def test_train_image_command_writes_a_model_the_abstract_side_reads(tmp_path):
     model = tmp_path / "img.safetensors"
     argv = [str(tmp_path / "chairs"), "-o", str(model), "--teacher", "chair", "--views", "2", "--size", "32",
             "--iterations", "3", "--batch-size", "4", "--hold-out", "0", "--workers", "1", "--samples", "500",
-            "--cache", str(tmp_path / "cache")]
+            "--cache", str(tmp_path / "cache"), "--geometric", "2"]
     assert main(["train-image", *argv]) == 0
     assert main(["train-image", *argv]) == 2  # exists, no --force
     meta = im.ImageAbstractor.load(model).metadata
     assert meta["kind"] == "image-abstractor" and meta["training"]["views"] == 6 and meta["views"]["size"] == 32
+    assert meta["training"]["config"]["geometric"] == 2 and meta["training"]["final"]["geometric"] > 0
     Image.fromarray(np.full((40, 40, 3), 200, np.uint8)).save(tmp_path / "grey.png")
     args = SimpleNamespace(inputs=[str(tmp_path / "grey.png")], model=str(model), output=str(tmp_path / "out"),
                            force=False, png=False)
