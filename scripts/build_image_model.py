@@ -12,6 +12,9 @@
     cp /work/runs/image/chair-image.safetensors /work/runs/image/stage3.safetensors
     python scripts/build_image_model.py train --resume /work/runs/image/stage3.safetensors \
         --iterations 8000 --minutes 15 --lr 3e-4 --colour-shuffle --swap-backgrounds 0.9     # stage 4
+    cp /work/runs/image/chair-image.safetensors /work/runs/image/stage4.safetensors
+    python scripts/build_image_model.py train --resume /work/runs/image/stage4.safetensors \
+        --iterations 6000 --minutes 28 --lr 3e-4 --colour-shuffle --swap-backgrounds 0.9 --geometric 5   # stage 5
     python scripts/build_image_model.py eval --eval-limit 200   # held-out chairs; writes the bundled file
 
 (the bundled model's recipe; ``all`` runs render, train and eval in one go with the options given).
@@ -257,6 +260,9 @@ def write_bundled(teacher, model, report: dict, work: Path) -> Path:
                "cp /work/runs/image/chair-image.safetensors /work/runs/image/stage3.safetensors; "
                "python scripts/build_image_model.py train --resume /work/runs/image/stage3.safetensors "
                "--iterations 8000 --minutes 15 --lr 3e-4 --colour-shuffle --swap-backgrounds 0.9 --threads 1; "
+               "cp /work/runs/image/chair-image.safetensors /work/runs/image/stage4.safetensors; "
+               "python scripts/build_image_model.py train --resume /work/runs/image/stage4.safetensors "
+               "--iterations 6000 --minutes 28 --lr 3e-4 --colour-shuffle --swap-backgrounds 0.9 --geometric 5 --threads 1; "
                "python scripts/build_image_model.py eval --eval-limit 200")
     data_line = (f"{tr['views']} rendered views ({tr['views_per_shape']} per chair, 64x64, random azimuth, elevation "
                  "0-40 deg, random lights, object colours and backgrounds of the 'seen' palette) of the "
