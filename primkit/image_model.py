@@ -55,8 +55,9 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from . import losses as method_losses
 from . import primitives
+from .losses import shape_losses
+from .network import PrimitivePrediction
 
 __all__ = [
     "ImageNetConfig",
@@ -318,14 +319,12 @@ def composite(foreground: torch.Tensor, alpha: torch.Tensor, background: torch.T
 
 def _geometric_loss(pred: dict, used: torch.Tensor, points: torch.Tensor, closest: torch.Tensor,
                     samples_per_cuboid: int, gen: torch.Generator) -> torch.Tensor:
-    """Mean over the batch of coverage + consistency (:mod:`primkit.losses`) of the predicted cuboids
-    against the true shapes, the parts in ``used (B, m) bool`` present."""
-    present = used.float()
-    z, q, t = pred["half_extents"], pred["quaternions"], pred["translations"]
-    coverage = method_losses.coverage_loss(points, z, q, t, present)
-    samples, weights = primitives.sample_surface_torch(z, q, t, samples_per_cuboid, generator=gen)
-    consistency = method_losses.consistency_loss(closest, samples, weights, present)
-    return (coverage + consistency).mean()
+    """Mean over the batch of coverage + consistency (:func:`primkit.losses.shape_losses`, the volume
+    model's own terms) of the predicted cuboids against the true shapes, the parts in ``used (B, m)
+    bool`` present."""
+    cuboids = PrimitivePrediction(pred["half_extents"], pred["quaternions"], pred["translations"], used.float())
+    return shape_losses(cuboids, used.float(), points, closest, samples_per_cuboid=samples_per_cuboid,
+                        generator=gen).total.mean()
 
 
 @dataclass

@@ -131,10 +131,12 @@ def train(teacher, train_coll, work: Path, settings, args) -> None:
                                  swap_backgrounds=args.swap_backgrounds, geometric=args.geometric)
     geometry = {}
     if args.geometric:
-        n = len(targets["existence"])
-        shapes = [train_coll[i] for i in range(n)]  # surface points subsampled to keep memory small
-        geometry = {"surface_points": np.stack([s.points[:2000] for s in shapes]),
-                    "closest": np.stack([s.closest for s in shapes])}
+        points, closest = [], []
+        for i in range(len(targets["existence"])):  # one shape in memory at a time; 2,000 points each suffice
+            shape = train_coll[i]
+            points.append(shape.points[:2000])
+            closest.append(shape.closest)
+        geometry = {"surface_points": np.stack(points), "closest": np.stack(closest)}
     start = im.ImageAbstractor.load(args.resume).network if args.resume else None
     net_config = im.ImageNetConfig(size=settings.size)
     print(f"distilling on {len(views_train)} views of {len(views_train.names)} chairs", flush=True)
