@@ -95,9 +95,9 @@ def loop_losses(prediction, present, points, closest, samples_per_cuboid: int = 
     """
     import torch
 
-    from primkit.distance_field import lookup_distance_sq
-    from primkit.losses import _ABSENT, ShapeLosses
-    from primkit.primitives import _sample_surface_from_uv_torch, cuboid_distance_sq_torch
+    from primkit.model.distance_field import lookup_distance_sq
+    from primkit.model.losses import _ABSENT, ShapeLosses
+    from primkit.primitives.cuboids import _sample_surface_from_uv_torch, cuboid_distance_sq_torch
 
     z, q, t = prediction.half_extents, prediction.quaternions, prediction.translations
     batch, m = present.shape
@@ -119,7 +119,7 @@ def loop_losses(prediction, present, points, closest, samples_per_cuboid: int = 
 
 
 def ours_losses(prediction, present, points, closest, generator=None):
-    from primkit.losses import shape_losses
+    from primkit.model.losses import shape_losses
 
     return shape_losses(prediction, present, points, closest, samples_per_cuboid=SAMPLES_PER_CUBOID, generator=generator)
 
@@ -138,9 +138,9 @@ class Trainer:
     def __init__(self, shapes, encoder: str, device: str, loss: str = "vectorised", seed: int = 0):
         import torch
 
-        from primkit.losses import MovingBaseline
-        from primkit.network import AbstractionNet, NetworkConfig
-        from primkit.training import ShapeTensors
+        from primkit.model.losses import MovingBaseline
+        from primkit.model.network import AbstractionNet, NetworkConfig
+        from primkit.model.training import ShapeTensors
 
         torch.set_flush_denormal(True)  # as training does
         torch.manual_seed(seed)
@@ -157,7 +157,7 @@ class Trainer:
         """One iteration; returns the seconds spent in each phase."""
         import torch
 
-        from primkit.losses import reinforce_surrogate
+        from primkit.model.losses import reinforce_surrogate
 
         dev = self.device
         t0 = time.perf_counter()
@@ -359,8 +359,8 @@ def bench_training_memory(shapes, device: str, iterations: int) -> None:
 
 
 def make_abstractor(device: str):
-    from primkit.abstractor import Abstractor
-    from primkit.network import AbstractionNet, NetworkConfig
+    from primkit.model.abstractor import Abstractor
+    from primkit.model.network import AbstractionNet, NetworkConfig
 
     import torch
 
@@ -379,7 +379,7 @@ def best_time(repeats: int, fn) -> float:
 
 
 def bench_inference(shapes, device: str, count: int, files: int, repeats: int) -> None:
-    from primkit import abstractor as abstractor_mod
+    from primkit.model import abstractor as abstractor_mod
     from primkit import synthetic
 
     ab = make_abstractor(device)

@@ -47,10 +47,11 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     import torch
 
-    from primkit import data, io, synthetic, views
-    from primkit.abstractor import Abstractor
-    from primkit.image_model import ImageAbstractor, ImageNet
-    from primkit.models import bundled_models
+    from primkit import data, io, synthetic
+    from primkit.image import views
+    from primkit.model.abstractor import Abstractor
+    from primkit.image.distill import ImageAbstractor, ImageNet
+    from primkit.model.bundled import bundled_models
 
     torch.set_num_threads(int(os.environ.get("OMP_NUM_THREADS", "1")))
     print(load_line())

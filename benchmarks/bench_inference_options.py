@@ -25,9 +25,10 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks._common import table  # noqa: E402
-from primkit import data, io, orientation, synthetic  # noqa: E402
-from primkit.abstractor import Abstractor  # noqa: E402
-from primkit.fitting import fit_losses  # noqa: E402
+from primkit import data, io, synthetic  # noqa: E402
+from primkit.model import orientation  # noqa: E402
+from primkit.model.abstractor import Abstractor  # noqa: E402
+from primkit.model.fitting import fit_losses  # noqa: E402
 from primkit.metrics import ChamferConvention, score, summarize  # noqa: E402
 
 

@@ -35,7 +35,7 @@ os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
 def _tiles(count: int):
     from primkit import synthetic
     from primkit.primitives import Cuboids
-    from primkit.render import Tile, cuboid_layer, mesh_layer
+    from primkit.viz.render import Tile, cuboid_layer, mesh_layer
 
     rng = np.random.default_rng(0)
     tiles = []
@@ -56,7 +56,7 @@ def _tiles(count: int):
 
 
 def reused(tiles, size):
-    from primkit.render import ThumbnailRenderer
+    from primkit.viz.render import ThumbnailRenderer
 
     times, images = [], []
     with ThumbnailRenderer(size=size, radius=np.sqrt(3) / 2) as r:
@@ -69,7 +69,7 @@ def reused(tiles, size):
 
 
 def fresh(tiles, size):
-    from primkit.render import render_tiles
+    from primkit.viz.render import render_tiles
 
     times, images = [], []
     for mesh, cubs, _ in tiles:
@@ -81,7 +81,7 @@ def fresh(tiles, size):
 
 
 def grid(tiles, size):
-    from primkit.render import render_tiles
+    from primkit.viz.render import render_tiles
 
     t = time.perf_counter()
     render_tiles([x for m, c, _ in tiles for x in (m, c)], tile=size, columns=8, radius=np.sqrt(3) / 2)

@@ -14,8 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
-from primkit import data, deformation, io, render, synthetic
-from primkit.abstractor import Abstractor
+from primkit import data, deformation, io, synthetic
+from primkit.viz import render
+from primkit.model.abstractor import Abstractor
 
 out = Path(sys.argv[1] if len(sys.argv) > 1 else "deform-example")
 out.mkdir(parents=True, exist_ok=True)

@@ -18,8 +18,9 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import spearmanr
 
-from primkit import data, embedding, io, parts, primitives, synthetic
-from primkit.abstractor import Abstractor
+from primkit import data, embedding, io, primitives, synthetic
+from primkit.model import parts
+from primkit.model.abstractor import Abstractor
 from primkit.geometry import voxel_boundary_mesh
 
 

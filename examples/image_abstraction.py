@@ -20,10 +20,11 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
-from primkit import data, io, synthetic, views
-from primkit import image_model as im
-from primkit.abstractor import Abstractor
-from primkit.models import bundled_models
+from primkit import data, io, synthetic
+from primkit.image import views
+from primkit.image import distill as im
+from primkit.model.abstractor import Abstractor
+from primkit.model.bundled import bundled_models
 
 out = Path(sys.argv[1] if len(sys.argv) > 1 else "image-example")
 out.mkdir(parents=True, exist_ok=True)

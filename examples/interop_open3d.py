@@ -10,8 +10,9 @@ from pathlib import Path
 
 import numpy as np
 
-from primkit import data, interop, io, render, synthetic
-from primkit.abstractor import Abstractor, part_colors
+from primkit import data, io, synthetic
+from primkit.viz import interop, render
+from primkit.model.abstractor import Abstractor, part_colors
 from primkit.segmentation import face_labels
 
 

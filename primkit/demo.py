@@ -27,11 +27,12 @@ def _bundled_step(out: Path, folder: Path, cache: Path, quick: bool) -> None:
     """Abstract ``folder``'s chairs with the bundled chair model: as given, turned + align auto, refined."""
     import numpy as np
 
-    from . import data, io, orientation
-    from .abstractor import Abstractor
+    from . import data, io
+    from .model import orientation
+    from .model.abstractor import Abstractor
     from .metrics import ChamferConvention, score, summarize
-    from .models import bundled_models
-    from .render import render_abstractions
+    from .model.bundled import bundled_models
+    from .viz.render import render_abstractions
 
     if "chair" not in bundled_models():
         print("[bundled] no bundled chair model installed; skipped", file=sys.stderr)
@@ -68,10 +69,10 @@ def _bundled_step(out: Path, folder: Path, cache: Path, quick: bool) -> None:
 def run_demo(output="primkit-demo", *, quick: bool = False, force: bool = False, train_count: int = 96,
              test_count: int = 8, iterations: int = 2400) -> int:
     from . import data, io, synthetic
-    from .abstractor import Abstractor
+    from .model.abstractor import Abstractor
     from .metrics import ChamferConvention, part_label_agreement, score, summarize
-    from .render import render_abstractions
-    from .training import ShapeTensors, TrainConfig, train
+    from .viz.render import render_abstractions
+    from .model.training import ShapeTensors, TrainConfig, train
 
     out = Path(output)
     model_path = out / "chair-demo.safetensors"
@@ -127,7 +128,7 @@ def run_demo(output="primkit-demo", *, quick: bool = False, force: bool = False,
 def _chain_step(out: Path, folder: Path, cache: Path, force: bool):
     """The applications on the held-out chairs with the bundled chair model, into one HTML page:
     abstraction, co-segmentation, similarity map and a deformation transfer (:mod:`primkit.report`)."""
-    from .models import bundled_models
+    from .model.bundled import bundled_models
     from .report import build_report
 
     if "chair" not in bundled_models():

@@ -77,7 +77,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import parts as _parts
+from .model import parts as _parts
 from . import primitives
 
 __all__ = [
@@ -391,7 +391,7 @@ def render_thumbnails(meshes, size: int = 96, progress: bool = False) -> list[np
     """
     from tqdm import tqdm
 
-    from .render import CAMERA, ThumbnailRenderer, Tile, mesh_layer
+    from .viz.render import CAMERA, ThumbnailRenderer, Tile, mesh_layer
 
     frame = np.array([[-0.5] * 3, [0.5] * 3])  # centred on the origin of the canonical frame
     radius = 0.62 / (1.0 + CAMERA.margin)  # a viewport half-height of 0.62: a unit-size shape with room

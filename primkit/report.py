@@ -97,7 +97,7 @@ def _decimate(vertices, faces, labels, target: int):
         return vertices, faces, labels
     from scipy.spatial import cKDTree
 
-    from .interop import mesh_from_o3d, mesh_to_o3d
+    from .viz.interop import mesh_from_o3d, mesh_to_o3d
 
     small = mesh_from_o3d(mesh_to_o3d(vertices, faces).simplify_quadric_decimation(target))
     if len(small.faces) == 0:
@@ -109,7 +109,7 @@ def _decimate(vertices, faces, labels, target: int):
 def scene_data(shapes, part_count: int, faces_per_shape: int = SCENE_FACES) -> dict:
     """The JSON the page's viewer draws: per shape its decimated mesh (vertices rounded to 1e-4),
     face labels, and its present cuboids as 8 corners each (:meth:`Cuboids.to_mesh` order)."""
-    from .abstractor import part_colors
+    from .model.abstractor import part_colors
 
     out = {"colors": part_colors(part_count).tolist(), "shapes": []}
     for s in shapes:
@@ -127,7 +127,7 @@ def scene_data(shapes, part_count: int, faces_per_shape: int = SCENE_FACES) -> d
 def _thumbnails(shapes, folder: Path, overwrite: bool, progress: bool) -> dict:
     from tqdm import tqdm
 
-    from .render import CANONICAL_RADIUS, ThumbnailRenderer, Tile, cuboid_layer, mesh_layer, segmentation_layer
+    from .viz.render import CANONICAL_RADIUS, ThumbnailRenderer, Tile, cuboid_layer, mesh_layer, segmentation_layer
 
     frame = np.array([[-0.5] * 3, [0.5] * 3])
     paths = {}
@@ -166,7 +166,7 @@ def _similarity(shapes, results, part_names, folder: Path, thumbs: dict, overwri
 
 def _deformation(shapes, similarity, folder: Path, overwrite: bool) -> dict:
     from . import deformation
-    from .render import Tile, mesh_layer, segmentation_layer, write_png
+    from .viz.render import Tile, mesh_layer, segmentation_layer, write_png
 
     if len(shapes) < 2:
         raise ValueError("a deformation needs two shapes")
@@ -194,7 +194,7 @@ def build_report(paths, model, output, *, refine: int = 0, align=None, overwrite
     ``settings``: :class:`primkit.data.PrepareSettings` (the inputs' axes); default the model's.
     Returns ``(report, errors)``; ``errors`` has one line per unusable input (the rest goes on).
     """
-    from .abstractor import Abstractor
+    from .model.abstractor import Abstractor
     from .data import prepare_collection
     from .metrics import score
 

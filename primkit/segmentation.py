@@ -38,7 +38,8 @@ from pathlib import Path
 
 import numpy as np
 
-from . import io, parts, primitives
+from . import io, primitives
+from .model import parts
 
 __all__ = [
     "point_labels",
@@ -163,7 +164,7 @@ class Segmentation:
         1-based code of its name) and ``<name>.parts.ply`` (the mesh, faces coloured by part with
         the colour of :func:`primkit.abstractor.part_colors`, the same on every shape).
         Returns ``{"labels": path, "mesh": path}``."""
-        from .abstractor import part_colors
+        from .model.abstractor import part_colors
 
         folder = Path(folder)
         folder.mkdir(parents=True, exist_ok=True)
@@ -222,7 +223,7 @@ class Segmenter:
 
     def __init__(self, model, *, up: str = "+y", front: str = "+x", align=None, refine: int = 0,
                  existence_threshold: float = 0.5, prune_threshold: float | None = 0.6):
-        from .abstractor import Abstractor
+        from .model.abstractor import Abstractor
 
         self.abstractor = model if isinstance(model, Abstractor) else Abstractor.load(model)
         self.up, self.front = up, front

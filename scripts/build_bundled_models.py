@@ -29,11 +29,12 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from primkit import data, geometry, io, modelfile, orientation  # noqa: E402
-from primkit.abstractor import Abstractor  # noqa: E402
+from primkit import data, geometry, io  # noqa: E402
+from primkit.model import modelfile, orientation  # noqa: E402
+from primkit.model.abstractor import Abstractor  # noqa: E402
 from primkit.metrics import ChamferConvention, part_label_agreement, score, summarize  # noqa: E402
-from primkit.presets import get_preset  # noqa: E402
-from primkit.render import render_abstractions  # noqa: E402
+from primkit.model.presets import get_preset  # noqa: E402
+from primkit.viz.render import render_abstractions  # noqa: E402
 
 SHARED = ROOT.parent / "shared" / "data"
 CONV = ChamferConvention()

@@ -39,8 +39,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from primkit import data, views  # noqa: E402
-from primkit.abstractor import Abstractor  # noqa: E402
+from primkit import data  # noqa: E402
+from primkit.image import views  # noqa: E402
+from primkit.model.abstractor import Abstractor  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data" / "shapenetvox32" / "03001627"
 CHUNK = 500
@@ -111,7 +112,7 @@ def model_history(path):
     """The training record of the model a run continued from (None for a fresh run)."""
     if not path:
         return None
-    from primkit.modelfile import read_metadata
+    from primkit.model.modelfile import read_metadata
 
     t = read_metadata(path)["training"]
     return {k: t[k] for k in ("config", "seconds", "final", "resumed_from", "views") if k in t}
@@ -120,7 +121,7 @@ def model_history(path):
 def train(teacher, train_coll, work: Path, settings, args) -> None:
     import torch
 
-    from primkit import image_model as im
+    from primkit.image import distill as im
 
     torch.set_num_threads(args.threads)
     views_train = render_split(train_coll, work, "train-seen", args.views, "seen", 0, settings, args.limit,
@@ -181,10 +182,10 @@ def _summary(scores, seconds_per_item) -> dict:
 def evaluate(teacher, held_coll, work: Path, settings, args) -> dict:
     from PIL import Image
 
-    from primkit import image_model as im
+    from primkit.image import distill as im
     from primkit.metrics import ChamferConvention, score
-    from primkit.abstractor import AbstractionResult
-    from primkit.render import render_abstractions
+    from primkit.model.abstractor import AbstractionResult
+    from primkit.viz.render import render_abstractions
 
     model = im.ImageAbstractor.load(work / "chair-image.safetensors")
     n = len(held_coll) if args.eval_limit is None else min(args.eval_limit, len(held_coll))
@@ -246,7 +247,7 @@ def _line(label: str, m: dict) -> str:
 
 def write_bundled(teacher, model, report: dict, work: Path) -> Path:
     """The evaluated model with its card, into primkit/models/chair-image.safetensors."""
-    from primkit.modelfile import update_metadata
+    from primkit.model.modelfile import update_metadata
 
     tcard = teacher.metadata["card"]
     tr = model.metadata["training"]

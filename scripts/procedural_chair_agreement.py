@@ -25,9 +25,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from primkit import data, io, synthetic  # noqa: E402
-from primkit.abstractor import Abstractor  # noqa: E402
+from primkit.model.abstractor import Abstractor  # noqa: E402
 from primkit.metrics import ChamferConvention, part_label_agreement, score, summarize  # noqa: E402
-from primkit.training import ShapeTensors, TrainConfig, train  # noqa: E402
+from primkit.model.training import ShapeTensors, TrainConfig, train  # noqa: E402
 
 
 def prepared(shapes, prefix: str):

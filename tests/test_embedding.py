@@ -189,7 +189,7 @@ def test_embed_and_similar_commands(tmp_path, capsys):
 def test_embed_refine_passes_through(tmp_path):
     """``--refine N`` gives the descriptors of the library's refined cuboids, which differ from the network's."""
     from primkit import data, synthetic
-    from primkit.abstractor import Abstractor
+    from primkit.model.abstractor import Abstractor
     from primkit.cli import main
 
     shapes = tmp_path / "chairs"

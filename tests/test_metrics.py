@@ -296,7 +296,7 @@ def test_coverage_matches_brute_force():
 
 def test_lookup_matches_the_torch_distance_field():
     torch = pytest.importorskip("torch")
-    from primkit.distance_field import lookup_distance_sq
+    from primkit.model.distance_field import lookup_distance_sq
 
     rng = np.random.default_rng(8)
     closest = rng.uniform(-0.5, 0.5, size=(6, 6, 6, 3)).astype(np.float32)

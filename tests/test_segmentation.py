@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from primkit import io, parts, primitives, segmentation, synthetic
+from primkit import io, primitives, segmentation, synthetic
+from primkit.model import parts
 from primkit.cli import main
 
 
@@ -174,7 +175,7 @@ def test_seat_and_back_agree_across_leg_counts():
     """A four-legged chair and a swivel chair (one column, five spokes): with the bundled chair
     model, the faces of the seat go to the same index on both, and so do the back's."""
     from primkit import data
-    from primkit.abstractor import Abstractor
+    from primkit.model.abstractor import Abstractor
 
     abstractor = Abstractor.load("chair")
     picks = {}
@@ -221,8 +222,8 @@ def test_segment_command_goes_past_a_bad_file(tmp_path, capsys):
 
 
 def test_name_parts_writes_a_named_copy(tmp_path, capsys):
-    from primkit.abstractor import Abstractor
-    from primkit.models import resolve_model
+    from primkit.model.abstractor import Abstractor
+    from primkit.model.bundled import resolve_model
 
     folder = tmp_path / "in"
     synthetic.write_collection(folder, "chair", 4, seed=5)

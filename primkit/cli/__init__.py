@@ -46,7 +46,7 @@ def _cmd_train(args) -> int:
 
     from ..data import PrepareSettings, prepare_collection, split_files
     from ..io import refuse_existing
-    from ..training import ShapeTensors, TrainConfig, train
+    from ..model.training import ShapeTensors, TrainConfig, train
 
     out = Path(args.output)
     refuse_existing(out, args.force)
@@ -55,7 +55,7 @@ def _cmd_train(args) -> int:
     hold_out = 0
     up, front = "+y", "+x"
     if args.preset:
-        from ..presets import get_preset
+        from ..model.presets import get_preset
 
         preset = get_preset(args.preset)
         config, hold_out = preset.config, preset.hold_out_every
@@ -110,9 +110,9 @@ def _align(args):
 
 
 def _cmd_abstract(args) -> int:
-    from ..abstractor import Abstractor
-    from ..modelfile import read_metadata
-    from ..models import resolve_model
+    from ..model.abstractor import Abstractor
+    from ..model.modelfile import read_metadata
+    from ..model.bundled import resolve_model
 
     if read_metadata(resolve_model(args.model)).get("kind") == "image-abstractor":
         from .image import run_abstract_images
@@ -138,7 +138,7 @@ def _cmd_abstract(args) -> int:
         print(f"{r.name}: {int(r.cuboids.existence.sum())} parts{extra} -> {j}")
     if args.png and results:
         from ..io import read_mesh, refuse_existing
-        from ..render import render_abstractions
+        from ..viz.render import render_abstractions
 
         picture = Path(args.output) / "abstractions.png"
         try:
@@ -175,7 +175,7 @@ def _split_inputs(files, abstractor, split: str) -> list:
 
 
 def _cmd_eval(args) -> int:
-    from ..abstractor import Abstractor
+    from ..model.abstractor import Abstractor
     from ..data import prepare_collection
     from ..metrics import ChamferConvention, score, summarize
 
@@ -206,8 +206,8 @@ def _cmd_eval(args) -> int:
 
 
 def _cmd_models(args) -> int:
-    from ..modelfile import read_metadata
-    from ..models import bundled_models
+    from ..model.modelfile import read_metadata
+    from ..model.bundled import bundled_models
 
     models = bundled_models()
     if not models:
@@ -233,9 +233,9 @@ def _cmd_models(args) -> int:
 
 
 def _cmd_info(args) -> int:
-    from ..modelfile import read_metadata
+    from ..model.modelfile import read_metadata
 
-    from ..models import resolve_model
+    from ..model.bundled import resolve_model
 
     meta = read_metadata(resolve_model(args.model))
     print(json.dumps(meta, indent=1))
@@ -354,7 +354,7 @@ def _command_modules() -> list[str]:
 
 def main(argv=None) -> int:
     from ..io import ShapeFileError
-    from ..modelfile import ModelFileError
+    from ..model.modelfile import ModelFileError
 
     parser = build_parser()
     args = parser.parse_args(argv)

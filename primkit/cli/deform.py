@@ -31,7 +31,7 @@ def _outputs(args) -> tuple[Path, Path | None, Path]:
 
 def _abstract(args, paths, abstractor=None):
     """(abstractor, [(prepared shape, result)] in the order of ``paths``, errors)."""
-    from ..abstractor import Abstractor
+    from ..model.abstractor import Abstractor
     from ..data import prepare_collection
 
     abstractor = abstractor or Abstractor.load(args.model)
@@ -87,7 +87,7 @@ def _face_labels(labels, faces):
 def _parts_tile(title, vertices, faces, face_parts, cuboids, count=None):
     """A picture tile: the mesh coloured by part, under translucent ``cuboids``; ``count`` is the
     number of part colours (default ``cuboids.count``)."""
-    from ..render import Tile, cuboid_layer, segmentation_layer
+    from ..viz.render import Tile, cuboid_layer, segmentation_layer
 
     count = cuboids.count if count is None else count
     return Tile(title, [segmentation_layer(vertices, faces, face_parts, count), cuboid_layer(cuboids, opacity=0.25)])
@@ -95,7 +95,7 @@ def _parts_tile(title, vertices, faces, face_parts, cuboids, count=None):
 
 def _target_layer(shape):
     from ..io import Mesh, read_shape
-    from ..render import mesh_layer, points_layer
+    from ..viz.render import mesh_layer, points_layer
 
     try:
         target = read_shape(shape.source)
@@ -123,7 +123,7 @@ def _named(q, names):
 def _cmd_deform(args) -> int:
     from .. import deformation
     from ..io import atomic_output
-    from ..render import CANONICAL_RADIUS, Tile, cuboid_layer, write_png
+    from ..viz.render import CANONICAL_RADIUS, Tile, cuboid_layer, write_png
 
     out, png, js = _outputs(args)
     src, tgt = Path(args.source), Path(args.target)
@@ -168,10 +168,10 @@ def _cmd_deform(args) -> int:
 def _cmd_edit(args) -> int:
     from .. import deformation
     from ..io import atomic_output
-    from ..render import CANONICAL_RADIUS, write_png
+    from ..viz.render import CANONICAL_RADIUS, write_png
 
     out, png, js = _outputs(args)
-    from ..abstractor import Abstractor
+    from ..model.abstractor import Abstractor
 
     src = Path(args.mesh)
     abstractor = Abstractor.load(args.model)

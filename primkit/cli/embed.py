@@ -38,7 +38,7 @@ def _abstract(args, files):
 
     from tqdm import tqdm
 
-    from ..abstractor import Abstractor
+    from ..model.abstractor import Abstractor
     from ..data import prepare_collection
     from ._common import settings_from_args
 
@@ -61,7 +61,7 @@ def _abstract(args, files):
 def _thumb_meshes(results, grids, kind, selected):
     """One mesh per shape for its thumbnail: the voxel boundary, or the cuboids coloured by part
     index with the unselected parts grey."""
-    from ..abstractor import part_colors
+    from ..model.abstractor import part_colors
     from ..geometry import voxel_boundary_mesh
 
     meshes = []

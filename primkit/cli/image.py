@@ -43,8 +43,8 @@ def run_abstract_images(args) -> int:
 
     ``args``: ``.inputs`` (image files or folders), ``.model``, ``.output``, ``.force``, ``.png``.
     """
-    from ..abstractor import part_colors
-    from ..image_model import ImageAbstractor, draw_over_image
+    from ..model.abstractor import part_colors
+    from ..image.distill import ImageAbstractor, draw_over_image
     from ..io import atomic_output, refuse_existing, write_mesh
 
     try:
@@ -80,9 +80,10 @@ def run_train_image(args) -> int:
     import numpy as np
     import torch
 
-    from .. import data, views
-    from ..abstractor import Abstractor
-    from ..image_model import ImageAbstractor, ImageNetConfig, ImageTrainConfig, train_image_model
+    from .. import data
+    from ..image import views
+    from ..model.abstractor import Abstractor
+    from ..image.distill import ImageAbstractor, ImageNetConfig, ImageTrainConfig, train_image_model
     from ..io import refuse_existing
 
     out = Path(args.output)

@@ -9,7 +9,7 @@ __all__ = ["register"]
 
 
 def _run(args) -> int:
-    from ..abstractor import Abstractor
+    from ..model.abstractor import Abstractor
     from ..report import build_report
 
     files = collect(args.inputs)

@@ -57,8 +57,8 @@ def _print_evaluation(report, shapes) -> None:
 
 
 def _picture(segs, path, limit: int = 16) -> None:
-    from ..abstractor import part_colors
-    from ..render import render_pairs
+    from ..model.abstractor import part_colors
+    from ..viz.render import render_pairs
 
     items = []
     for s in segs[:limit]:
@@ -93,7 +93,7 @@ def _cmd_segment(args) -> int:
     try:
         write_summary(segs, out / "summary.csv", overwrite=args.force)
         if args.semantic:
-            from ..parts import label_codes
+            from ..model.parts import label_codes
 
             names, _ = label_codes(segmenter.part_names)
             (out / "labels.csv").write_text("code,name\n" + "".join(f"{i + 1},{n}\n" for i, n in enumerate(names)))
@@ -131,8 +131,8 @@ def _cmd_name_parts(args) -> int:
     import numpy as np
 
     from ..io import refuse_existing
-    from ..modelfile import update_metadata
-    from ..parts import names_from_labels
+    from ..model.modelfile import update_metadata
+    from ..model.parts import names_from_labels
     from ..segmentation import Segmenter, read_ground_truth
 
     out = Path(args.output)
@@ -181,7 +181,7 @@ def _cmd_name_parts(args) -> int:
 
 
 def _model_path(model):
-    from ..models import resolve_model
+    from ..model.bundled import resolve_model
 
     return resolve_model(model)
 

@@ -17,24 +17,14 @@ from __future__ import annotations
 
 import importlib
 import os
-import sys
-from pathlib import Path
 
 from ._common import err, report_errors
 
 __all__ = ["register", "load_app", "show"]
 
-APPS = Path(__file__).resolve().parents[2] / "apps"
-
-
 def load_app(name: str):
-    """Import ``apps.<name>`` from the source checkout this primkit runs from."""
-    if not (APPS / f"{name}.py").is_file():
-        raise FileNotFoundError(f"{APPS / (name + '.py')}: viewer not found (the viewers need a source checkout of primkit)")
-    root = str(APPS.parent)
-    if root not in sys.path:
-        sys.path.insert(0, root)
-    return importlib.import_module(f"apps.{name}")
+    """Import the viewer module ``primkit.viewers.<name>``."""
+    return importlib.import_module(f"primkit.viewers.{name}")
 
 
 def show(plotter, png=None, window: bool = False) -> None:

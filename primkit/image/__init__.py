@@ -1,0 +1,1 @@
+"""Abstraction from a single image (moved here from image_model.py and views.py)."""

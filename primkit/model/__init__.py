@@ -1,0 +1,1 @@
+"""The learned abstractor (moved here from the top-level modules)."""

@@ -1,0 +1,272 @@
+"""Inference: a trained abstractor turns prepared shapes into indexed cuboids.
+
+``Abstractor.load(path).predict(shapes)`` for many shapes (the network's cost is paid once and
+shapes go through it in batches); :func:`abstract` for one file.
+
+Which parts are kept: a part exists when its probability is above ``existence_threshold`` (0.5),
+then parts mostly inside the others are pruned (:func:`primkit.primitives.prune_covered`: while the
+part with the largest fraction of its volume inside the other present parts exceeds
+``prune_threshold``, 0.6 as in the published code, that part is dropped). Part indices are never
+renumbered: part ``k`` is slot ``k`` of the network on every shape, and absent parts stay in the
+output, marked absent.
+
+Options (both off by default, both in ``primkit abstract``):
+
+* ``align="auto"``: each shape is tried in the 24 axis-aligned orientations
+  (:mod:`primkit.orientation`) and the one whose predicted cuboids have the lowest coverage +
+  consistency loss (:func:`primkit.fitting.fit_losses`) is used; the result records it
+  (``alignment``) and the cuboids still come back in the input's frame.
+* ``refine=N``: ``N`` Adam steps on each shape's own losses, from the network's answer, with part
+  indices and existence kept (:func:`primkit.fitting.refine`); the result records the loss before
+  and after.
+
+Results come back in the input's own frame (the canonical frame used by the network is undone),
+and :meth:`AbstractionResult.save` writes a JSON file (schema-versioned, see
+:class:`primkit.primitives.Cuboids`) and a mesh of the present cuboids coloured by part index.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .. import data, io, primitives
+from . import orientation
+
+__all__ = ["Abstractor", "AbstractionResult", "abstract", "part_colors"]
+
+
+def part_colors(count: int) -> np.ndarray:
+    """A fixed colour per part index: ``(count, 3) uint8`` (matplotlib's tab20, then repeated)."""
+    from matplotlib import colormaps
+
+    cmap = colormaps["tab20"]
+    return (np.array([cmap(i % 20)[:3] for i in range(count)]) * 255).astype(np.uint8)
+
+
+@dataclass(frozen=True)
+class AbstractionResult:
+    """The abstraction of one shape.
+
+    Attributes
+    ----------
+    name : str
+    cuboids : primitives.Cuboids
+        In the input's frame.
+    canonical : primitives.Cuboids
+        The same in the canonical frame of the network.
+    frame : geometry.CanonicalFrame
+    source : str
+    """
+
+    name: str
+    cuboids: primitives.Cuboids
+    canonical: primitives.Cuboids
+    frame: object
+    source: str = ""
+    alignment: dict | None = None
+    refinement: dict | None = None
+
+    def to_dict(self) -> dict:
+        d = self.cuboids.to_dict()
+        d["name"] = self.name
+        d["source"] = self.source
+        d["frame"] = "input"
+        d["canonical_frame"] = self.frame.to_dict()
+        if self.alignment is not None:
+            d["alignment"] = self.alignment
+        if self.refinement is not None:
+            d["refinement"] = self.refinement
+        return d
+
+    def canonical_shape(self, shape):
+        """The prepared ``shape`` in the frame of ``canonical`` (turned when ``align`` chose an orientation)."""
+        if self.alignment is None:
+            return shape
+        return orientation.rotate_prepared(shape, np.asarray(self.alignment["rotation"], float))
+
+    def save(self, folder, *, overwrite: bool = False, mesh_format: str = ".ply") -> tuple[Path, Path]:
+        """Write ``<name>.cuboids.json`` and ``<name>.cuboids<mesh_format>`` into ``folder``."""
+        folder = Path(folder)
+        folder.mkdir(parents=True, exist_ok=True)
+        json_path = folder / f"{self.name}.cuboids.json"
+        mesh_path = folder / f"{self.name}.cuboids{mesh_format}"
+        io.refuse_existing((json_path, mesh_path), overwrite)
+        with io.atomic_output(json_path, overwrite=overwrite) as tmp:
+            Path(tmp).write_text(json.dumps(self.to_dict(), indent=1))
+        v, f, part = self.cuboids.to_mesh()
+        colors = part_colors(self.cuboids.count)[part]
+        io.write_mesh(mesh_path, v, f, face_colors=colors, overwrite=overwrite)
+        return json_path, mesh_path
+
+
+class Abstractor:
+    """A trained abstractor: the network and its model-file metadata.
+
+    Parameters
+    ----------
+    network : primkit.network.AbstractionNet
+    metadata : dict
+    """
+
+    def __init__(self, network, metadata: dict, device: str | None = None):
+        import torch
+
+        self.device = device or ("cuda" if torch.cuda.is_available() else "cpu")
+        self.network = network.to(self.device).eval()
+        self.metadata = metadata
+
+    @classmethod
+    def load(cls, path, device: str | None = None) -> "Abstractor":
+        """Load a model file written by ``primkit train``, or a bundled model by name (``"chair"``)."""
+        from .bundled import resolve_model
+        from .training import load_network
+
+        net, meta = load_network(resolve_model(path))
+        return cls(net, meta, device)
+
+    @property
+    def parts(self) -> int:
+        return self.network.config.parts
+
+    @property
+    def resolution(self) -> int:
+        return self.network.config.grid
+
+    @property
+    def part_names(self) -> list[str]:
+        names = self.metadata.get("part_names")
+        return list(names) if names else [f"part{k}" for k in range(self.parts)]
+
+    @property
+    def hold_out_every(self) -> int:
+        """The hold-out rule the model was trained with (:func:`primkit.data.split_files`; 0: none recorded)."""
+        return int(((self.metadata.get("training") or {}).get("data") or {}).get("hold_out_every") or 0)
+
+    @property
+    def settings(self) -> data.PrepareSettings:
+        return data.PrepareSettings(resolution=self.resolution)
+
+    def predict_canonical(self, occupancy: np.ndarray, batch_size: int = 64) -> dict:
+        """Raw network output for ``(s, R, R, R)`` occupancy grids, as NumPy arrays
+        (``half_extents (s, m, 3)``, ``quaternions (s, m, 4)``, ``translations (s, m, 3)``,
+        ``existence (s, m)``)."""
+        import torch
+
+        occupancy = np.asarray(occupancy)
+        out = {"half_extents": [], "quaternions": [], "translations": [], "existence": []}
+        with torch.no_grad():
+            for i in range(0, len(occupancy), batch_size):
+                x = torch.from_numpy(occupancy[i : i + batch_size].astype(np.float32)).to(self.device)
+                pred = self.network(x)
+                for key in out:
+                    out[key].append(getattr(pred, key).double().cpu().numpy())
+        return {k: np.concatenate(v) for k, v in out.items()}
+
+    def _cuboids(self, raw: dict, i: int, existence_threshold: float) -> primitives.Cuboids:
+        return primitives.Cuboids(
+            raw["half_extents"][i], raw["quaternions"][i], raw["translations"][i],
+            raw["existence"][i] > existence_threshold, probabilities=raw["existence"][i],
+        )
+
+    def align(self, shape, existence_threshold: float = 0.5):
+        """The shape turned into the axis-aligned orientation the model explains best.
+
+        Returns ``(turned shape, report)``; the report gives the chosen rotation of the shape's
+        canonical frame, the input axes it takes as up and front, and the losses of the identity
+        and of the best orientation.
+        """
+        from .fitting import fit_losses
+
+        turned = [orientation.rotate_prepared(shape, a) for a in orientation.AXIS_ROTATIONS]
+        raw = self.predict_canonical(np.stack([t.occupancy for t in turned]))
+        cubs = [self._cuboids(raw, i, existence_threshold) for i in range(len(turned))]
+        losses = fit_losses(cubs, turned)["total"]
+        best = int(np.argmin(losses))
+        report = {
+            "rotation": orientation.AXIS_ROTATIONS[best].tolist(),
+            **orientation.describe_rotation(turned[best].frame.rotation),
+            "loss": float(losses[best]),
+            "loss_as_given": float(losses[0]),
+        }
+        return turned[best], report
+
+    def predict(
+        self,
+        shapes,
+        existence_threshold: float = 0.5,
+        prune_threshold: float | None = 0.6,
+        batch_size: int = 64,
+        seed: int = 0,
+        align: str | None = None,
+        refine: int = 0,
+    ) -> list[AbstractionResult]:
+        """Abstract prepared shapes (:class:`primkit.data.PreparedShape`), in batches.
+
+        Parameters
+        ----------
+        existence_threshold : float
+            Parts with probability above it exist.
+        prune_threshold : float or None
+            Drop parts whose volume is more than this fraction inside the other parts; None keeps all.
+        align : None or "auto"
+            ``"auto"`` tries the 24 axis-aligned orientations per shape and keeps the best.
+        refine : int
+            Gradient steps per shape on its own losses after the network (0: none).
+        """
+        shapes = list(shapes)
+        if not shapes:
+            return []
+        if align not in (None, "none", "auto"):
+            raise ValueError(f"align must be None or 'auto', got {align!r}")
+        for s in shapes:
+            if s.resolution != self.resolution:
+                raise ValueError(f"{s.name}: prepared at {s.resolution}^3 but the model reads {self.resolution}^3")
+        alignments = [None] * len(shapes)
+        if align == "auto":
+            for i, s in enumerate(shapes):
+                shapes[i], alignments[i] = self.align(s, existence_threshold)
+        raw = self.predict_canonical(np.stack([s.occupancy for s in shapes]), batch_size)
+        cubs = []
+        for i in range(len(shapes)):
+            cub = self._cuboids(raw, i, existence_threshold)
+            if prune_threshold is not None and cub.existence.sum() > 1:
+                cub = primitives.prune_covered(cub, prune_threshold, seed=seed)
+            cubs.append(cub)
+        refinements = [None] * len(shapes)
+        if refine:
+            from .fitting import refine as refine_cuboids
+
+            refined = []
+            for i in range(0, len(shapes), batch_size):
+                part, losses = refine_cuboids(cubs[i : i + batch_size], shapes[i : i + batch_size], refine, seed=seed)
+                refined.extend(part)
+                for j in range(len(part)):
+                    refinements[i + j] = {"steps": int(refine), "loss_before": float(losses["before"][j]),
+                                          "loss_after": float(losses["after"][j])}
+            cubs = refined
+        results = []
+        for s, cub, al, rf in zip(shapes, cubs, alignments, refinements):
+            back = np.linalg.inv(s.frame.matrix)
+            results.append(AbstractionResult(s.name, cub.transformed(back), cub, s.frame, s.source, al, rf))
+        return results
+
+    def abstract_files(self, paths, *, cache_dir=None, workers=None, progress=True, settings=None, **kwargs):
+        """Prepare (through the cache) and abstract files; returns (results, errors).
+
+        ``settings``: how to prepare the files (:class:`primkit.data.PrepareSettings`, e.g. the
+        inputs' up and front axes); the model's own by default. Its resolution must be the model's.
+        """
+        coll = data.prepare_collection(paths, settings or self.settings, cache_dir=cache_dir, workers=workers,
+                                       progress=progress)
+        return self.predict(list(coll), **kwargs), coll.errors
+
+
+def abstract(path, model, **kwargs) -> AbstractionResult:
+    """Abstract one shape file with a model file; raises ShapeFileError for an unusable file."""
+    abstractor = model if isinstance(model, Abstractor) else Abstractor.load(model)
+    shape = data.prepare_file(path, abstractor.settings)
+    return abstractor.predict([shape], **kwargs)[0]

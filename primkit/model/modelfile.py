@@ -1,0 +1,229 @@
+"""Model files: one ``.safetensors`` file per model, loaded without executing any code.
+
+A model file is a plain safetensors file: the weights (a flat ``name -> tensor`` state dict) plus,
+in the safetensors header's string metadata, one entry ``"primkit"`` whose value is a JSON object.
+Reading it parses a JSON header and copies raw tensor bytes; nothing is unpickled, so a model file
+from a stranger cannot run code (unlike ``torch.load`` of a pickle). ``read_metadata`` reads the
+header alone, without touching the weights.
+
+Metadata keys
+-------------
+Written by ``save_model`` itself:
+
+``format`` : ``"primkit-model"``, marks the file as ours.
+``format_version`` : int, ``FORMAT_VERSION``; files from a newer primkit are refused on load.
+``primkit_version`` : the primkit version that wrote the file (filled in if the caller did not).
+``created`` : ISO 8601 UTC time of writing (filled in if the caller did not).
+
+Required from the caller (``REQUIRED_KEYS``):
+
+``network`` : dict, ``NetworkConfig.to_dict()``: enough to rebuild the network for the weights.
+
+Expected from the caller (not enforced here):
+
+``canonical_frame`` : dict, how input shapes are put into the frame the model was trained in
+    (up and front axes, centring, scaling).
+``grid`` : int, the occupancy grid resolution the model reads.
+``training`` : dict, the data description (source, categories, number of shapes), the data terms
+    and their weights, iterations per stage, seed, training time.
+``metrics`` : dict, evaluation results with the protocol named (e.g. Chamfer convention).
+``part_names`` : list of ``m`` strings (one per part slot, ``""`` for unnamed) or ``None``.
+
+All values must be JSON: dicts with string keys, lists / tuples, str, int, finite float, bool, None.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import math
+from pathlib import Path
+
+import torch
+from torch import Tensor
+
+__all__ = [
+    "FORMAT",
+    "FORMAT_VERSION",
+    "METADATA_KEY",
+    "REQUIRED_KEYS",
+    "ModelFileError",
+    "load_model",
+    "read_metadata",
+    "save_model",
+    "update_metadata",
+]
+
+#: Version of the file layout and metadata schema written by this primkit.
+FORMAT_VERSION = 1
+#: Value of the ``format`` metadata key.
+FORMAT = "primkit-model"
+#: Key of the safetensors header metadata that holds primkit's JSON.
+METADATA_KEY = "primkit"
+#: Metadata keys a model file must have, beyond ``format`` and ``format_version``.
+REQUIRED_KEYS = ("network",)
+
+
+class ModelFileError(ValueError):
+    """A file that is not a model file this primkit can read; ``str(err)`` is ``"{path}: {reason}"``."""
+
+    def __init__(self, path, reason: str) -> None:
+        self.path = Path(path)
+        self.reason = " ".join(str(reason).split())  # one line, whatever the cause said
+        super().__init__(f"{self.path}: {self.reason}")
+
+
+def _check_json(value, where: str) -> None:
+    """Raise TypeError (ValueError for non-finite floats) naming ``where`` if ``value`` is not JSON."""
+    if value is None or isinstance(value, (bool, str, int)):
+        return
+    if isinstance(value, float):
+        if not math.isfinite(value):
+            raise ValueError(f"metadata {where} is {value}; JSON has no NaN or infinity (use None)")
+        return
+    if isinstance(value, dict):
+        for key, item in value.items():
+            if not isinstance(key, str):
+                raise TypeError(f"metadata {where} has a non-string key {key!r}")
+            _check_json(item, f"{where}[{key!r}]")
+        return
+    if isinstance(value, (list, tuple)):
+        for i, item in enumerate(value):
+            _check_json(item, f"{where}[{i}]")
+        return
+    hint = " (convert with .item() or .tolist())" if hasattr(value, "tolist") else ""
+    raise TypeError(
+        f"metadata {where} is a {type(value).__name__}, which is not JSON-serialisable{hint}"
+    )
+
+
+def save_model(
+    path, state_dict: dict[str, Tensor], metadata: dict, *, overwrite: bool = False
+) -> Path:
+    """Write ``state_dict`` and ``metadata`` to the model file ``path``; return its ``Path``.
+
+    state_dict : ``name -> Tensor``; tensors are copied to the CPU (shared storage is fine).
+    metadata : JSON-serialisable dict holding at least ``REQUIRED_KEYS`` (see the module docstring);
+        ``format`` and ``format_version`` are set here, ``primkit_version`` and ``created`` filled in
+        when absent. The caller's dict is not modified.
+    overwrite : replace an existing file; otherwise an existing ``path`` raises FileExistsError.
+
+    The file is written to a temporary file in the same folder and moved into place with
+    ``os.replace``, so a crash never leaves a half-written model at ``path``.
+    """
+    path = Path(path)
+    if not isinstance(metadata, dict):
+        raise TypeError(f"`metadata` must be a dict, got {type(metadata).__name__}")
+    for key in metadata:
+        if not isinstance(key, str):
+            raise TypeError(f"metadata has a non-string key {key!r}")
+        _check_json(metadata[key], f"[{key!r}]")
+    missing = [key for key in REQUIRED_KEYS if key not in metadata]
+    if missing:
+        raise ValueError(f"metadata lacks the required keys {missing}")
+    if not isinstance(state_dict, dict) or not all(
+        isinstance(k, str) and isinstance(v, Tensor) for k, v in state_dict.items()
+    ):
+        raise TypeError("`state_dict` must be a dict of str -> torch.Tensor")
+    if path.exists() and not overwrite:
+        raise FileExistsError(
+            f"{path}: file exists; pass overwrite=True (--force on the command line) to replace it"
+        )
+
+    from .. import __version__
+    from safetensors.torch import save_file
+
+    full = dict(metadata)
+    full.setdefault("primkit_version", __version__)
+    full.setdefault(
+        "created", _dt.datetime.now(_dt.timezone.utc).replace(microsecond=0).isoformat()
+    )
+    full["format"] = FORMAT
+    full["format_version"] = FORMAT_VERSION
+    header = {METADATA_KEY: json.dumps(full, allow_nan=False, sort_keys=True)}
+    # clone: safetensors refuses tensors sharing storage and needs contiguous CPU memory.
+    tensors = {k: v.detach().to("cpu").contiguous().clone() for k, v in state_dict.items()}
+
+    from ..io import atomic_output  # temporary beside the target, created with the user's umask
+
+    with atomic_output(path, overwrite=True) as tmp:
+        save_file(tensors, str(tmp), metadata=header)
+    return path
+
+
+def _open(path, device: str = "cpu"):
+    """Open ``path`` with safetensors' ``safe_open``, turning every failure into ModelFileError."""
+    from safetensors import safe_open
+
+    path = Path(path)
+    if not path.exists():
+        raise ModelFileError(path, "no such file")
+    if path.is_dir():
+        raise ModelFileError(path, "is a directory, not a model file")
+    try:
+        return safe_open(str(path), framework="pt", device=device)
+    except Exception as err:  # safetensors raises its own error types and OSError
+        raise ModelFileError(
+            path, f"not a readable safetensors model file (corrupt, truncated or another format: {err})"
+        ) from None
+
+
+def _parse_metadata(path, header: dict | None) -> dict:
+    """Check the header metadata of ``path`` and return primkit's JSON as a dict."""
+    if not header or METADATA_KEY not in header:
+        raise ModelFileError(path, "not a primkit model file (no primkit metadata in the header)")
+    try:
+        metadata = json.loads(header[METADATA_KEY])
+    except json.JSONDecodeError as err:
+        raise ModelFileError(path, f"primkit metadata is not valid JSON ({err})") from None
+    if not isinstance(metadata, dict) or metadata.get("format") != FORMAT:
+        raise ModelFileError(path, f"not a primkit model file (format is not {FORMAT!r})")
+    version = metadata.get("format_version")
+    if not isinstance(version, int) or isinstance(version, bool) or version < 1:
+        raise ModelFileError(path, f"invalid format_version {version!r}")
+    if version > FORMAT_VERSION:
+        raise ModelFileError(
+            path,
+            f"format version {version} is newer than this primkit supports ({FORMAT_VERSION}); "
+            "upgrade primkit",
+        )
+    missing = [key for key in REQUIRED_KEYS if key not in metadata]
+    if missing:
+        raise ModelFileError(path, f"metadata lacks the required keys {missing}")
+    return metadata
+
+
+def read_metadata(path) -> dict:
+    """The metadata of the model file ``path``, read from the header without loading the weights."""
+    handle = _open(path)
+    with handle as f:
+        return _parse_metadata(path, f.metadata())
+
+
+def load_model(path, map_location="cpu") -> tuple[dict[str, Tensor], dict]:
+    """Read the model file ``path``: ``(state_dict, metadata)``.
+
+    map_location : device for the tensors (``"cpu"``, ``"cuda:0"``, a ``torch.device``).
+    Raises ModelFileError (one line, starting with the path) for a missing file, a file that is not
+    safetensors (a pickle, random bytes) or is corrupt or truncated, a safetensors file without
+    primkit metadata, a newer format version, or missing required keys.
+    """
+    device = str(torch.device(map_location))
+    handle = _open(path, device)
+    with handle as f:
+        metadata = _parse_metadata(path, f.metadata())
+        try:
+            weights = {name: f.get_tensor(name) for name in f.keys()}
+        except Exception as err:
+            raise ModelFileError(path, f"cannot read the weights ({err})") from None
+    return weights, metadata
+
+
+def update_metadata(path, output, changes: dict, *, overwrite: bool = False) -> Path:
+    """Copy the model file ``path`` to ``output`` with ``changes`` merged into its metadata
+    (the weights are copied unchanged; ``path`` itself is never modified unless it is ``output``
+    and ``overwrite`` is given). Returns ``output``."""
+    weights, metadata = load_model(path)
+    metadata = {**metadata, **changes}
+    metadata.pop("created", None)
+    return save_model(output, weights, metadata, overwrite=overwrite)

@@ -1,0 +1,94 @@
+"""The 24 axis-aligned orientations, and prepared shapes turned into them (``--align auto``).
+
+A model learns one canonical frame (+Y up, +X front). A shape whose up or front axis is another
+one can be tried in every proper rotation that maps axes to axes (the 24 signed permutation
+matrices with determinant +1), and the orientation the model explains best is kept.
+
+Turning a prepared shape by such a rotation ``A`` needs no new preparation: the canonical frame
+centres the bounding box and scales its longest side to 1, which ``A`` preserves, and the grid's
+cell centres ``-0.5 + (i + 0.5) / R`` are mapped onto cell centres by it. So the grids are
+permuted and flipped, the closest points and samples rotated, and the frame composed
+(``canonical' = A @ canonical``), all exactly.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import replace
+
+import numpy as np
+
+from .. import geometry
+
+__all__ = ["AXIS_ROTATIONS", "rotate_prepared", "axis_name", "describe_rotation"]
+
+
+def _axis_rotations() -> np.ndarray:
+    out = []
+    for perm in itertools.permutations(range(3)):
+        for signs in itertools.product((1.0, -1.0), repeat=3):
+            r = np.zeros((3, 3))
+            r[np.arange(3), perm] = signs
+            if np.linalg.det(r) > 0:
+                out.append(r)
+    out.sort(key=lambda r: (not np.allclose(r, np.eye(3)),))  # the identity first
+    return np.array(out)
+
+
+#: (24, 3, 3) float: every proper rotation that maps coordinate axes to coordinate axes; [0] is the identity.
+AXIS_ROTATIONS = _axis_rotations()
+
+
+def axis_name(vector) -> str:
+    """``(3,)`` unit axis vector -> ``"+x"``, ``"-z"``, ..."""
+    v = np.asarray(vector, float)
+    i = int(np.argmax(np.abs(v)))
+    return ("+" if v[i] > 0 else "-") + "xyz"[i]
+
+
+def describe_rotation(rotation) -> dict:
+    """The input axes that a frame rotation (``canonical = rotation @ x``) makes up (+Y) and front (+X)."""
+    r = np.asarray(rotation, float)
+    return {"up": axis_name(r[1]), "front": axis_name(r[0])}
+
+
+def _source_cells(res: int, rotation: np.ndarray) -> tuple:
+    """Flat index arrays of the old cell whose value lands in each new cell: the value at cell centre
+    ``c`` ends at cell centre ``rotation @ c``."""
+    idx = np.indices((res,) * 3).reshape(3, -1).T  # new cells
+    old = np.rint((idx - (res - 1) / 2.0) @ rotation + (res - 1) / 2.0).astype(np.int64)  # rotation.T @ c per row
+    return old[:, 0], old[:, 1], old[:, 2]
+
+
+def rotate_prepared(shape, rotation):
+    """A :class:`primkit.data.PreparedShape` turned by an axis rotation of its canonical frame.
+
+    Parameters
+    ----------
+    shape : primkit.data.PreparedShape
+    rotation : (3, 3) float
+        One of :data:`AXIS_ROTATIONS`.
+
+    Returns
+    -------
+    PreparedShape whose ``frame`` maps the input to the rotated canonical frame, so results computed
+    on it still come back in the input's frame through ``frame``.
+    """
+    a = np.asarray(rotation, float)
+    if a.shape != (3, 3) or not np.any(np.all(np.isclose(AXIS_ROTATIONS, a), axis=(1, 2))):
+        raise ValueError("`rotation` must be a proper axis rotation (a signed permutation matrix, det +1)")
+    if np.allclose(a, np.eye(3)):
+        return shape
+    res = shape.resolution
+    src = _source_cells(res, a)
+    closest = shape.closest[src].reshape(shape.closest.shape) @ a.T
+    f = shape.frame
+    frame = geometry.CanonicalFrame(a @ f.rotation, a @ f.centre, f.scale)
+    return replace(
+        shape,
+        occupancy=shape.occupancy[src].reshape(shape.occupancy.shape),
+        solid=shape.solid[src].reshape(shape.solid.shape),
+        closest=closest.astype(shape.closest.dtype),
+        points=(np.asarray(shape.points) @ a.T).astype(shape.points.dtype),
+        frame=frame,
+    )

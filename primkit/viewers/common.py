@@ -1,0 +1,139 @@
+"""Pieces shared by the viewers: abstracting input files, segmentation labels, text and picking."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .. import io
+from ..viz.render import pyvista_module
+
+__all__ = ["Shape", "abstract_shapes", "face_labels", "describe_part", "text_of", "pick_actor", "on_click",
+           "display_position", "new_plotter"]
+
+
+@dataclass
+class Shape:
+    """A mesh with its abstraction (input frame), as the viewers draw it.
+
+    vertices : (n, 3) float; faces : (f, 3) int; result : primkit.abstractor.AbstractionResult.
+    """
+
+    name: str
+    vertices: np.ndarray
+    faces: np.ndarray
+    result: object
+
+    @property
+    def cuboids(self):
+        return self.result.cuboids
+
+    def canonical_vertices(self) -> np.ndarray:
+        """(n, 3) float: the mesh in the canonical frame of :attr:`result`'s ``canonical`` cuboids."""
+        return self.result.frame.to_canonical(self.vertices)
+
+
+def abstract_shapes(paths, model, *, refine: int = 0, align=None, progress: bool = True):
+    """Read and abstract mesh files with a model (name or path, or an Abstractor).
+
+    Returns ``(shapes, abstractor, errors)``: the usable files as :class:`Shape` s in input order,
+    and one error line per unusable file (the batch goes on).
+    """
+    from ..model.abstractor import Abstractor
+
+    abstractor = model if isinstance(model, Abstractor) else Abstractor.load(model)
+    results, errors = abstractor.abstract_files([str(p) for p in paths], progress=progress, refine=refine, align=align)
+    shapes, errors = [], [str(e) for e in errors]
+    for r in results:
+        try:
+            mesh = io.read_mesh(r.source)
+        except io.ShapeFileError as exc:  # a point cloud or a voxel grid: draw what the model saw
+            errors.append(str(exc))
+            continue
+        shapes.append(Shape(r.name, mesh.vertices, mesh.faces, r))
+    return shapes, abstractor, errors
+
+
+def face_labels(vertices, faces, cuboids) -> np.ndarray:
+    """(f,) int: the co-segmentation (primitive index per face), -1 when no part is present."""
+    if not cuboids.existence.any():
+        return np.full(len(faces), -1, np.int64)
+    try:
+        from ..segmentation import face_labels as labels
+    except ImportError:  # before primkit.segmentation existed: the same rule at the face centroids
+        from ..primitives import assign_points
+
+        return assign_points(np.asarray(vertices)[np.asarray(faces)].mean(1), cuboids)
+    return labels(vertices, faces, cuboids)
+
+
+def describe_part(cuboids, k: int, names) -> str:
+    """Several lines: index, name and parameters of part ``k``."""
+    q = cuboids.quaternions[k]
+    lines = [f"part {k}: {names[k] if k < len(names) else f'part{k}'}",
+             "size " + " x ".join(f"{2 * z:.3f}" for z in cuboids.half_extents[k]),
+             "centre (" + ", ".join(f"{t:.3f}" for t in cuboids.translations[k]) + ")",
+             "rotation wxyz (" + ", ".join(f"{x:.3f}" for x in q) + ")"]
+    if cuboids.probabilities is not None:
+        lines.append(f"existence p = {cuboids.probabilities[k]:.2f}")
+    return "\n".join(lines)
+
+
+def text_of(actor) -> str:
+    """The string a pyvista text actor shows (a vtkTextActor or a corner annotation)."""
+    if hasattr(actor, "GetInput"):
+        return actor.GetInput() or ""
+    return "\n".join(actor.GetText(i) or "" for i in range(8))
+
+
+def pick_actor(plotter, x: float, y: float, actors):
+    """The actor among ``actors`` under display position ``(x, y)`` (pixels from the bottom left),
+    the front-most visible one, or None. A cell picker restricted to those actors, so meshes drawn
+    around them never hide them from the click."""
+    import vtk
+
+    picker = vtk.vtkCellPicker()
+    picker.SetTolerance(0.0005)
+    picker.PickFromListOn()
+    for a in actors:
+        picker.AddPickList(a)
+    picker.Pick(float(x), float(y), 0.0, plotter.renderer)
+    return picker.GetActor()
+
+
+def on_click(plotter, callback, tolerance: int = 3) -> None:
+    """Call ``callback(x, y)`` on a left click that did not drag (a drag turns the camera).
+    Nothing happens without an interactor (off-screen plotters)."""
+    iren = getattr(plotter, "iren", None)
+    if iren is None:
+        return
+    state = {}
+
+    def press(obj, event):
+        state["at"] = iren.get_event_position()
+
+    def release(obj, event):
+        x, y = iren.get_event_position()
+        x0, y0 = state.get("at", (x, y))
+        if abs(x - x0) <= tolerance and abs(y - y0) <= tolerance:
+            callback(x, y)
+
+    iren.add_observer("LeftButtonPressEvent", press)
+    iren.add_observer("LeftButtonReleaseEvent", release)
+
+
+def display_position(plotter, point) -> tuple[float, float]:
+    """Display coordinates (pixels from the bottom left) of a world point (3,) in the current renderer."""
+    ren = plotter.renderer
+    ren.SetWorldPoint(*np.asarray(point, float), 1.0)
+    ren.WorldToDisplay()
+    x, y, _ = ren.GetDisplayPoint()
+    return x, y
+
+
+def new_plotter(off_screen: bool, window_size, title: str, **kwargs):
+    pv = pyvista_module()
+    p = pv.Plotter(off_screen=off_screen, window_size=window_size, title=title, **kwargs)
+    p.set_background("white")
+    return p

@@ -1,0 +1,107 @@
+"""The bundled models: resolution by name, model cards, size, and behaviour on project-made shapes."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from primkit import data, io, synthetic
+from primkit.model import modelfile, orientation
+from primkit.model.abstractor import Abstractor
+from primkit.metrics import score
+from primkit.model.bundled import bundled_models, resolve_model
+from primkit.model.presets import PRESETS
+
+EXPECTED = {"chair", "table", "airplane", "animal"}
+
+
+def _kind(path):
+    return modelfile.read_metadata(path).get("kind", "volume")
+
+
+def test_every_preset_is_bundled_with_a_card():
+    models = bundled_models()
+    volume = {n: p for n, p in models.items() if _kind(p) == "volume"}
+    assert set(volume) == EXPECTED == set(PRESETS)
+    total = sum(p.stat().st_size for p in models.values())
+    for name, path in volume.items():
+        meta = modelfile.read_metadata(path)
+        assert meta["format_version"] == modelfile.FORMAT_VERSION
+        card = meta["card"]
+        assert card["terms"] == PRESETS[name].terms and card["data"] == PRESETS[name].data
+        assert "--preset " + name in card["command"]
+        held = card["metrics"]["held_out"]
+        assert held["evaluated"] > 0 and 0 < held["network"]["iou"] <= 1
+        assert meta["training"]["data"]["hold_out_every"] == PRESETS[name].hold_out_every
+        assert card["text"].startswith(f"# primkit bundled model: {name}")
+        names = meta["part_names"]  # learned on procedural shapes (scripts/name_bundled_models.sh)
+        assert len(names) == Abstractor.load(path).parts and meta["part_naming"]["shapes"] > 0
+    assert total < 4 * 2**20  # small enough for a wheel
+
+
+def test_image_models_name_their_teacher_and_its_terms():
+    images = {n: p for n, p in bundled_models().items() if _kind(p) == "image-abstractor"}
+    assert "chair-image" in images
+    for name, path in images.items():
+        meta = modelfile.read_metadata(path)
+        card = meta["card"]
+        teacher = modelfile.read_metadata(bundled_models()[meta["teacher"]])
+        assert card["terms"] == teacher["card"]["terms"]  # distilled from ShapeNet-trained weights
+        assert card["text"].startswith(f"# primkit bundled model: {name}")
+        held = card["metrics"]["held_out"]
+        assert held["evaluated"] > 0 and 0 < held["network"]["iou"] <= 1
+
+
+def test_shapenet_models_say_research_only():
+    for name in ("chair", "table", "airplane"):
+        assert "non-commercial research" in modelfile.read_metadata(bundled_models()[name])["card"]["terms"]
+
+
+def test_resolve_prefers_an_existing_file(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert resolve_model("chair") == bundled_models()["chair"]
+    (tmp_path / "chair").write_bytes(b"x")
+    assert resolve_model("chair") == Path("chair")
+    with pytest.raises(FileNotFoundError, match="bundled"):
+        resolve_model("nope")
+
+
+@pytest.fixture(scope="module")
+def chair_model():
+    return Abstractor.load("chair")
+
+
+@pytest.fixture(scope="module")
+def procedural_chairs():
+    shapes = synthetic.generate("chair", 6, seed=123)
+    return shapes, [data.prepare(io.Mesh(s.vertices, s.faces), name=f"c{i}") for i, s in enumerate(shapes)]
+
+
+def test_chair_model_explains_procedural_chairs(chair_model, procedural_chairs):
+    """Shapes it never saw, from another source than its training data (independent of ../shared)."""
+    _, shapes = procedural_chairs
+    results = chair_model.predict(shapes)
+    parts = [int(r.canonical.existence.sum()) for r in results]
+    scores = [score(r.canonical, s) for r, s in zip(results, shapes)]
+    assert 3 <= np.mean(parts) <= 12
+    assert np.mean([s.iou for s in scores]) > 0.2
+    assert np.mean([s.chamfer for s in scores]) < 0.05
+
+
+def test_refine_improves_the_fit(chair_model, procedural_chairs):
+    _, shapes = procedural_chairs
+    results = chair_model.predict(shapes[:3], refine=100)
+    for r in results:
+        assert r.refinement["loss_after"] < r.refinement["loss_before"]
+
+
+def test_align_auto_finds_up_on_turned_chairs(chair_model, procedural_chairs):
+    _, shapes = procedural_chairs
+    found = 0
+    for k, s in enumerate(shapes):
+        a = orientation.AXIS_ROTATIONS[5 + 3 * k]
+        turned = orientation.rotate_prepared(s, a)  # as if the file had come in another orientation
+        (r,) = chair_model.predict([turned], align="auto")
+        # the chosen frame must undo the turn: canonical Y of the result is the original's Y
+        found += bool(np.allclose(r.frame.rotation[1], s.frame.rotation[1]))
+    assert found >= 5
