@@ -97,7 +97,7 @@ def loop_losses(prediction, present, points, closest, samples_per_cuboid: int = 
 
     from primkit.model.distance_field import lookup_distance_sq
     from primkit.model.losses import _ABSENT, ShapeLosses
-    from primkit.primitives.cuboids import _sample_surface_from_uv_torch, cuboid_distance_sq_torch
+    from primkit.primitives.differentiable import _sample_surface_from_uv_torch, cuboid_distance_sq_torch
 
     z, q, t = prediction.half_extents, prediction.quaternions, prediction.translations
     batch, m = present.shape

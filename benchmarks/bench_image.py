@@ -48,9 +48,10 @@ def main(argv=None) -> int:
     import torch
 
     from primkit import data, io, synthetic
-    from primkit.image import views
+    from primkit import image as views
     from primkit.model.abstractor import Abstractor
-    from primkit.image.distill import ImageAbstractor, ImageNet
+    from primkit.image.inference import ImageAbstractor
+    from primkit.image.network import ImageNet
     from primkit.model.bundled import bundled_models
 
     torch.set_num_threads(int(os.environ.get("OMP_NUM_THREADS", "1")))

@@ -16,6 +16,7 @@ import numpy as np
 
 from primkit import data, deformation, io, synthetic
 from primkit.viz import render
+from primkit.viz.camera import CANONICAL_RADIUS
 from primkit.model.abstractor import Abstractor
 
 out = Path(sys.argv[1] if len(sys.argv) > 1 else "deform-example")
@@ -46,7 +47,7 @@ tiles = [render.Tile("source", [render.mesh_layer(v, a.faces), render.cuboid_lay
                                 render.cuboid_layer(tgt.canonical, opacity=0.3)]),
          render.Tile("deformed", [render.mesh_layer(d.vertices, a.faces)]),
          render.Tile("legs +30%", [render.mesh_layer(e.vertices, a.faces), render.cuboid_layer(e.edit.cuboids, opacity=0.3)])]
-render.write_png(out / "deform.png", tiles, overwrite=True, columns=4, radius=render.CANONICAL_RADIUS)
+render.write_png(out / "deform.png", tiles, overwrite=True, columns=4, radius=CANONICAL_RADIUS)
 (out / "quality.json").write_text(json.dumps({"deform": {k: q[k] for k in ("chamfer_source_target", "chamfer_result_target",
                                                                          "flipped")}, "height": [h0, h1]}, indent=1))
 print(f"wrote {out}/deformed.off, longer_legs.off, deform.png, quality.json")

@@ -21,8 +21,8 @@ import numpy as np
 from PIL import Image
 
 from primkit import data, io, synthetic
-from primkit.image import views
-from primkit.image import distill as im
+from primkit import image as im
+from primkit import image as views
 from primkit.model.abstractor import Abstractor
 from primkit.model.bundled import bundled_models
 

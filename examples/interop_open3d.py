@@ -12,7 +12,8 @@ import numpy as np
 
 from primkit import data, io, synthetic
 from primkit.viz import interop, render
-from primkit.model.abstractor import Abstractor, part_colors
+from primkit.model.abstractor import Abstractor
+from primkit.viz.palette import part_colors
 from primkit.segmentation import face_labels
 
 

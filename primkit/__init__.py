@@ -20,4 +20,6 @@ Imports run one way: io / geometry -> primitives -> data -> model and training -
 -> viewers and the command line.
 """
 
-__version__ = "0.1.0"
+from .version import __version__
+
+__all__ = ["__version__"]

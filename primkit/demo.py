@@ -18,6 +18,14 @@ from __future__ import annotations
 import json
 import sys
 from pathlib import Path
+from . import data, io, synthetic
+from .model import orientation
+from .model.abstractor import Abstractor
+from .metrics import ChamferConvention, part_label_agreement, score, summarize
+from .model.bundled import bundled_models
+from .viz.render import render_abstractions
+from .model.training import ShapeTensors, train, TrainConfig
+from .report import build_report
 
 
 __all__ = ["run_demo"]
@@ -26,13 +34,6 @@ __all__ = ["run_demo"]
 def _bundled_step(out: Path, folder: Path, cache: Path, quick: bool) -> None:
     """Abstract ``folder``'s chairs with the bundled chair model: as given, turned + align auto, refined."""
     import numpy as np
-
-    from . import data, io
-    from .model import orientation
-    from .model.abstractor import Abstractor
-    from .metrics import ChamferConvention, score, summarize
-    from .model.bundled import bundled_models
-    from .viz.render import render_abstractions
 
     if "chair" not in bundled_models():
         print("[bundled] no bundled chair model installed; skipped", file=sys.stderr)
@@ -68,12 +69,6 @@ def _bundled_step(out: Path, folder: Path, cache: Path, quick: bool) -> None:
 
 def run_demo(output="primkit-demo", *, quick: bool = False, force: bool = False, train_count: int = 96,
              test_count: int = 8, iterations: int = 2400) -> int:
-    from . import data, io, synthetic
-    from .model.abstractor import Abstractor
-    from .metrics import ChamferConvention, part_label_agreement, score, summarize
-    from .viz.render import render_abstractions
-    from .model.training import ShapeTensors, TrainConfig, train
-
     out = Path(output)
     model_path = out / "chair-demo.safetensors"
     if model_path.exists() and not force:
@@ -128,9 +123,6 @@ def run_demo(output="primkit-demo", *, quick: bool = False, force: bool = False,
 def _chain_step(out: Path, folder: Path, cache: Path, force: bool):
     """The applications on the held-out chairs with the bundled chair model, into one HTML page:
     abstraction, co-segmentation, similarity map and a deformation transfer (:mod:`primkit.report`)."""
-    from .model.bundled import bundled_models
-    from .report import build_report
-
     if "chair" not in bundled_models():
         print("[report] no bundled chair model installed; skipped", file=sys.stderr)
         return None

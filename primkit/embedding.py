@@ -79,6 +79,9 @@ import numpy as np
 
 from .model import parts as _parts
 from . import primitives
+from .viz.camera import CAMERA
+from .viz.render import mesh_layer, ThumbnailRenderer, Tile
+from .io import atomic_output
 
 __all__ = [
     "PROPERTIES",
@@ -391,8 +394,6 @@ def render_thumbnails(meshes, size: int = 96, progress: bool = False) -> list[np
     """
     from tqdm import tqdm
 
-    from .viz.render import CAMERA, ThumbnailRenderer, Tile, mesh_layer
-
     frame = np.array([[-0.5] * 3, [0.5] * 3])  # centred on the origin of the canonical frame
     radius = 0.62 / (1.0 + CAMERA.margin)  # a viewport half-height of 0.62: a unit-size shape with room
     images = []
@@ -421,8 +422,6 @@ def draw_map(coords, images, path, *, colors=None, title: str = "", zoom: float 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from matplotlib.offsetbox import AnnotationBbox, OffsetImage
-
-    from .io import atomic_output
 
     coords = np.asarray(coords, float)
     fig, ax = plt.subplots(figsize=(14, 14), dpi=100)
@@ -464,8 +463,6 @@ def draw_matches(query_image, images, names, distances, path, *, query_name: str
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    from .io import atomic_output
 
     n = len(images) + 1
     fig, axes = plt.subplots(1, n, figsize=(2.2 * n, 2.6), dpi=100)

@@ -38,8 +38,9 @@ from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
-from .geometry import grid_centres
-from .primitives import Cuboids, sample_surface, union_distance
+from .geometry import grid_centres, lookup_distance_sq
+from .primitives import assign_points, contains, Cuboids, sample_surface, union_distance, union_surface_samples
+from .primitives.cuboids import check_cuboids
 
 if TYPE_CHECKING:  # pragma: no cover
     from .data import PreparedShape
@@ -47,11 +48,9 @@ if TYPE_CHECKING:  # pragma: no cover
 __all__ = [
     "ChamferConvention",
     "chamfer_distance",
-    "union_surface_samples",
     "cuboid_chamfer",
     "volumetric_iou",
     "coverage_error",
-    "lookup_distance_sq",
     "consistency_error",
     "AbstractionScores",
     "score",
@@ -60,10 +59,6 @@ __all__ = [
 
 #: points processed at once against all cuboids (bounds the (m, n, 3) temporaries)
 _CHUNK = 65536
-#: a sample within this distance of another cuboid's boundary counts as on it (canonical units)
-_ON_BOUNDARY = 1e-11
-#: step along a sample's outward normal used to test whether the union continues beyond it
-_NUDGE = 1e-8
 
 
 # --------------------------------------------------------------------------------------------
@@ -82,23 +77,8 @@ def _points(value: Any, name: str) -> np.ndarray:
     return a
 
 
-def _cuboids(value: Any) -> Cuboids:
-    if not isinstance(value, Cuboids):
-        raise TypeError(f"`cuboids` must be a Cuboids, got {type(value).__name__}")
-    return value
 
 
-def _inside(points: np.ndarray, cuboids: Cuboids, tol: float = 0.0) -> np.ndarray:
-    """(n, m) bool: point in solid cuboid (boundary included, grown by ``tol``), chunked."""
-    out = np.empty((len(points), cuboids.count), dtype=bool)
-    rot = cuboids.rotations
-    for start in range(0, len(points), _CHUNK):
-        d = points[None, start : start + _CHUNK, :] - cuboids.translations[:, None, :]
-        local = np.einsum("mji,mnj->mni", rot, d)
-        out[start : start + _CHUNK] = np.all(
-            np.abs(local) <= cuboids.half_extents[:, None, :] + tol, axis=-1
-        ).T
-    return out
 
 
 # --------------------------------------------------------------------------------------------
@@ -178,85 +158,8 @@ def chamfer_distance(points_a: Any, points_b: Any, convention: ChamferConvention
     return float(total / 2.0 if convention.reduction == "mean_of_means" else total)
 
 
-def _face_points(
-    cuboids: Cuboids, part: np.ndarray, face: np.ndarray, uv: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """World points and outward unit normals on face ``face`` (0..5, +x -x +y -y +z -z) of ``part``."""
-    n = len(part)
-    axis = face // 2
-    sign = np.where(face % 2 == 0, 1.0, -1.0)
-    unit = np.zeros((n, 3))
-    rows = np.arange(n)
-    unit[rows, axis] = sign
-    unit[rows, (axis + 1) % 3] = uv[:, 0]
-    unit[rows, (axis + 2) % 3] = uv[:, 1]
-    rot = cuboids.rotations[part]  # (n, 3, 3)
-    local = unit * cuboids.half_extents[part]
-    points = np.einsum("nij,nj->ni", rot, local) + cuboids.translations[part]
-    normals = rot[rows, :, axis] * sign[:, None]
-    return points, normals
 
 
-def union_surface_samples(cuboids: Cuboids, count: int = 10000, seed: Any = None) -> np.ndarray:
-    """Area-uniform samples of the boundary of the union of the present solid cuboids.
-
-    Candidates are drawn area-uniformly over all faces of all present cuboids (a face is chosen
-    with probability proportional to its area, then a uniform point on it). A candidate ``x`` on
-    a face of cuboid ``i`` with outward normal ``n`` is kept when it lies on the boundary of the
-    union, decided by two rules:
-
-    * dropped if ``x + 1e-8 n`` lies in another present cuboid: ``x`` is then inside the union
-      (strictly inside another cuboid, or on a face shared with a touching cuboid);
-    * dropped if ``x`` lies in (or on) a present cuboid of lower index: where faces of two cuboids
-      coincide, only one copy is kept, so coplanar overlaps are not sampled twice.
-
-    Drawing continues in rounds until ``count`` samples are kept; the first ``count`` are returned.
-
-    Parameters
-    ----------
-    cuboids : Cuboids
-    count : int
-    seed : None, int or numpy Generator
-
-    Returns
-    -------
-    points : (count, 3) float
-        Raises ValueError when no part is present.
-    """
-    c = _cuboids(cuboids)
-    count = int(count)
-    if count < 1:
-        raise ValueError(f"`count` must be positive, got {count}")
-    if not c.existence.any():
-        raise ValueError("no present cuboid to sample")
-    c = c.subset(c.present)  # renumbered 0..p-1 in slot order
-    p = c.count
-    rng = np.random.default_rng(seed)
-    z = c.half_extents
-    # face f lies on axis f // 2 and has area 4 * (product of the two other half extents)
-    face_area = 4.0 * np.prod(z, axis=1)[:, None] / z[:, np.arange(6) // 2]  # (p, 6)
-    prob = (face_area / face_area.sum()).ravel()
-    others = ~np.eye(p, dtype=bool)
-    lower = np.tril(np.ones((p, p), dtype=bool), k=-1)  # lower[i, j]: j < i
-    kept: list[np.ndarray] = []
-    have, drawn, accepted = 0, 0, 0
-    for _ in range(1000):
-        need = count - have
-        rate = max(accepted / drawn, 1e-3) if drawn else 1.0
-        draw = int(min(max(1.2 * need / rate, 64), 4 * _CHUNK))
-        pick = rng.choice(p * 6, size=draw, p=prob)
-        part, face = pick // 6, pick % 6
-        pts, normals = _face_points(c, part, face, rng.uniform(-1.0, 1.0, size=(draw, 2)))
-        covered = np.any(_inside(pts + _NUDGE * normals, c) & others[part], axis=1)
-        duplicate = np.any(_inside(pts, c, _ON_BOUNDARY) & lower[part], axis=1)
-        ok = pts[~covered & ~duplicate]
-        kept.append(ok)
-        have += len(ok)
-        drawn += draw
-        accepted += len(ok)
-        if have >= count:
-            return np.concatenate(kept)[:count]
-    raise RuntimeError("could not sample the union surface (almost every candidate was covered)")
 
 
 def cuboid_chamfer(
@@ -285,7 +188,7 @@ def cuboid_chamfer(
     float
         ``inf`` when no part is present.
     """
-    c = _cuboids(cuboids)
+    c = check_cuboids(cuboids)
     pts = _points(surface_points, "surface_points")
     k = int(convention.samples)
     if len(pts) < k:
@@ -338,7 +241,7 @@ def volumetric_iou(cuboids: Cuboids, solid: Any, resolution: int | None = None, 
     float in [0, 1]
         1.0 when both the abstraction and the shape are empty on the grid.
     """
-    c = _cuboids(cuboids)
+    c = check_cuboids(cuboids)
     grid = np.asarray(solid)
     if grid.ndim != 3 or len(set(grid.shape)) != 1:
         raise ValueError(f"`solid` must be (R, R, R) bool, got shape {grid.shape}")
@@ -352,7 +255,7 @@ def volumetric_iou(cuboids: Cuboids, solid: Any, resolution: int | None = None, 
     cell = np.clip(np.floor((centres + 0.5) * res).astype(np.int64), 0, res - 1)
     shape_in = grid[cell[:, 0], cell[:, 1], cell[:, 2]]
     if c.existence.any():
-        ours = _inside(centres, c.subset(c.present)).any(axis=1)
+        ours = contains(centres, c.subset(c.present)).any(axis=1)
     else:
         ours = np.zeros(len(centres), dtype=bool)
     union = np.count_nonzero(ours | shape_in)
@@ -377,7 +280,7 @@ def coverage_error(cuboids: Cuboids, surface_points: Any) -> float:
     cuboids : Cuboids
     surface_points : (n, 3) float
     """
-    c = _cuboids(cuboids)
+    c = check_cuboids(cuboids)
     pts = _points(surface_points, "surface_points")
     if not c.existence.any():
         return float("inf")
@@ -387,39 +290,6 @@ def coverage_error(cuboids: Cuboids, surface_points: Any) -> float:
     return total / len(pts)
 
 
-def lookup_distance_sq(closest: Any, points: Any) -> np.ndarray:
-    """Squared distance to the surface from a closest-point grid (NumPy twin of
-    :func:`primkit.distance_field.lookup_distance_sq`).
-
-    ``d(x)^2 = min over the 8 cell centres around x of |x - closest[cell]|^2``, the cells being
-    ``floor(u)`` and ``floor(u) + 1`` per axis with ``u = (x + 0.5) R - 0.5``, clamped to the
-    grid (points outside keep their own position, so the distance keeps growing).
-
-    Parameters
-    ----------
-    closest : (R, R, R, 3) float
-        Closest surface point of every cell centre of the canonical grid.
-    points : (n, 3) float
-
-    Returns
-    -------
-    (n,) float
-    """
-    grid = np.asarray(closest, dtype=np.float64)
-    if grid.ndim != 4 or grid.shape[-1] != 3 or len(set(grid.shape[:3])) != 1:
-        raise ValueError(f"`closest` must be (R, R, R, 3) float, got shape {grid.shape}")
-    pts = np.asarray(points, dtype=np.float64)
-    if pts.ndim != 2 or pts.shape[1] != 3:
-        raise ValueError(f"`points` must be (n, 3) float, got shape {pts.shape}")
-    res = grid.shape[0]
-    base = np.floor((pts + 0.5) * res - 0.5).astype(np.int64)
-    best = np.full(len(pts), np.inf)
-    for corner in range(8):
-        offset = np.array([(corner >> 2) & 1, (corner >> 1) & 1, corner & 1])
-        idx = np.clip(base + offset, 0, res - 1)
-        cp = grid[idx[:, 0], idx[:, 1], idx[:, 2]]
-        best = np.minimum(best, np.sum((pts - cp) ** 2, axis=1))
-    return best
 
 
 def consistency_error(cuboids: Cuboids, closest: Any, samples_per_cuboid: int = 150, seed: Any = 0) -> float:
@@ -442,7 +312,7 @@ def consistency_error(cuboids: Cuboids, closest: Any, samples_per_cuboid: int = 
         A positive multiple of 6.
     seed : None, int or numpy Generator
     """
-    c = _cuboids(cuboids)
+    c = check_cuboids(cuboids)
     if not c.existence.any():
         return float("nan")
     present = c.subset(c.present)
@@ -502,7 +372,7 @@ def score(
     Uses ``prepared_shape.points`` (Chamfer, coverage), ``.solid`` (IoU, with the defaults of
     :func:`volumetric_iou`) and ``.closest`` (consistency, 150 samples per cuboid).
     """
-    c = _cuboids(cuboids)
+    c = check_cuboids(cuboids)
     return AbstractionScores(
         chamfer=cuboid_chamfer(c, prepared_shape.points, convention, seed=seed),
         iou=volumetric_iou(c, prepared_shape.solid),
@@ -572,8 +442,6 @@ def part_label_agreement(cuboids_list, point_sets, label_sets, names=None) -> di
         ``{"per_label": {label: {"index": k, "agreement": a, "shapes": s}}, "mean": ..., "min": ...}``
     """
     from collections import Counter, defaultdict
-
-    from .primitives import assign_points
 
     chosen = defaultdict(list)
     for cub, pts, labels in zip(cuboids_list, point_sets, label_sets):

@@ -29,7 +29,16 @@ from pathlib import Path
 
 import numpy as np
 
-from . import io
+from . import deformation, embedding, io
+from .geometry import voxel_boundary_mesh
+from .segmentation import face_labels
+from .viz.interop import mesh_from_o3d, mesh_to_o3d
+from .viz.palette import part_colors
+from .viz.camera import CANONICAL_RADIUS
+from .viz.render import cuboid_layer, mesh_layer, segmentation_layer, ThumbnailRenderer, Tile, write_png
+from .model.abstractor import Abstractor
+from .data import prepare_collection
+from .metrics import score
 
 __all__ = ["ReportShape", "Report", "build_report", "write_report", "scene_data", "VIEWER_JS"]
 
@@ -68,8 +77,6 @@ def _canonical_mesh(result, prepared):
 
     Meshes are read again from their file; voxel grids and point clouds are drawn as the boundary
     of the occupancy grid the network read."""
-    from .geometry import voxel_boundary_mesh
-
     matrix = result.frame.matrix
     cub = result.cuboids.transformed(matrix)
     try:
@@ -85,7 +92,6 @@ def _canonical_mesh(result, prepared):
 def _face_labels(vertices, faces, cuboids) -> np.ndarray:
     if not cuboids.existence.any():
         return np.full(len(faces), -1, np.int64)
-    from .segmentation import face_labels
 
     return face_labels(vertices, faces, cuboids)
 
@@ -97,8 +103,6 @@ def _decimate(vertices, faces, labels, target: int):
         return vertices, faces, labels
     from scipy.spatial import cKDTree
 
-    from .viz.interop import mesh_from_o3d, mesh_to_o3d
-
     small = mesh_from_o3d(mesh_to_o3d(vertices, faces).simplify_quadric_decimation(target))
     if len(small.faces) == 0:
         return vertices, faces, labels
@@ -109,8 +113,6 @@ def _decimate(vertices, faces, labels, target: int):
 def scene_data(shapes, part_count: int, faces_per_shape: int = SCENE_FACES) -> dict:
     """The JSON the page's viewer draws: per shape its decimated mesh (vertices rounded to 1e-4),
     face labels, and its present cuboids as 8 corners each (:meth:`Cuboids.to_mesh` order)."""
-    from .model.abstractor import part_colors
-
     out = {"colors": part_colors(part_count).tolist(), "shapes": []}
     for s in shapes:
         v, f, lab = _decimate(s.vertices, s.faces, s.labels, faces_per_shape)
@@ -126,8 +128,6 @@ def scene_data(shapes, part_count: int, faces_per_shape: int = SCENE_FACES) -> d
 
 def _thumbnails(shapes, folder: Path, overwrite: bool, progress: bool) -> dict:
     from tqdm import tqdm
-
-    from .viz.render import CANONICAL_RADIUS, ThumbnailRenderer, Tile, cuboid_layer, mesh_layer, segmentation_layer
 
     frame = np.array([[-0.5] * 3, [0.5] * 3])
     paths = {}
@@ -147,8 +147,6 @@ def _thumbnails(shapes, folder: Path, overwrite: bool, progress: bool) -> dict:
 def _similarity(shapes, results, part_names, folder: Path, thumbs: dict, overwrite: bool) -> dict:
     from PIL import Image
 
-    from . import embedding
-
     if len(shapes) < 3:
         raise ValueError(f"a similarity map needs at least 3 shapes, got {len(shapes)}")
     X = embedding.PartDescriptor(part_names=part_names).fit_transform(results)
@@ -165,9 +163,6 @@ def _similarity(shapes, results, part_names, folder: Path, thumbs: dict, overwri
 
 
 def _deformation(shapes, similarity, folder: Path, overwrite: bool) -> dict:
-    from . import deformation
-    from .viz.render import Tile, mesh_layer, segmentation_layer, write_png
-
     if len(shapes) < 2:
         raise ValueError("a deformation needs two shapes")
     src = 0
@@ -194,10 +189,6 @@ def build_report(paths, model, output, *, refine: int = 0, align=None, overwrite
     ``settings``: :class:`primkit.data.PrepareSettings` (the inputs' axes); default the model's.
     Returns ``(report, errors)``; ``errors`` has one line per unusable input (the rest goes on).
     """
-    from .model.abstractor import Abstractor
-    from .data import prepare_collection
-    from .metrics import score
-
     abstractor = model if isinstance(model, Abstractor) else Abstractor.load(model)
     coll = prepare_collection(paths, settings or abstractor.settings, cache_dir=cache_dir, workers=workers, progress=progress)
     prepared = list(coll)

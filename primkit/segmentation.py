@@ -40,6 +40,9 @@ import numpy as np
 
 from . import io, primitives
 from .model import parts
+from .viz.palette import part_colors
+from .model.abstractor import Abstractor
+from .data import parallel_map
 
 __all__ = [
     "point_labels",
@@ -164,8 +167,6 @@ class Segmentation:
         1-based code of its name) and ``<name>.parts.ply`` (the mesh, faces coloured by part with
         the colour of :func:`primkit.abstractor.part_colors`, the same on every shape).
         Returns ``{"labels": path, "mesh": path}``."""
-        from .model.abstractor import part_colors
-
         folder = Path(folder)
         folder.mkdir(parents=True, exist_ok=True)
         paths = {"labels": folder / f"{self.name}.seg", "mesh": folder / f"{self.name}.parts.ply"}
@@ -223,8 +224,6 @@ class Segmenter:
 
     def __init__(self, model, *, up: str = "+y", front: str = "+x", align=None, refine: int = 0,
                  existence_threshold: float = 0.5, prune_threshold: float | None = 0.6):
-        from .model.abstractor import Abstractor
-
         self.abstractor = model if isinstance(model, Abstractor) else Abstractor.load(model)
         self.up, self.front = up, front
         self.predict_options = {"align": align, "refine": refine, "existence_threshold": existence_threshold,
@@ -253,8 +252,6 @@ class Segmenter:
 
     def segment_results(self, results, *, workers=None, progress=True, errors=()):
         """Co-segment the source meshes of abstraction results (in parallel processes)."""
-        from .data import parallel_map
-
         jobs = [(r.source, r.cuboids, r.name, self.part_names) for r in results]
         segs, errors = [], list(errors)
         for seg, error in parallel_map(_segment_file, jobs, workers=workers, progress=progress, desc="segmenting"):

@@ -40,7 +40,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from primkit import data  # noqa: E402
-from primkit.image import views  # noqa: E402
+from primkit import image as views  # noqa: E402
 from primkit.model.abstractor import Abstractor  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data" / "shapenetvox32" / "03001627"
@@ -121,7 +121,7 @@ def model_history(path):
 def train(teacher, train_coll, work: Path, settings, args) -> None:
     import torch
 
-    from primkit.image import distill as im
+    from primkit import image as im
 
     torch.set_num_threads(args.threads)
     views_train = render_split(train_coll, work, "train-seen", args.views, "seen", 0, settings, args.limit,
@@ -182,7 +182,7 @@ def _summary(scores, seconds_per_item) -> dict:
 def evaluate(teacher, held_coll, work: Path, settings, args) -> dict:
     from PIL import Image
 
-    from primkit.image import distill as im
+    from primkit import image as im
     from primkit.metrics import ChamferConvention, score
     from primkit.model.abstractor import AbstractionResult
     from primkit.viz.render import render_abstractions

@@ -7,6 +7,8 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from primkit import metrics as M
+from primkit.geometry import lookup_distance_sq
+from primkit.primitives import union_surface_samples
 from primkit.geometry import grid_centres
 from primkit.primitives import Cuboids
 
@@ -131,7 +133,7 @@ def test_chamfer_rejects_bad_points():
 def test_union_samples_not_inside_other_present_cuboids():
     rng = np.random.default_rng(3)
     c = random_cuboids(rng, 6, present=[1, 1, 0, 1, 1, 1])
-    pts = M.union_surface_samples(c, 4000, seed=0)
+    pts = union_surface_samples(c, 4000, seed=0)
     assert pts.shape == (4000, 3)
     present = c.present
     # every sample is on the surface of some present cuboid ...
@@ -149,7 +151,7 @@ def test_union_samples_not_inside_other_present_cuboids():
 def test_union_samples_of_touching_boxes_skip_the_shared_face():
     # two unit cubes side by side: the union is a 2 x 1 x 1 box of area 10, the face x = 0 is inside
     c = axis_aligned([[0.5, 0.5, 0.5], [0.5, 0.5, 0.5]], [[-0.5, 0, 0], [0.5, 0, 0]])
-    pts = M.union_surface_samples(c, 20000, seed=1)
+    pts = union_surface_samples(c, 20000, seed=1)
     interior = (np.abs(pts[:, 0]) < 1e-9) & np.all(np.abs(pts[:, 1:]) < 0.5 - 1e-9, axis=1)
     assert not interior.any()
     ends = np.isclose(np.abs(pts[:, 0]), 1.0)
@@ -159,7 +161,7 @@ def test_union_samples_of_touching_boxes_skip_the_shared_face():
 def test_union_samples_of_duplicated_cuboid_are_area_uniform():
     # the same box twice: every face coincides, and each must be sampled once (not twice, not never)
     c = axis_aligned([[0.4, 0.1, 0.2]] * 2, [[0.0, 0.0, 0.0]] * 2)
-    pts = M.union_surface_samples(c, 20000, seed=2)
+    pts = union_surface_samples(c, 20000, seed=2)
     z = np.array([0.4, 0.1, 0.2])
     areas = np.array([z[1] * z[2], z[0] * z[2], z[0] * z[1]])
     on_axis = np.isclose(np.abs(pts), z).argmax(axis=1)
@@ -170,11 +172,11 @@ def test_union_samples_of_duplicated_cuboid_are_area_uniform():
 def test_union_samples_absent_parts_ignored_and_seeded():
     rng = np.random.default_rng(4)
     c = random_cuboids(rng, 4, present=[1, 0, 1, 0])
-    a = M.union_surface_samples(c, 1000, seed=7)
-    b = M.union_surface_samples(c.subset(c.present), 1000, seed=7)
+    a = union_surface_samples(c, 1000, seed=7)
+    b = union_surface_samples(c.subset(c.present), 1000, seed=7)
     np.testing.assert_array_equal(a, b)
     with pytest.raises(ValueError):
-        M.union_surface_samples(c.with_existence(np.zeros(4, bool)), 10)
+        union_surface_samples(c.with_existence(np.zeros(4, bool)), 10)
 
 
 def test_cuboid_chamfer_same_cuboid_near_zero_and_grows_with_shift():
@@ -296,13 +298,13 @@ def test_coverage_matches_brute_force():
 
 def test_lookup_matches_the_torch_distance_field():
     torch = pytest.importorskip("torch")
-    from primkit.model.distance_field import lookup_distance_sq
+    from primkit.model.distance_field import lookup_distance_sq as torch_lookup_distance_sq
 
     rng = np.random.default_rng(8)
     closest = rng.uniform(-0.5, 0.5, size=(6, 6, 6, 3)).astype(np.float32)
     pts = rng.uniform(-0.7, 0.7, size=(500, 3))  # some outside the grid
-    ours = M.lookup_distance_sq(closest, pts)
-    ref = lookup_distance_sq(torch.from_numpy(closest[None]).double(), torch.from_numpy(pts[None]))[0].numpy()
+    ours = lookup_distance_sq(closest, pts)
+    ref = torch_lookup_distance_sq(torch.from_numpy(closest[None]).double(), torch.from_numpy(pts[None]))[0].numpy()
     np.testing.assert_allclose(ours, ref, rtol=1e-12, atol=1e-15)
 
 
@@ -312,7 +314,7 @@ def test_lookup_brute_force_eight_cells():
     closest = rng.uniform(-0.5, 0.5, size=(res, res, res, 3))
     pts = rng.uniform(-0.4, 0.4, size=(50, 3))  # between the outermost cell centres (+-0.4)
     centres = grid_centres(res)
-    for x, got in zip(pts, M.lookup_distance_sq(closest, pts)):
+    for x, got in zip(pts, lookup_distance_sq(closest, pts)):
         # the 8 cell centres around x: those within one cell spacing along every axis
         near = np.all(np.abs(centres - x) <= 1.0 / res, axis=-1)
         # exactly 8 such cells (almost surely: x is on no centre plane)
@@ -348,7 +350,7 @@ def test_consistency_is_area_weighted_mean():
     from primkit.primitives import sample_surface
 
     s = sample_surface(c.subset(c.present), 60, seed=4)
-    d2 = M.lookup_distance_sq(closest, s.points.reshape(-1, 3)).reshape(s.weights.shape)
+    d2 = lookup_distance_sq(closest, s.points.reshape(-1, 3)).reshape(s.weights.shape)
     expected = (s.weights * d2).sum() / s.weights.sum()
     assert M.consistency_error(c, closest, samples_per_cuboid=60, seed=4) == pytest.approx(expected, rel=1e-12)
 

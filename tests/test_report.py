@@ -79,7 +79,7 @@ def test_report_loads_in_headless_chromium(report_dir, tmp_path):
     assert not bad, bad
     from PIL import Image
 
-    from primkit.model.abstractor import part_colors
+    from primkit.viz.palette import part_colors
 
     img = np.asarray(Image.open(shot).convert("RGB")).astype(int)
     # the page shows the shapes: thumbnails and the 3D scene carry part colours (shaded, so match loosely)

@@ -249,7 +249,7 @@ def _cmd_demo(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from .. import __version__
+    from ..version import __version__
 
     parser = argparse.ArgumentParser(prog="primkit", description="Explain 3D shapes with a few cuboids (Tulsiani et al. 2017).")
     parser.add_argument("--version", action="version", version=f"primkit {__version__}")

@@ -14,9 +14,31 @@ from pathlib import Path
 
 import numpy as np
 
+from ..model.parts import resolve_parts
 from ._common import err, report_errors, settings_from_args
 
-__all__ = ["register"]
+__all__ = ["register", "parse_edit", "write_like"]
+
+
+def parse_edit(text: str, names, *, kind: str) -> dict:
+    """``"legs=1.3"`` / ``"back=15"`` / ``"seat=0,0.05,0"`` -> {slot: value} for every slot the
+    part name or index selects (:func:`primkit.model.parts.resolve_parts`). ``kind`` is ``"scale"``
+    (1 or 3 numbers), ``"rotate"`` (1 number), ``"move"`` (3 numbers) or ``"lengthen"`` (1
+    number, ``"legs=1.3"``)."""
+    if "=" not in text:
+        raise ValueError(f"--{kind} {text!r}: expected PART=VALUE, e.g. legs=1.3")
+    spec, value = text.split("=", 1)
+    try:
+        numbers = [float(x) for x in value.split(",")]
+    except ValueError:
+        raise ValueError(f"--{kind} {text!r}: {value!r} is not a number or a comma-separated list of numbers") from None
+    allowed = {"scale": (1, 3), "rotate": (1,), "move": (3,), "lengthen": (1,)}[kind]
+    if len(numbers) not in allowed:
+        raise ValueError(f"--{kind} {text!r}: expected {' or '.join(map(str, allowed))} number(s), got {len(numbers)}")
+    if not all(np.isfinite(numbers)):
+        raise ValueError(f"--{kind} {text!r}: values must be finite")
+    val = numbers[0] if len(numbers) == 1 else np.array(numbers)
+    return {int(k): val for k in resolve_parts(spec, names)}
 
 
 def _outputs(args) -> tuple[Path, Path | None, Path]:
@@ -123,7 +145,8 @@ def _named(q, names):
 def _cmd_deform(args) -> int:
     from .. import deformation
     from ..io import atomic_output
-    from ..viz.render import CANONICAL_RADIUS, Tile, cuboid_layer, write_png
+    from ..viz.camera import CANONICAL_RADIUS
+    from ..viz.render import Tile, cuboid_layer, write_png
 
     out, png, js = _outputs(args)
     src, tgt = Path(args.source), Path(args.target)
@@ -168,7 +191,8 @@ def _cmd_deform(args) -> int:
 def _cmd_edit(args) -> int:
     from .. import deformation
     from ..io import atomic_output
-    from ..viz.render import CANONICAL_RADIUS, write_png
+    from ..viz.camera import CANONICAL_RADIUS
+    from ..viz.render import write_png
 
     out, png, js = _outputs(args)
     from ..model.abstractor import Abstractor
@@ -179,7 +203,7 @@ def _cmd_edit(args) -> int:
     edits = {"scale": {}, "rotate": {}, "move": {}, "lengthen": {}}
     for kind in edits:  # checked before any shape is read
         for text in getattr(args, kind) or []:
-            edits[kind].update(deformation.parse_edit(text, names, kind=kind))
+            edits[kind].update(parse_edit(text, names, kind=kind))
     if not any(edits.values()):
         err("nothing to edit: give --scale, --rotate, --move or --lengthen")
         return 2

@@ -61,7 +61,7 @@ def _abstract(args, files):
 def _thumb_meshes(results, grids, kind, selected):
     """One mesh per shape for its thumbnail: the voxel boundary, or the cuboids coloured by part
     index with the unselected parts grey."""
-    from ..model.abstractor import part_colors
+    from ..viz.palette import part_colors
     from ..geometry import voxel_boundary_mesh
 
     meshes = []

@@ -43,8 +43,8 @@ def run_abstract_images(args) -> int:
 
     ``args``: ``.inputs`` (image files or folders), ``.model``, ``.output``, ``.force``, ``.png``.
     """
-    from ..model.abstractor import part_colors
-    from ..image.distill import ImageAbstractor, draw_over_image
+    from ..viz.palette import part_colors
+    from ..image.inference import ImageAbstractor, draw_over_image
     from ..io import atomic_output, refuse_existing, write_mesh
 
     try:
@@ -81,9 +81,11 @@ def run_train_image(args) -> int:
     import torch
 
     from .. import data
-    from ..image import views
+    from .. import image as views
     from ..model.abstractor import Abstractor
-    from ..image.distill import ImageAbstractor, ImageNetConfig, ImageTrainConfig, train_image_model
+    from ..image.inference import ImageAbstractor
+    from ..image.network import ImageNetConfig
+    from ..image.distill import ImageTrainConfig, train_image_model
     from ..io import refuse_existing
 
     out = Path(args.output)

@@ -57,7 +57,7 @@ def _print_evaluation(report, shapes) -> None:
 
 
 def _picture(segs, path, limit: int = 16) -> None:
-    from ..model.abstractor import part_colors
+    from ..viz.palette import part_colors
     from ..viz.render import render_pairs
 
     items = []

@@ -1,18 +1,11 @@
 """Training views: pictures of shapes rendered off screen, with their cameras, cached to disk.
 
-The image abstractor (:mod:`primkit.image_model`) learns from pictures of shapes whose cuboids the
+The image abstractor (:mod:`primkit.image.distill`) learns from pictures of shapes whose cuboids the
 volume model already knows. This module makes those pictures: a shape's surface in its canonical
 frame (+Y up, front toward +X, longest side 1), seen from a random viewpoint around the upright
 shape, under random lighting and a random object colour, composited over a random background.
 
-Camera convention (written once, here)::
-
-    position = distance * (cos(el) cos(az), sin(el), -cos(el) sin(az))    looking at the origin, +Y up
-    az = 0: seen from the front (+X); az = 90 deg: from the shape's right (-Z); el > 0: from above
-    view_angle: vertical field of view (VTK's); images are square, pixel (0, 0) is the top left
-
-:func:`project` maps canonical points to pixels with exactly this camera; a test checks it against
-the rendered silhouette.
+The camera is :class:`primkit.image.camera.Camera` (its convention is written there).
 
 Decisions:
 
@@ -30,7 +23,7 @@ Decisions:
 * **Foregrounds for background swapping.** ``render_views(..., keep_foreground=True)`` also keeps
   each view's shape alone (``foreground``: colour premultiplied by coverage, and ``alpha``), so
   that training can lay a fresh background under every view at every step
-  (:func:`primkit.image_model.train_image_model`) instead of learning one fixed background per view.
+  (:func:`primkit.image.distill.train_image_model`) instead of learning one fixed background per view.
 * **Anti-aliasing** by rendering at ``supersample`` times the size and averaging blocks.
 * **Determinism.** Every random choice of view ``j`` of shape ``i`` comes from
   ``np.random.default_rng([seed, i, j])``, so a view does not depend on which other views are
@@ -42,99 +35,18 @@ Decisions:
 
 from __future__ import annotations
 
-import colorsys
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from .. import geometry
+from ..geometry import voxel_boundary_mesh
+from ..io import atomic_output
+from ..viz.backend import pyvista_module
+from .backgrounds import PALETTES, random_background, random_colour
+from .camera import Camera, ViewSettings, random_camera
 
-__all__ = [
-    "ViewSettings",
-    "Camera",
-    "RenderedViews",
-    "ViewRenderer",
-    "shape_surface",
-    "random_background",
-    "project",
-    "render_views",
-    "load_views",
-]
-
-PALETTES = ("seen", "unseen")
-#: hue ranges (HSV hue in [0, 1)) of the background palettes
-PALETTE_HUES = {"seen": (0.0, 0.5), "unseen": (0.5, 1.0)}
-
-
-@dataclass(frozen=True)
-class ViewSettings:
-    """How views are drawn. ``size`` is the image side in pixels (what the image network reads)."""
-
-    size: int = 64
-    supersample: int = 2
-    elevation_deg: tuple = (0.0, 40.0)
-    distance: tuple = (1.9, 2.3)
-    view_angle_deg: float = 35.0
-
-    def to_dict(self) -> dict:
-        d = asdict(self)
-        d["elevation_deg"] = list(self.elevation_deg)
-        d["distance"] = list(self.distance)
-        return d
-
-    @classmethod
-    def from_dict(cls, d: dict) -> "ViewSettings":
-        d = dict(d)
-        d["elevation_deg"] = tuple(d["elevation_deg"])
-        d["distance"] = tuple(d["distance"])
-        return cls(**d)
-
-
-@dataclass(frozen=True)
-class Camera:
-    """A camera looking at the origin of the canonical frame with +Y up (see the module docstring)."""
-
-    azimuth_deg: float
-    elevation_deg: float
-    distance: float
-    view_angle_deg: float
-
-    @property
-    def position(self) -> np.ndarray:
-        """``(3,) float``: the camera centre in the canonical frame."""
-        az, el = np.radians(self.azimuth_deg), np.radians(self.elevation_deg)
-        return self.distance * np.array([np.cos(el) * np.cos(az), np.sin(el), -np.cos(el) * np.sin(az)])
-
-    def as_array(self) -> np.ndarray:
-        """``(4,) float``: azimuth, elevation (degrees), distance, view angle (degrees)."""
-        return np.array([self.azimuth_deg, self.elevation_deg, self.distance, self.view_angle_deg], float)
-
-    @classmethod
-    def from_array(cls, a) -> "Camera":
-        a = np.asarray(a, float)
-        return cls(float(a[0]), float(a[1]), float(a[2]), float(a[3]))
-
-
-def project(points: np.ndarray, camera: Camera, size: int) -> np.ndarray:
-    """Pixel coordinates of canonical points seen by ``camera`` in a ``size`` x ``size`` image.
-
-    points : (n, 3) float. Returns ``(n, 2) float`` as (column, row), (0, 0) the top-left corner of
-    the top-left pixel; points behind the camera come back as NaN.
-    """
-    points = np.asarray(points, float).reshape(-1, 3)
-    eye = camera.position
-    forward = -eye / np.linalg.norm(eye)
-    right = np.cross(forward, [0.0, 1.0, 0.0])
-    right /= np.linalg.norm(right)
-    up = np.cross(right, forward)
-    d = points - eye
-    x, y, z = d @ right, d @ up, d @ forward
-    f = (size / 2.0) / np.tan(np.radians(camera.view_angle_deg) / 2.0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        uv = np.stack([size / 2.0 + f * x / z, size / 2.0 - f * y / z], axis=1)
-    uv[z <= 1e-9] = np.nan
-    return uv
+__all__ = ["RenderedViews", "ViewRenderer", "shape_surface", "render_views", "render_views_cached", "load_views"]
 
 
 def shape_surface(occupancy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -144,9 +56,7 @@ def shape_surface(occupancy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     Returns ``vertices (n, 3) float, faces (f, 3) int`` (VTK's flying-edges contour at 0.5 of the
     grid padded by one empty cell; the voxel boundary if the contour is empty).
     """
-    from ..viz.render import _pyvista
-
-    pv = _pyvista()
+    pv = pyvista_module()
     occ = np.asarray(occupancy, bool)
     r = occ.shape[0]
     padded = np.pad(occ, 1).astype(np.float32)
@@ -154,60 +64,10 @@ def shape_surface(occupancy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     image.point_data["occ"] = padded.ravel(order="F")
     surface = image.contour([0.5], scalars="occ")
     if surface.n_cells == 0:
-        return geometry.voxel_boundary_mesh(occ)
+        return voxel_boundary_mesh(occ)
     surface = surface.triangulate()
     faces = surface.faces.reshape(-1, 4)[:, 1:]
     return np.asarray(surface.points, float), faces.astype(np.int64)
-
-
-def _colour(rng, hues, saturation=(0.2, 0.9), value=(0.25, 1.0)) -> np.ndarray:
-    h = rng.uniform(*hues)
-    return np.array(colorsys.hsv_to_rgb(h % 1.0, rng.uniform(*saturation), rng.uniform(*value)))
-
-
-def _smooth_noise(rng, size: int, cells: int) -> np.ndarray:
-    """``(size, size) float`` in [0, 1]: a ``cells`` x ``cells`` random grid, bilinearly upsampled."""
-    from scipy.ndimage import zoom
-
-    g = rng.uniform(0, 1, (cells + 1, cells + 1))
-    z = zoom(g, size / (cells + 1), order=1, mode="nearest")[:size, :size]
-    z = np.pad(z, ((0, size - z.shape[0]), (0, size - z.shape[1])), mode="edge")
-    return (z - z.min()) / max(z.max() - z.min(), 1e-9)
-
-
-def random_background(size: int, rng: np.random.Generator, palette: str = "seen") -> np.ndarray:
-    """A background image ``(size, size, 3) float`` in [0, 1] from one of the two palettes
-    (see the module docstring: ``"seen"`` for training, ``"unseen"`` held out for evaluation)."""
-    if palette not in PALETTES:
-        raise ValueError(f"palette must be one of {PALETTES}, got {palette!r}")
-    hues = PALETTE_HUES[palette]
-    a, b = _colour(rng, hues), _colour(rng, hues)
-    yy, xx = np.mgrid[0:size, 0:size] / max(size - 1, 1)
-    if palette == "seen":
-        kind = rng.integers(3)
-        if kind == 0:  # solid
-            w = np.zeros((size, size))
-        elif kind == 1:  # linear gradient in a random direction
-            t = rng.uniform(0, 2 * np.pi)
-            w = np.cos(t) * xx + np.sin(t) * yy
-            w = (w - w.min()) / max(w.max() - w.min(), 1e-9)
-        else:  # smooth noise
-            w = _smooth_noise(rng, size, int(rng.integers(2, 6)))
-    else:
-        kind = rng.integers(4)
-        if kind == 0:  # radial gradient
-            c = rng.uniform(0, 1, 2)
-            w = np.clip(np.hypot(xx - c[0], yy - c[1]) / 1.2, 0, 1)
-        elif kind == 1:  # stripes
-            t = rng.uniform(0, np.pi)
-            period = rng.uniform(0.08, 0.3)
-            w = (np.floor((np.cos(t) * xx + np.sin(t) * yy) / period) % 2).astype(float)
-        elif kind == 2:  # checker
-            period = rng.uniform(0.08, 0.3)
-            w = ((np.floor(xx / period) + np.floor(yy / period)) % 2).astype(float)
-        else:  # fine noise
-            w = _smooth_noise(rng, size, int(rng.integers(10, 24)))
-    return a * (1 - w[..., None]) + b * w[..., None]
 
 
 @dataclass(frozen=True)
@@ -260,8 +120,6 @@ class RenderedViews:
         """Write an ``.npz`` file (atomically; replaces an existing one: it is a cache)."""
         import json
 
-        from ..io import atomic_output
-
         meta = {"names": list(self.names), "settings": self.settings.to_dict(), "palette": self.palette, "seed": self.seed}
         extra = {} if self.foreground is None else {"foreground": self.foreground, "alpha": self.alpha}
         with atomic_output(path, overwrite=True) as tmp:
@@ -290,10 +148,8 @@ class ViewRenderer:
     """
 
     def __init__(self, settings: ViewSettings = ViewSettings()):
-        from ..viz.render import _pyvista
-
         self.settings = settings
-        self._pv = _pyvista()
+        self._pv = pyvista_module()
         big = settings.size * settings.supersample
         self._plotter = self._pv.Plotter(off_screen=True, window_size=(big, big), lighting="none")
         self._plotter.set_background("black")
@@ -316,7 +172,7 @@ class ViewRenderer:
         pv, pl, s = self._pv, self._plotter, self.settings
         faces = np.asarray(faces, np.int64)
         mesh = pv.PolyData(np.asarray(vertices, float), np.hstack([np.full((len(faces), 1), 3), faces]).ravel())
-        colour = _colour(rng, (0.0, 1.0), saturation=(0.0, 0.8), value=(0.35, 1.0))
+        colour = random_colour(rng, (0.0, 1.0), saturation=(0.0, 0.8), value=(0.35, 1.0))
         pl.add_mesh(mesh, color=colour, name="shape", smooth_shading=True,
                     ambient=rng.uniform(0.1, 0.35), diffuse=rng.uniform(0.6, 0.9),
                     specular=rng.uniform(0.0, 0.4), specular_power=rng.uniform(5, 30))
@@ -335,12 +191,6 @@ class ViewRenderer:
         k = s.supersample
         rgba = rgba.reshape(s.size, k, s.size, k, 4).mean(axis=(1, 3))
         return rgba[..., :3], rgba[..., 3]
-
-
-def random_camera(rng: np.random.Generator, settings: ViewSettings) -> Camera:
-    """Azimuth uniform all around, elevation and distance uniform in the settings' ranges."""
-    return Camera(float(rng.uniform(0, 360)), float(rng.uniform(*settings.elevation_deg)),
-                  float(rng.uniform(*settings.distance)), float(settings.view_angle_deg))
 
 
 def render_views(

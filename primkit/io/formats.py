@@ -1,67 +1,17 @@
-"""Read and write shapes: meshes, point clouds, voxel grids and per-face labels.
-
-Every reader returns one small value type (:class:`Mesh`, :class:`PointCloud`,
-:class:`VoxelGrid`) or a plain array, and every failure is a :class:`ShapeFileError` whose
-text is one line, ``"<path>: <reason>"``. Writers never replace an existing file unless asked
-(``overwrite=True``) and write through :func:`atomic_output`, so a crash never leaves half a
-file behind. Input files are never modified.
-
-Why trimesh is the format library
----------------------------------
-trimesh is pure Python on top of NumPy, so it installs everywhere. It reads OBJ, PLY, OFF, STL,
-GLB and GLTF, including scenes whose nodes carry transforms, it triangulates polygons, and it
-keeps vertex and face order when asked (``process=False``). It writes per-face colours to PLY,
-and per-vertex colours to GLB. Open3D's reader keeps no per-face colours at all, and on a
-missing or broken file it logs a warning and returns an empty mesh instead of raising.
-
-Three things are written here rather than by trimesh, each in a few lines:
-
-* OFF and OBJ text, with ``%.17g`` coordinates, so float64 vertices survive a round trip
-  exactly (trimesh writes a fixed number of decimals).
-* OBJ per-face colours: one material per distinct colour in a ``.mtl`` file beside the
-  ``.obj``, with a ``usemtl`` before each run of equal colours, so the faces stay in order.
-* binvox decoding: a short NumPy run-length decoder whose axis order is spelled out below.
-
-Face order
-----------
-Per-face label files (``.seg``) index faces in file order, so readers keep it: OFF, PLY, STL and
-triangle-only OBJ faces come back exactly in file order. Meshes with a few degenerate faces are
-kept as they are (no face is dropped). Polygons with more than three corners are triangulated
-by trimesh, which groups the resulting triangles by polygon size. After that the triangles no
-longer line up with the file's faces. Label files can only be matched against triangle-only
-meshes, and :func:`read_labels` with ``face_count`` raises when the counts differ, as they
-always do for a mesh with a polygon face.
-
-Formats
--------
-* Meshes: ``.obj .ply .off .stl .glb .gltf``. STL stores every triangle with its own three
-  corners, so exactly equal corners are merged on reading (vertices in order of first use;
-  the faces keep their order). A GLB or GLTF scene is flattened: every mesh node, with its
-  scene-graph transform applied, in the scene graph's node order.
-* Points: ``.xyz`` (whitespace text, 3 columns, or 6 with normals), ``.npy`` ((n, 3) or
-  (n, 6)) and ``.ply`` without faces. A ``.ply`` with faces is a mesh.
-* Voxels: ``.binvox``, see :class:`VoxelGrid` for the axis order.
-* Labels: ``.seg``, one integer per line, one line per face.
-
-PLY, GLB and STL store vertices as float32; OFF, OBJ and the point formats keep float64.
-"""
+"""Shape, point and label file formats: the readers and writers (see :mod:`primkit.io` for the
+formats, the face order and why trimesh reads and writes them)."""
 
 from __future__ import annotations
 
-import os
-import secrets
-from contextlib import contextmanager
-from dataclasses import dataclass
 from io import BytesIO, StringIO
 from pathlib import Path
 
 import numpy as np
 
+from .files import atomic_output
+from .values import Mesh, PointCloud, ShapeFileError, VoxelGrid
+
 __all__ = [
-    "ShapeFileError",
-    "Mesh",
-    "PointCloud",
-    "VoxelGrid",
     "MESH_SUFFIXES",
     "POINT_SUFFIXES",
     "VOXEL_SUFFIXES",
@@ -75,190 +25,26 @@ __all__ = [
     "write_mesh",
     "write_labels",
     "write_points",
-    "atomic_output",
-    "refuse_existing",
 ]
 
+
 MESH_SUFFIXES = (".obj", ".ply", ".off", ".stl", ".glb", ".gltf")
+
+
 POINT_SUFFIXES = (".xyz", ".npy", ".ply")
+
+
 VOXEL_SUFFIXES = (".binvox",)
+
+
 LABEL_SUFFIXES = (".seg",)
+
 
 # suffixes write_mesh / write_points can produce
 _MESH_WRITE_SUFFIXES = (".ply", ".obj", ".glb", ".off", ".stl")
+
+
 _POINT_WRITE_SUFFIXES = (".ply", ".xyz", ".npy")
-
-
-class ShapeFileError(ValueError):
-    """A shape or label file that cannot be used, with the reason on one line.
-
-    ``str(err) == f"{path}: {reason}"``; ``err.path`` and ``err.reason`` keep the parts.
-    """
-
-    def __init__(self, path, reason):
-        reason = " ".join(str(reason).split())
-        self.path = path
-        self.reason = reason
-        super().__init__(f"{path}: {reason}")
-
-    def __reduce__(self):
-        # rebuild from both parts so the error survives pickling (worker processes)
-        return (type(self), (self.path, self.reason))
-
-
-# --------------------------------------------------------------------------------------
-# value types
-
-
-@dataclass(frozen=True, eq=False)
-class Mesh:
-    """A triangle mesh.
-
-    Attributes
-    ----------
-    vertices : (n, 3) float64
-      Vertex positions.
-    faces : (f, 3) int64
-      Indices into ``vertices``, with the winding and order of the file they came from.
-    """
-
-    vertices: np.ndarray
-    faces: np.ndarray
-
-    def __post_init__(self):
-        vertices = np.asarray(self.vertices, dtype=np.float64)
-        if vertices.ndim != 2 or vertices.shape[1] != 3:
-            raise ValueError(f"`vertices` must be (n, 3) float, got shape {vertices.shape}")
-        faces = np.asarray(self.faces)
-        if faces.size == 0:
-            faces = faces.reshape((0, 3))
-        if faces.ndim != 2 or faces.shape[1] != 3:
-            raise ValueError(f"`faces` must be (f, 3) int, got shape {faces.shape}")
-        if faces.size and not np.issubdtype(faces.dtype, np.integer):
-            raise ValueError(f"`faces` must be (f, 3) int, got dtype {faces.dtype}")
-        object.__setattr__(self, "vertices", vertices)
-        object.__setattr__(self, "faces", faces.astype(np.int64, copy=False))
-
-    def __repr__(self):
-        return f"Mesh(vertices={self.vertices.shape}, faces={self.faces.shape})"
-
-    def face_areas(self) -> np.ndarray:
-        """Area of every face.
-
-        Returns
-        -------
-        areas : (f,) float
-        """
-        corners = self.vertices[self.faces]
-        cross = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-        return 0.5 * np.linalg.norm(cross, axis=1)
-
-    def area(self) -> float:
-        """Total surface area."""
-        return float(self.face_areas().sum())
-
-    def bounds(self) -> np.ndarray:
-        """Axis-aligned bounding box of the vertices.
-
-        Returns
-        -------
-        bounds : (2, 3) float
-          ``[min, max]`` corners.
-        """
-        if len(self.vertices) == 0:
-            raise ValueError("a mesh without vertices has no bounds")
-        return np.stack([self.vertices.min(axis=0), self.vertices.max(axis=0)])
-
-
-@dataclass(frozen=True, eq=False)
-class PointCloud:
-    """A set of points, with optional normals.
-
-    Attributes
-    ----------
-    points : (n, 3) float64
-    normals : (n, 3) float64 or None
-    """
-
-    points: np.ndarray
-    normals: np.ndarray | None = None
-
-    def __post_init__(self):
-        points = np.asarray(self.points, dtype=np.float64)
-        if points.ndim != 2 or points.shape[1] != 3:
-            raise ValueError(f"`points` must be (n, 3) float, got shape {points.shape}")
-        object.__setattr__(self, "points", points)
-        if self.normals is not None:
-            normals = np.asarray(self.normals, dtype=np.float64)
-            if normals.shape != points.shape:
-                raise ValueError(
-                    f"`normals` must be (n, 3) float like `points` {points.shape}, "
-                    f"got shape {normals.shape}"
-                )
-            object.__setattr__(self, "normals", normals)
-
-    def __repr__(self):
-        normals = None if self.normals is None else self.normals.shape
-        return f"PointCloud(points={self.points.shape}, normals={normals})"
-
-
-@dataclass(frozen=True, eq=False)
-class VoxelGrid:
-    """A cubic occupancy grid in the coordinates of the model it was made from.
-
-    Attributes
-    ----------
-    occupancy : (R, R, R) bool
-      Indexed ``[x, y, z]``. For ShapeNetVox32 files +y is up and chair backs lie toward low x.
-    translate : (3,) float64
-      Model coordinates of the grid's minimum corner.
-    scale : float
-      Side length of the whole grid in model units.
-
-    The centre of voxel ``idx = (i, j, k)`` is ``translate + (idx + 0.5) / R * scale``.
-    """
-
-    occupancy: np.ndarray
-    translate: np.ndarray
-    scale: float
-
-    def __post_init__(self):
-        occupancy = np.asarray(self.occupancy, dtype=bool)
-        if occupancy.ndim != 3 or len(set(occupancy.shape)) != 1:
-            raise ValueError(f"`occupancy` must be (R, R, R) bool, got shape {occupancy.shape}")
-        translate = np.asarray(self.translate, dtype=np.float64)
-        if translate.shape != (3,):
-            raise ValueError(f"`translate` must be (3,) float, got shape {translate.shape}")
-        object.__setattr__(self, "occupancy", occupancy)
-        object.__setattr__(self, "translate", translate)
-        object.__setattr__(self, "scale", float(self.scale))
-
-    def __repr__(self):
-        return (
-            f"VoxelGrid(resolution={self.resolution}, occupied={int(self.occupancy.sum())}, "
-            f"translate={self.translate.tolist()}, scale={self.scale})"
-        )
-
-    @property
-    def resolution(self) -> int:
-        """Cells per axis, ``R``."""
-        return int(self.occupancy.shape[0])
-
-    def voxel_centres(self) -> np.ndarray:
-        """Centre of every voxel in model coordinates.
-
-        Returns
-        -------
-        centres : (R, R, R, 3) float
-          ``centres[i, j, k] = translate + ((i, j, k) + 0.5) / R * scale``.
-        """
-        r = self.resolution
-        index = np.stack(np.meshgrid(*(np.arange(r),) * 3, indexing="ij"), axis=-1)
-        return self.translate + (index + 0.5) / r * self.scale
-
-
-# --------------------------------------------------------------------------------------
-# reading
 
 
 def is_shape_file(path) -> bool:
@@ -420,60 +206,6 @@ def read_labels(path, face_count: int | None = None) -> np.ndarray:
     return labels
 
 
-# --------------------------------------------------------------------------------------
-# writing
-
-
-def refuse_existing(paths, overwrite: bool = False) -> None:
-    """Raise ``FileExistsError("<path>: exists (use --force to overwrite)")`` for the first of
-    ``paths`` (one path or several; None entries skipped) that exists, unless ``overwrite``.
-
-    Writers call it before they start work, so that nothing a user made is replaced without
-    ``--force``; :func:`atomic_output` makes the same check when it writes.
-    """
-    if overwrite:
-        return
-    for path in [paths] if isinstance(paths, (str, os.PathLike)) else paths:
-        if path is not None and os.path.lexists(path):
-            raise FileExistsError(f"{path}: exists (use --force to overwrite)")
-
-
-@contextmanager
-def atomic_output(path, *, overwrite=False):
-    """Write a file so that it appears complete or not at all.
-
-    Yields a temporary path in the same folder, with the same suffix; when the block ends
-    without an exception the temporary is moved onto ``path`` with ``os.replace``. On an
-    exception the temporary is removed and ``path`` is untouched.
-
-    Parameters
-    ----------
-    path : str or Path
-      Final location.
-    overwrite : bool
-      Replace an existing file. Without it an existing ``path`` raises
-      ``FileExistsError(f"{path}: exists (use --force to overwrite)")``.
-
-    Yields
-    ------
-    temporary : Path
-      An empty file to write to.
-    """
-    path = Path(path)
-    refuse_existing(path, overwrite)
-    temporary = _create_temporary(path)
-    try:
-        yield temporary
-        refuse_existing(path, overwrite)  # appeared while we were writing
-        os.replace(temporary, path)
-    except BaseException:
-        try:
-            temporary.unlink()
-        except FileNotFoundError:
-            pass
-        raise
-
-
 def write_mesh(path, vertices, faces, face_colors=None, *, overwrite=False) -> Path:
     """Write a triangle mesh, optionally with one colour per face.
 
@@ -592,10 +324,6 @@ def write_points(path, points, *, normals=None, overwrite=False) -> Path:
             )
             temporary.write_bytes(header.encode("ascii") + columns.astype("<f8").tobytes())
     return path
-
-
-# --------------------------------------------------------------------------------------
-# helpers
 
 
 def _short(exc: BaseException, limit: int = 120) -> str:
@@ -838,17 +566,6 @@ def _write_suffix(path: Path, allowed, what: str) -> str:
     if suffix not in allowed:
         raise ValueError(f"{path}: cannot write {what} as '{suffix}' (expected one of {', '.join(allowed)})")
     return suffix
-
-
-def _create_temporary(path: Path) -> Path:
-    """Create an empty, uniquely named file beside ``path`` with the same suffix."""
-    while True:
-        temporary = path.with_name(f".{path.name}.{secrets.token_hex(4)}.tmp{path.suffix}")
-        try:
-            os.close(os.open(temporary, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666))
-        except FileExistsError:
-            continue
-        return temporary
 
 
 def _vertex_lines(vertices, prefix: str) -> str:

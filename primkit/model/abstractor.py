@@ -35,16 +35,13 @@ import numpy as np
 
 from .. import data, io, primitives
 from . import orientation
+from .bundled import resolve_model
+from ..viz.palette import part_colors
+from .fitting import fit_losses
+from .fitting import refine as refine_cuboids
+from .network import load_network
 
-__all__ = ["Abstractor", "AbstractionResult", "abstract", "part_colors"]
-
-
-def part_colors(count: int) -> np.ndarray:
-    """A fixed colour per part index: ``(count, 3) uint8`` (matplotlib's tab20, then repeated)."""
-    from matplotlib import colormaps
-
-    cmap = colormaps["tab20"]
-    return (np.array([cmap(i % 20)[:3] for i in range(count)]) * 255).astype(np.uint8)
+__all__ = ["Abstractor", "AbstractionResult", "abstract"]
 
 
 @dataclass(frozen=True)
@@ -122,9 +119,6 @@ class Abstractor:
     @classmethod
     def load(cls, path, device: str | None = None) -> "Abstractor":
         """Load a model file written by ``primkit train``, or a bundled model by name (``"chair"``)."""
-        from .bundled import resolve_model
-        from .training import load_network
-
         net, meta = load_network(resolve_model(path))
         return cls(net, meta, device)
 
@@ -179,8 +173,6 @@ class Abstractor:
         canonical frame, the input axes it takes as up and front, and the losses of the identity
         and of the best orientation.
         """
-        from .fitting import fit_losses
-
         turned = [orientation.rotate_prepared(shape, a) for a in orientation.AXIS_ROTATIONS]
         raw = self.predict_canonical(np.stack([t.occupancy for t in turned]))
         cubs = [self._cuboids(raw, i, existence_threshold) for i in range(len(turned))]
@@ -238,8 +230,6 @@ class Abstractor:
             cubs.append(cub)
         refinements = [None] * len(shapes)
         if refine:
-            from .fitting import refine as refine_cuboids
-
             refined = []
             for i in range(0, len(shapes), batch_size):
                 part, losses = refine_cuboids(cubs[i : i + batch_size], shapes[i : i + batch_size], refine, seed=seed)

@@ -41,6 +41,8 @@ from pathlib import Path
 
 import torch
 from torch import Tensor
+from ..version import __version__
+from ..io import atomic_output
 
 __all__ = [
     "FORMAT",
@@ -130,7 +132,6 @@ def save_model(
             f"{path}: file exists; pass overwrite=True (--force on the command line) to replace it"
         )
 
-    from .. import __version__
     from safetensors.torch import save_file
 
     full = dict(metadata)
@@ -143,8 +144,6 @@ def save_model(
     header = {METADATA_KEY: json.dumps(full, allow_nan=False, sort_keys=True)}
     # clone: safetensors refuses tensors sharing storage and needs contiguous CPU memory.
     tensors = {k: v.detach().to("cpu").contiguous().clone() for k, v in state_dict.items()}
-
-    from ..io import atomic_output  # temporary beside the target, created with the user's umask
 
     with atomic_output(path, overwrite=True) as tmp:
         save_file(tensors, str(tmp), metadata=header)

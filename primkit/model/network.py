@@ -75,12 +75,15 @@ import torch
 from torch import Tensor, nn
 from torch.nn import functional as F
 
+from .modelfile import load_model
+
 __all__ = [
     "INITIAL_EXISTENCE",
     "INITIAL_HALF_EXTENT",
     "AbstractionNet",
     "NetworkConfig",
     "PrimitivePrediction",
+    "load_network",
 ]
 
 #: Half-extent of every part at initialisation (the released code's starting size).
@@ -367,3 +370,13 @@ class AbstractionNet(nn.Module):
             f"parts={self.config.parts}, grid={self.config.grid}, encoder={self.config.encoder!r}, "
             f"shape_scale={self.shape_scale:g}, existence_scale={self.existence_scale:g}"
         )
+
+
+def load_network(path, map_location="cpu") -> tuple[AbstractionNet, dict]:
+    """Network and metadata from a model file (or a checkpoint) written by :func:`primkit.model.training.train`."""
+    weights, meta = load_model(path, map_location=map_location)
+    net = AbstractionNet(NetworkConfig.from_dict(meta["network"]))
+    state = {k[len("model."):]: v for k, v in weights.items() if k.startswith("model.")} or weights
+    net.load_state_dict(state)
+    net.eval()
+    return net, meta

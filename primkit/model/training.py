@@ -35,7 +35,7 @@ from . import modelfile
 from .losses import LossWeights, MovingBaseline, reinforce_surrogate, shape_losses
 from .network import AbstractionNet, NetworkConfig
 
-__all__ = ["TrainConfig", "ShapeTensors", "PreparedDataset", "TrainResult", "train", "load_network"]
+__all__ = ["TrainConfig", "ShapeTensors", "PreparedDataset", "TrainResult", "train"]
 
 
 @dataclass(frozen=True)
@@ -241,16 +241,6 @@ def _plot_history(history, path, stage1: int) -> None:
     with io.atomic_output(path, overwrite=True) as tmp:
         fig.savefig(tmp, format="png", dpi=100)
     plt.close(fig)
-
-
-def load_network(path, map_location="cpu") -> tuple[AbstractionNet, dict]:
-    """Network and metadata from a model file (or a checkpoint) written by :func:`train`."""
-    weights, meta = modelfile.load_model(path, map_location=map_location)
-    net = AbstractionNet(NetworkConfig.from_dict(meta["network"]))
-    state = {k[len("model."):]: v for k, v in weights.items() if k.startswith("model.")} or weights
-    net.load_state_dict(state)
-    net.eval()
-    return net, meta
 
 
 def train(

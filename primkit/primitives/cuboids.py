@@ -1,50 +1,5 @@
-"""Cuboid primitives: the value type, their geometry, and differentiable versions for training.
-
-A set of ``m`` cuboids is one :class:`Cuboids` value. Part ``k`` is slot ``k`` of the arrays, for
-good: parts that do not exist keep their slot (``existence[k]`` is False) and are never renumbered,
-so an index names the same part across shapes predicted by one model.
-
-Conventions (the ones that bite)
---------------------------------
-* **Half extents.** ``half_extents[k] = (z0, z1, z2)``: the cuboid spans ``[-z_i, z_i]`` along its
-  local axis ``i``, so its full size is ``2 z`` and its volume ``8 z0 z1 z2``.
-* **Quaternions** are unit and real part first: ``q = (w, x, y, z)``. ``q`` and ``-q`` are the same
-  rotation; :func:`matrix_to_quaternion` returns the one with ``w >= 0``.
-* **Rotation matrices** ``R = quaternion_to_matrix(q)`` act on column vectors and map local to
-  world coordinates::
-
-      x_world = R @ x_local + t          x_local = R.T @ (x_world - t)
-
-* **Distance** from a point to a cuboid is to the *solid*: ``|| max(|x_local| - z, 0) ||``, zero
-  inside. The distance to a set of parts is the minimum over the *present* parts.
-
-Corners and faces in local coordinates (used by :meth:`Cuboids.to_mesh` and the surface sampling)::
-
-                 y
-                 |
-                 2 ---------------- 3          corner c = (±z0, ±z1, ±z2) with
-                /|                 /|          bit 0 of c -> +x, bit 1 -> +y, bit 2 -> +z:
-               / |                / |            0 (-,-,-)   1 (+,-,-)
-              6 ---------------- 7  |            2 (-,+,-)   3 (+,+,-)
-              |  |               |  |            4 (-,-,+)   5 (+,-,+)
-              |  0 --------------|- 1 --- x      6 (-,+,+)   7 (+,+,+)
-              | /                | /
-              |/                 |/            face f: axis f // 2, side + if f is even
-              4 ---------------- 5               0 +x   1 -x   2 +y   3 -y   4 +z   5 -z
-             /
-            z                                  mesh triangles 2f and 2f+1 lie on face f
-
-Surface samples are split equally over the six faces (``k`` samples per cuboid, ``k`` a multiple
-of 6, face ``f`` owning samples ``f*k/6 .. (f+1)*k/6 - 1``); each carries the importance weight
-``area(face) / (k/6)``, so the weights of one cuboid sum to its surface area (the paper's appendix
-A1). A sample is reparametrised: the face's fixed coordinate is ``±z_axis`` and the two others are
-``u * z_i`` with ``u ~ U[-1, 1]``, then it is rotated and translated, so gradients reach ``z``,
-``q`` and ``t``.
-
-NumPy functions take and return arrays (``n`` points, ``m`` parts). The ``*_torch`` functions are
-for training: batch first (``B``), differentiable, and follow the device and dtype of their inputs;
-torch is imported only when one of them is called.
-"""
+"""The :class:`Cuboids` value type: ``m`` cuboids with stable part slots, validated on
+construction, with its mesh and its JSON form (conventions in :mod:`primkit.primitives`)."""
 
 from __future__ import annotations
 
@@ -52,42 +7,26 @@ import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
-if TYPE_CHECKING:  # pragma: no cover
-    import torch
+from ..io import atomic_output
+from .rotations import matrix_to_quaternion, quaternion_to_matrix
 
-__all__ = [
-    "SCHEMA_VERSION",
-    "Cuboids",
-    "SurfaceSamples",
-    "quaternion_to_matrix",
-    "matrix_to_quaternion",
-    "world_to_local",
-    "local_to_world",
-    "point_cuboid_distance",
-    "union_distance",
-    "contains",
-    "sample_surface",
-    "sample_volume",
-    "fraction_inside_others",
-    "prune_covered",
-    "assign_points",
-    "quaternion_to_matrix_torch",
-    "world_to_local_torch",
-    "cuboid_distance_sq_torch",
-    "sample_surface_torch",
-]
+__all__ = ["SCHEMA_VERSION", "CORNER_SIGNS", "Cuboids", "as_points", "check_cuboids"]
+
 
 #: Version of the JSON layout written by :meth:`Cuboids.to_dict`.
 SCHEMA_VERSION = 1
 
+
 # Corner c of the unit cube, as signs: bit 0 -> x, bit 1 -> y, bit 2 -> z.
-_CORNER_SIGNS = np.array(
+CORNER_SIGNS = np.array(
     [[1.0 if c & (1 << a) else -1.0 for a in range(3)] for c in range(8)]
 )
+
+
 # Two triangles per face, in face order +x, -x, +y, -y, +z, -z, counter-clockwise seen from outside.
 _FACE_TRIANGLES = np.array(
     [
@@ -100,11 +39,6 @@ _FACE_TRIANGLES = np.array(
     ],
     dtype=np.int64,
 )
-
-
-# --------------------------------------------------------------------------------------------
-# The value type
-# --------------------------------------------------------------------------------------------
 
 
 def _readonly(a: np.ndarray) -> np.ndarray:
@@ -281,7 +215,7 @@ class Cuboids:
             The part index (slot) of each triangle.
         """
         idx = np.arange(self.count) if include_absent else self.present
-        local = _CORNER_SIGNS[None] * self.half_extents[idx, None, :]  # (p, 8, 3)
+        local = CORNER_SIGNS[None] * self.half_extents[idx, None, :]  # (p, 8, 3)
         rot = self.rotations[idx]
         verts = np.einsum("pij,pcj->pci", rot, local) + self.translations[idx, None, :]
         faces = _FACE_TRIANGLES[None] + 8 * np.arange(len(idx))[:, None, None]
@@ -358,7 +292,6 @@ class Cuboids:
         if path.exists() and not overwrite:
             raise FileExistsError(f"{path} exists; pass overwrite=True to replace it")
         text = json.dumps(self.to_dict(), indent=2)
-        from ..io import atomic_output  # temporary beside the target, created with the user's umask
 
         with atomic_output(path, overwrite=True) as tmp:
             Path(tmp).write_text(text + "\n", encoding="utf-8")
@@ -369,30 +302,6 @@ class Cuboids:
         """Read a file written by :meth:`save_json`."""
         with open(path, encoding="utf-8") as fh:
             return cls.from_dict(json.load(fh))
-
-
-@dataclass(frozen=True, eq=False)
-class SurfaceSamples:
-    """Points on the surfaces of cuboids, with importance weights (see the module notes).
-
-    Attributes
-    ----------
-    points : (m, k, 3) float
-        World coordinates.
-    weights : (m, k) float
-        ``area(face) / (k / 6)``; they sum to each cuboid's surface area.
-    face : (m, k) int
-        Face of each sample, 0..5 (+x, -x, +y, -y, +z, -z).
-    """
-
-    points: np.ndarray
-    weights: np.ndarray
-    face: np.ndarray
-
-
-# --------------------------------------------------------------------------------------------
-# Checks
-# --------------------------------------------------------------------------------------------
 
 
 def _float_array(value: Any, name: str, shape: tuple, text: str) -> np.ndarray:
@@ -408,475 +317,11 @@ def _float_array(value: Any, name: str, shape: tuple, text: str) -> np.ndarray:
     return a
 
 
-def _as_points(points: Any) -> np.ndarray:
+def as_points(points: Any) -> np.ndarray:
     return _float_array(points, "points", (None, 3), "(n, 3) float")
 
 
-def _check_cuboids(cuboids: Any) -> Cuboids:
+def check_cuboids(cuboids: Any) -> Cuboids:
     if not isinstance(cuboids, Cuboids):
         raise TypeError(f"`cuboids` must be a Cuboids, got {type(cuboids).__name__}")
     return cuboids
-
-
-# --------------------------------------------------------------------------------------------
-# Rotations
-# --------------------------------------------------------------------------------------------
-
-
-def quaternion_to_matrix(q: Any) -> np.ndarray:
-    """Rotation matrices from quaternions.
-
-    Parameters
-    ----------
-    q : (..., 4) float
-        ``(w, x, y, z)``, real part first; normalised here.
-
-    Returns
-    -------
-    (..., 3, 3) float
-        Acting on column vectors.
-    """
-    q = np.asarray(q, dtype=float)
-    if q.ndim < 1 or q.shape[-1] != 4:
-        raise ValueError("`q` must be (..., 4) float")
-    norm = np.linalg.norm(q, axis=-1, keepdims=True)
-    if np.any(norm < 1e-12):
-        raise ValueError("`q` must be nonzero")
-    w, x, y, z = np.moveaxis(q / norm, -1, 0)
-    rows = [
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ]
-    return np.stack([np.stack(r, axis=-1) for r in rows], axis=-2)
-
-
-def matrix_to_quaternion(R: Any) -> np.ndarray:
-    """Unit quaternions ``(w, x, y, z)`` with ``w >= 0`` from rotation matrices.
-
-    Parameters
-    ----------
-    R : (..., 3, 3) float
-        Proper rotations acting on column vectors.
-
-    Returns
-    -------
-    (..., 4) float
-    """
-    R = np.asarray(R, dtype=float)
-    if R.ndim < 2 or R.shape[-2:] != (3, 3):
-        raise ValueError("`R` must be (..., 3, 3) float")
-    r = {(i, j): R[..., i, j] for i in range(3) for j in range(3)}
-    # 2|w|, 2|x|, 2|y|, 2|z| from the diagonal; build from the largest for stability.
-    big = np.sqrt(
-        np.maximum(
-            np.stack(
-                [
-                    1 + r[0, 0] + r[1, 1] + r[2, 2],
-                    1 + r[0, 0] - r[1, 1] - r[2, 2],
-                    1 - r[0, 0] + r[1, 1] - r[2, 2],
-                    1 - r[0, 0] - r[1, 1] + r[2, 2],
-                ],
-                axis=-1,
-            ),
-            0.0,
-        )
-    )
-    wx, wy, wz = r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]
-    xy, xz, yz = r[1, 0] + r[0, 1], r[0, 2] + r[2, 0], r[2, 1] + r[1, 2]
-    b0, b1, b2, b3 = np.moveaxis(big, -1, 0)
-    candidates = np.stack(
-        [
-            np.stack([b0 * b0, wx, wy, wz], axis=-1),
-            np.stack([wx, b1 * b1, xy, xz], axis=-1),
-            np.stack([wy, xy, b2 * b2, yz], axis=-1),
-            np.stack([wz, xz, yz, b3 * b3], axis=-1),
-        ],
-        axis=-2,
-    )  # (..., 4 candidates, 4)
-    best = np.argmax(big, axis=-1)
-    q = np.take_along_axis(candidates, best[..., None, None], axis=-2)[..., 0, :]
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    return np.where(q[..., :1] < 0, -q, q)
-
-
-# --------------------------------------------------------------------------------------------
-# Frames, distances, containment
-# --------------------------------------------------------------------------------------------
-
-
-def world_to_local(points: Any, cuboids: Cuboids) -> np.ndarray:
-    """Points in every cuboid's local frame: ``R.T @ (x - t)``.
-
-    points : (n, 3) float  ->  (m, n, 3) float
-    """
-    points = _as_points(points)
-    c = _check_cuboids(cuboids)
-    d = points[None, :, :] - c.translations[:, None, :]
-    return np.einsum("mji,mnj->mni", c.rotations, d)
-
-
-def local_to_world(points_local: Any, cuboids: Cuboids) -> np.ndarray:
-    """Inverse of :func:`world_to_local`: ``R @ x + t``.
-
-    points_local : (m, n, 3) float  ->  (m, n, 3) float
-    """
-    c = _check_cuboids(cuboids)
-    pl = np.asarray(points_local, dtype=float)
-    if pl.ndim != 3 or pl.shape[0] != c.count or pl.shape[2] != 3:
-        raise ValueError(f"`points_local` must be (m, n, 3) float with m = {c.count}, got {pl.shape}")
-    return np.einsum("mij,mnj->mni", c.rotations, pl) + c.translations[:, None, :]
-
-
-def point_cuboid_distance(points: Any, cuboids: Cuboids, squared: bool = False) -> np.ndarray:
-    """Distance from each point to each solid cuboid, absent parts included (the caller masks).
-
-    points : (n, 3) float  ->  (n, m) float, zero inside.
-    """
-    local = world_to_local(points, cuboids)
-    excess = np.maximum(np.abs(local) - cuboids.half_extents[:, None, :], 0.0)
-    d2 = np.einsum("mni,mni->nm", excess, excess)
-    return d2 if squared else np.sqrt(d2)
-
-
-def union_distance(points: Any, cuboids: Cuboids, squared: bool = False) -> np.ndarray:
-    """Distance from each point to the union of the present cuboids.
-
-    points : (n, 3) float  ->  (n,) float; ``inf`` when no part is present.
-    """
-    points = _as_points(points)
-    c = _check_cuboids(cuboids)
-    if not c.existence.any():
-        return np.full(len(points), np.inf)
-    return point_cuboid_distance(points, c.subset(c.present), squared=squared).min(axis=1)
-
-
-def contains(points: Any, cuboids: Cuboids) -> np.ndarray:
-    """Whether each point lies in each solid cuboid (boundary included), absent parts included.
-
-    points : (n, 3) float  ->  (n, m) bool; equal to ``point_cuboid_distance(...) == 0``.
-    """
-    local = world_to_local(points, cuboids)
-    return np.all(np.abs(local) <= cuboids.half_extents[:, None, :], axis=-1).T
-
-
-def assign_points(points: Any, cuboids: Cuboids, *, return_distance: bool = False, chunk: int = 8192):
-    """Index (slot) of the nearest present cuboid for each point: the co-segmentation rule.
-
-    Ties (several cuboids at the same distance, e.g. 0 for a point inside several) go to the
-    larger volume, then to the lower index.
-
-    points : (n, 3) float  ->  (n,) int, and with ``return_distance`` also (n,) float, the
-    distance to that cuboid. Raises ValueError when no part is present.
-
-    Speed: the points are taken in chunks of ``chunk``; for each chunk the local coordinates in
-    all present cuboids come from one ``(c, 3) @ (3, 3k)`` product, and the excess over the
-    half-extents, its squared norm and the arg-min are whole-array operations, so memory stays
-    ``O(chunk * k)`` and a million points against 20 cuboids take a fraction of a second
-    (``benchmarks/bench_segment.py``). Neither Open3D nor libigl offers point-to-oriented-box
-    distances for many boxes at once; this is the closed form of the paper's distance.
-    """
-    points = _as_points(points)
-    c = _check_cuboids(cuboids)
-    if not c.existence.any():
-        raise ValueError("no present cuboid to assign points to")
-    present = c.present
-    order = present[np.argsort(-c.volumes[present], kind="stable")]
-    k = len(order)
-    rot = c.rotations[order]  # (k, 3, 3) local -> world; local = R.T (x - t)
-    # column j * k + i holds local axis j of cuboid i, so the three axes are contiguous blocks
-    stacked = rot.transpose(1, 2, 0).reshape(3, 3 * k)
-    offset = np.einsum("kij,ki->jk", rot, c.translations[order]).reshape(3 * k)
-    extents = c.half_extents[order].T.reshape(3 * k)
-    labels = np.empty(len(points), dtype=np.int64)
-    dist = np.empty(len(points)) if return_distance else None
-    for start in range(0, len(points), chunk):
-        block = points[start : start + chunk]
-        excess = block @ stacked
-        excess -= offset
-        np.abs(excess, out=excess)
-        excess -= extents
-        np.maximum(excess, 0.0, out=excess)
-        excess *= excess
-        d2 = excess[:, :k] + excess[:, k : 2 * k]
-        d2 += excess[:, 2 * k :]
-        best = np.argmin(d2, axis=1)
-        labels[start : start + len(block)] = order[best]
-        if dist is not None:
-            dist[start : start + len(block)] = np.sqrt(np.take_along_axis(d2, best[:, None], 1)[:, 0])
-    return (labels, dist) if return_distance else labels
-
-
-# --------------------------------------------------------------------------------------------
-# Sampling
-# --------------------------------------------------------------------------------------------
-
-
-def _surface_layout(k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Fixed per-sample layout for ``k`` surface samples per cuboid.
-
-    Returns face (k,) int, fixed (k, 3) float (the face's ±1 at its axis, 0 elsewhere) and
-    spread (k, 2, 3) float (one-hot rows placing the two free coordinates ``u`` on the face).
-    """
-    if k <= 0 or k % 6:
-        raise ValueError(f"`samples_per_cuboid` must be a positive multiple of 6, got {k}")
-    face = np.repeat(np.arange(6), k // 6)
-    axis = face // 2
-    sign = np.where(face % 2 == 0, 1.0, -1.0)
-    fixed = np.zeros((k, 3))
-    fixed[np.arange(k), axis] = sign
-    free = np.stack([(axis + 1) % 3, (axis + 2) % 3], axis=-1)  # (k, 2)
-    spread = np.zeros((k, 2, 3))
-    spread[np.arange(k)[:, None], np.arange(2)[None, :], free] = 1.0
-    return face, fixed, spread
-
-
-def _face_area_pairs() -> np.ndarray:
-    """(3,) int pairs: face on axis a has area 4 z_b z_c with (b, c) = the other axes."""
-    return np.array([[1, 2], [2, 0], [0, 1]])
-
-
-def _surface_from_uv(cuboids: Cuboids, uv: np.ndarray) -> SurfaceSamples:
-    """Surface samples from given coefficients ``uv`` (m, k, 2) in [-1, 1]."""
-    m, k = uv.shape[:2]
-    face, fixed, spread = _surface_layout(k)
-    z = cuboids.half_extents
-    unit = fixed[None] + np.einsum("mkc,kcd->mkd", uv, spread)  # (m, k, 3)
-    local = unit * z[:, None, :]
-    points = local_to_world(local, cuboids) if m else np.zeros((0, k, 3))
-    pairs = _face_area_pairs()
-    areas = 4.0 * z[:, pairs[:, 0]] * z[:, pairs[:, 1]]  # (m, 3)
-    weights = areas[:, face // 2] / (k // 6)
-    return SurfaceSamples(points, weights, np.broadcast_to(face, (m, k)).copy())
-
-
-def sample_surface(cuboids: Cuboids, samples_per_cuboid: int = 150, seed: Any = None) -> SurfaceSamples:
-    """Reparametrised surface samples of every cuboid (absent ones included; the caller masks).
-
-    Parameters
-    ----------
-    cuboids : Cuboids
-    samples_per_cuboid : int
-        ``k``, a positive multiple of 6: ``k / 6`` samples on each face.
-    seed : None, int or numpy Generator
-
-    Returns
-    -------
-    SurfaceSamples
-        ``points`` (m, k, 3), ``weights`` (m, k) summing to each surface area, ``face`` (m, k).
-    """
-    c = _check_cuboids(cuboids)
-    k = int(samples_per_cuboid)
-    _surface_layout(k)  # validates k
-    rng = np.random.default_rng(seed)
-    uv = rng.uniform(-1.0, 1.0, size=(c.count, k, 2))
-    return _surface_from_uv(c, uv)
-
-
-def sample_volume(cuboids: Cuboids, samples_per_cuboid: int = 1000, seed: Any = None) -> np.ndarray:
-    """Uniform samples inside every solid cuboid (absent ones included).
-
-    Returns (m, k, 3) float world coordinates.
-    """
-    c = _check_cuboids(cuboids)
-    k = int(samples_per_cuboid)
-    if k <= 0:
-        raise ValueError(f"`samples_per_cuboid` must be positive, got {k}")
-    rng = np.random.default_rng(seed)
-    local = rng.uniform(-1.0, 1.0, size=(c.count, k, 3)) * c.half_extents[:, None, :]
-    return local_to_world(local, c)
-
-
-def _containment(cuboids: Cuboids, k: int, seed: Any) -> np.ndarray:
-    """(m, k, m) bool: volume sample s of part i lies inside part j (computed among present parts
-    only; entries involving an absent part are False)."""
-    pts = sample_volume(cuboids, k, seed)
-    m = cuboids.count
-    out = np.zeros((m, k, m), dtype=bool)
-    idx = cuboids.present
-    if len(idx):
-        sub = cuboids.subset(idx)
-        out[np.ix_(idx, np.arange(k), idx)] = contains(pts[idx].reshape(-1, 3), sub).reshape(len(idx), k, len(idx))
-    return out
-
-
-def _fractions(inside: np.ndarray, existence: np.ndarray) -> np.ndarray:
-    m = len(existence)
-    others = existence[None, :] & ~np.eye(m, dtype=bool)  # (m, m): the present parts other than i
-    frac = np.any(inside & others[:, None, :], axis=-1).mean(axis=-1) if inside.shape[1] else np.zeros(m)
-    return np.where(existence, frac, np.nan)
-
-
-def fraction_inside_others(cuboids: Cuboids, samples_per_cuboid: int = 1000, seed: Any = None) -> np.ndarray:
-    """Monte Carlo fraction of each present part's volume inside the union of the other present parts.
-
-    Returns (m,) float in [0, 1]; ``nan`` for absent parts.
-    """
-    c = _check_cuboids(cuboids)
-    return _fractions(_containment(c, int(samples_per_cuboid), seed), c.existence)
-
-
-def prune_covered(
-    cuboids: Cuboids, threshold: float = 0.6, samples_per_cuboid: int = 1000, seed: Any = 0
-) -> Cuboids:
-    """Remove redundant parts: while the largest :func:`fraction_inside_others` exceeds
-    ``threshold``, mark that part absent and recompute (the published test-time pruning).
-
-    The volume samples are drawn once and reused at each step. Indices are kept (removed parts
-    become absent slots).
-    """
-    c = _check_cuboids(cuboids)
-    inside = _containment(c, int(samples_per_cuboid), seed)
-    existence = c.existence.copy()
-    while existence.sum() > 1:
-        frac = _fractions(inside, existence)
-        worst = int(np.nanargmax(frac))
-        if not frac[worst] > threshold:
-            break
-        existence[worst] = False
-    return c.with_existence(existence)
-
-
-# --------------------------------------------------------------------------------------------
-# torch versions (training)
-# --------------------------------------------------------------------------------------------
-
-
-def quaternion_to_matrix_torch(q: torch.Tensor) -> torch.Tensor:
-    """Rotation matrices from quaternions ``(w, x, y, z)``; ``q`` is normalised here.
-
-    q : (..., 4)  ->  (..., 3, 3), acting on column vectors; differentiable.
-    """
-    import torch
-
-    if q.shape[-1:] != (4,):
-        raise ValueError("`q` must be (..., 4)")
-    q = q / torch.linalg.vector_norm(q, dim=-1, keepdim=True)
-    w, x, y, z = q.unbind(-1)
-    rows = [
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ]
-    return torch.stack([torch.stack(r, dim=-1) for r in rows], dim=-2)
-
-
-def _check_points_and_poses(points, quaternions, translations) -> None:
-    """Shapes of the torch functions' batched inputs: (B, n, 3), (B, m, 4), (B, m, 3)."""
-    if points.ndim != 3 or points.shape[-1] != 3:
-        raise ValueError("`points` must be (B, n, 3)")
-    if quaternions.ndim != 3 or quaternions.shape[-1] != 4:
-        raise ValueError("`quaternions` must be (B, m, 4)")
-    if translations.shape != quaternions.shape[:2] + (3,):
-        raise ValueError("`translations` must be (B, m, 3), matching `quaternions`")
-
-
-def world_to_local_torch(
-    points: torch.Tensor, quaternions: torch.Tensor, translations: torch.Tensor
-) -> torch.Tensor:
-    """Points in every cuboid's local frame, ``R.T @ (x - t)``.
-
-    points (B, n, 3), quaternions (B, m, 4), translations (B, m, 3)  ->  (B, m, n, 3)
-    """
-    import torch
-
-    _check_points_and_poses(points, quaternions, translations)
-    rot = quaternion_to_matrix_torch(quaternions)  # (B, m, 3, 3)
-    d = points[:, None, :, :] - translations[:, :, None, :]
-    return torch.einsum("bmji,bmnj->bmni", rot, d)
-
-
-def cuboid_distance_sq_torch(
-    points: torch.Tensor,
-    half_extents: torch.Tensor,
-    quaternions: torch.Tensor,
-    translations: torch.Tensor,
-    *,
-    parts_first: bool = False,
-) -> torch.Tensor:
-    """Squared distance from each point to each solid cuboid (0 inside).
-
-    points (B, n, 3), half_extents (B, m, 3), quaternions (B, m, 4), translations (B, m, 3)
-    ->  (B, n, m), or (B, m, n) with ``parts_first``. No square root, so the gradient is finite
-    everywhere (and continuous: the kink of ``max(., 0)`` is squared away and ``|x|`` only kinks
-    at 0, inside the cuboid).
-
-    Computed coordinate-planar, as ``(B, m, 3, n)`` local coordinates ``R^T x - R^T t`` from one
-    batched matrix product: the per-point sums then run over a middle axis with ``n`` contiguous
-    values, which vectorises (a trailing axis of length 3, as in :func:`world_to_local_torch`'s
-    layout, made this 4x slower on CPU).
-    """
-    if half_extents.shape != translations.shape:
-        raise ValueError("`half_extents` must be (B, m, 3), matching `translations`")
-    _check_points_and_poses(points, quaternions, translations)
-    rot_t = quaternion_to_matrix_torch(quaternions).transpose(-1, -2)  # (B, m, 3, 3), R^T
-    local = rot_t @ points.transpose(1, 2)[:, None] - rot_t @ translations[..., None]  # (B, m, 3, n)
-    excess = (local.abs() - half_extents[..., None]).clamp_min(0.0)
-    d2 = excess.square().sum(dim=2)  # (B, m, n)
-    return d2 if parts_first else d2.transpose(1, 2)
-
-
-def _sample_surface_from_uv_torch(
-    half_extents: torch.Tensor, quaternions: torch.Tensor, translations: torch.Tensor, uv: torch.Tensor
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """Surface points and weights from coefficients ``uv`` (B, m, k, 2) in [-1, 1]."""
-    import torch
-
-    k = uv.shape[2]
-    face, fixed, spread = _surface_layout(k)
-    opts = {"dtype": half_extents.dtype, "device": half_extents.device}
-    fixed_t = torch.as_tensor(fixed, **opts)
-    spread_t = torch.as_tensor(spread, **opts)
-    unit = fixed_t + torch.einsum("bmkc,kcd->bmkd", uv.to(**opts), spread_t)  # (B, m, k, 3)
-    local = unit * half_extents[:, :, None, :]
-    rot = quaternion_to_matrix_torch(quaternions)
-    points = torch.einsum("bmij,bmkj->bmki", rot, local) + translations[:, :, None, :]
-    pairs = _face_area_pairs()
-    areas = 4.0 * half_extents[..., pairs[:, 0]] * half_extents[..., pairs[:, 1]]  # (B, m, 3)
-    axis = torch.as_tensor(face // 2, device=half_extents.device)
-    weights = areas[..., axis] / (k // 6)
-    return points, weights
-
-
-def sample_surface_torch(
-    half_extents: torch.Tensor,
-    quaternions: torch.Tensor,
-    translations: torch.Tensor,
-    samples_per_cuboid: int = 150,
-    generator: torch.Generator | None = None,
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """Reparametrised surface samples, differentiable in ``z``, ``q`` and ``t``.
-
-    Parameters
-    ----------
-    half_extents : (B, m, 3)
-    quaternions : (B, m, 4)
-    translations : (B, m, 3)
-    samples_per_cuboid : int
-        ``k``, a positive multiple of 6; ``k / 6`` samples per face, in the face order of the
-        module notes (as :func:`sample_surface`).
-    generator : torch.Generator, optional
-        Source of the coefficients ``u``; they are drawn on the generator's device and moved.
-
-    Returns
-    -------
-    points : (B, m, k, 3)
-        World coordinates.
-    weights : (B, m, k)
-        ``area(face) / (k / 6)``, differentiable in ``z``; they sum to each surface area.
-    """
-    import torch
-
-    k = int(samples_per_cuboid)
-    _surface_layout(k)  # validates k
-    if half_extents.ndim != 3 or half_extents.shape[-1] != 3:
-        raise ValueError("`half_extents` must be (B, m, 3)")
-    if quaternions.shape != half_extents.shape[:2] + (4,):
-        raise ValueError("`quaternions` must be (B, m, 4), matching `half_extents`")
-    if translations.shape != half_extents.shape:
-        raise ValueError("`translations` must be (B, m, 3), matching `half_extents`")
-    B, m = half_extents.shape[:2]
-    device = half_extents.device if generator is None else generator.device
-    uv = torch.rand((B, m, k, 2), generator=generator, device=device, dtype=half_extents.dtype)
-    uv = (2.0 * uv - 1.0).to(half_extents.device)
-    return _sample_surface_from_uv_torch(half_extents, quaternions, translations, uv)

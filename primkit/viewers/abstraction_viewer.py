@@ -14,9 +14,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..model.abstractor import part_colors
+from ..viz.palette import part_colors
 from ..viz.interop import to_pyvista
-from ..viz.render import apply_camera
+from ..viz.camera import apply_camera
 
 try:
     from . import common

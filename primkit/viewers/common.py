@@ -7,7 +7,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import io
-from ..viz.render import pyvista_module
+from ..viz.backend import pyvista_module
+from ..model.abstractor import Abstractor
 
 __all__ = ["Shape", "abstract_shapes", "face_labels", "describe_part", "text_of", "pick_actor", "on_click",
            "display_position", "new_plotter"]
@@ -40,8 +41,6 @@ def abstract_shapes(paths, model, *, refine: int = 0, align=None, progress: bool
     Returns ``(shapes, abstractor, errors)``: the usable files as :class:`Shape` s in input order,
     and one error line per unusable file (the batch goes on).
     """
-    from ..model.abstractor import Abstractor
-
     abstractor = model if isinstance(model, Abstractor) else Abstractor.load(model)
     results, errors = abstractor.abstract_files([str(p) for p in paths], progress=progress, refine=refine, align=align)
     shapes, errors = [], [str(e) for e in errors]

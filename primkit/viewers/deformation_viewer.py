@@ -26,9 +26,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..model.abstractor import part_colors
+from ..viz.palette import part_colors
 from ..viz.interop import to_pyvista
-from ..viz.render import CAMERA, apply_camera
+from ..viz.camera import CAMERA, apply_camera
+from ..deformation import bind, edit_cuboids, seam_falloff, transfer_transforms
+from ..cli._common import err, report_errors
+from ..model.parts import resolve_parts
 
 try:
     from . import common
@@ -57,8 +60,6 @@ class DeformationViewer:
 
     def transforms(self) -> np.ndarray:
         """(m, 4, 4) float: the transforms applied now (edit of the chosen part, then blended transfer)."""
-        from ..deformation import edit_cuboids
-
         c = self.binding.cuboids
         e = edit_cuboids(c, scale={self.part: self.edits["scale"]}, rotate={self.part: self.edits["turn"]},
                          move={self.part: (0.0, self.edits["raise"], 0.0)})
@@ -114,8 +115,6 @@ class DeformationViewer:
 def deformation_viewer(source, target, part_names=None, *, part: int | None = None, off_screen: bool = False,
                        window_size=(1280, 700), title: str = "") -> DeformationViewer:
     """Build the viewer for two :class:`apps.common.Shape` s abstracted by one model."""
-    from ..deformation import bind, seam_falloff, transfer_transforms
-
     sc, tc = source.result.canonical, target.result.canonical
     sv, tv = source.canonical_vertices(), target.canonical_vertices()
     names = list(part_names) if part_names is not None else [f"part{k}" for k in range(sc.count)]
@@ -163,9 +162,6 @@ def deformation_viewer(source, target, part_names=None, *, part: int | None = No
 
 def run(args, *, off_screen, window_size, show) -> int:
     """``primkit view deformation``."""
-    from ..cli._common import err, report_errors
-    from ..model.parts import resolve_parts
-
     align = None if args.align == "none" else args.align
     shapes, model, errors = common.abstract_shapes([args.source, args.target], args.model, refine=args.refine,
                                                    align=align, progress=False)

@@ -17,7 +17,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..viz.interop import to_pyvista
-from ..viz.render import CAMERA, apply_camera
+from ..viz.camera import CAMERA, apply_camera
+from .. import embedding
+from ..cli._common import collect, err, report_errors
 
 try:
     from . import common
@@ -108,8 +110,6 @@ def embedding_explorer(shapes, part_names=None, *, parts="all", neighbors: int =
     parts : the parts the similarity looks at (:class:`primkit.embedding.PartDescriptor`)
     coords : (s, 2) float, optional: a map computed elsewhere (default t-SNE of the descriptors)
     """
-    from .. import embedding
-
     if len(shapes) < 3:
         raise ValueError(f"a map needs at least 3 shapes, got {len(shapes)}")
     if style not in ("thumbnails", "points"):
@@ -152,8 +152,6 @@ def embedding_explorer(shapes, part_names=None, *, parts="all", neighbors: int =
 
 def run(args, *, off_screen, window_size, show) -> int:
     """``primkit view embedding``."""
-    from ..cli._common import collect, err, report_errors
-
     files = collect(args.folder)
     if args.limit:
         files = files[: args.limit]

@@ -41,7 +41,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..primitives.cuboids import _CORNER_SIGNS, Cuboids
+from ..primitives import CORNER_SIGNS, Cuboids
+from .palette import part_colors
+from .backend import pyvista_module
+from .camera import CAMERA
+from ..io import atomic_output
 
 __all__ = [
     "cuboid_edges",
@@ -57,10 +61,10 @@ __all__ = [
     "draw",
 ]
 
-# The 12 edges of a cuboid as pairs of corners (``_CORNER_SIGNS`` order): corners that differ in
+# The 12 edges of a cuboid as pairs of corners (``CORNER_SIGNS`` order): corners that differ in
 # exactly one sign. Derived, not typed in, so it cannot disagree with the corner layout.
 _EDGES = np.array([(a, b) for a in range(8) for b in range(a + 1, 8)
-                   if np.sum(_CORNER_SIGNS[a] != _CORNER_SIGNS[b]) == 1], dtype=np.int64)
+                   if np.sum(CORNER_SIGNS[a] != CORNER_SIGNS[b]) == 1], dtype=np.int64)
 
 
 @dataclass(frozen=True, eq=False)
@@ -81,12 +85,6 @@ class O3DMesh:
     faces: np.ndarray
     vertex_colors: np.ndarray | None = None
     face_colors: np.ndarray | None = None
-
-
-def _default_colors(count: int) -> np.ndarray:
-    from ..model.abstractor import part_colors
-
-    return part_colors(count)
 
 
 def _check_colors(colors, count: int, what: str) -> np.ndarray:
@@ -154,7 +152,7 @@ def cuboids_to_lineset(cuboids: Cuboids, colors=None, include_absent: bool = Fal
 
     c = _check_cuboids(cuboids)
     points, lines, part = cuboid_edges(c, include_absent)
-    palette = _default_colors(c.count) if colors is None else _check_colors(colors, c.count, "colors")
+    palette = part_colors(c.count) if colors is None else _check_colors(colors, c.count, "colors")
     ls = o3d.geometry.LineSet(o3d.utility.Vector3dVector(points), o3d.utility.Vector2iVector(lines.astype(np.int32)))
     ls.colors = o3d.utility.Vector3dVector(palette[part].astype(np.float64) / 255.0)
     return ls
@@ -169,7 +167,7 @@ def cuboids_to_o3d(cuboids: Cuboids, colors=None, include_absent: bool = False):
 
     c = _check_cuboids(cuboids)
     v, f, part = c.to_mesh(include_absent=include_absent)
-    palette = _default_colors(c.count) if colors is None else _check_colors(colors, c.count, "colors")
+    palette = part_colors(c.count) if colors is None else _check_colors(colors, c.count, "colors")
     mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(v), o3d.utility.Vector3iVector(f.astype(np.int32)))
     vertex_part = np.repeat(part[::12], 8)
     mesh.vertex_colors = o3d.utility.Vector3dVector(palette[vertex_part].astype(np.float64) / 255.0)
@@ -264,12 +262,6 @@ def points_from_o3d(pcd) -> tuple[np.ndarray, np.ndarray | None]:
 # --------------------------------------------------------------------------------------------
 
 
-def _pv():
-    from .render import pyvista_module
-
-    return pyvista_module()
-
-
 def _faces_to_cells(faces: np.ndarray) -> np.ndarray:
     return np.hstack([np.full((len(faces), 1), 3, dtype=np.int64), faces]).ravel()
 
@@ -293,9 +285,9 @@ def to_pyvista(obj, *, colors=None, face_colors=None, edges: bool = False, inclu
     pyvista.PolyData
         Draw colours with ``plotter.add_mesh(poly, scalars="rgb", rgb=True)``.
     """
-    pv = _pv()
+    pv = pyvista_module()
     if isinstance(obj, Cuboids):
-        palette = _default_colors(obj.count) if colors is None else _check_colors(colors, obj.count, "colors")
+        palette = part_colors(obj.count) if colors is None else _check_colors(colors, obj.count, "colors")
         if edges:
             pts, lines, part = cuboid_edges(obj, include_absent)
             poly = pv.PolyData(pts, lines=np.hstack([np.full((len(lines), 1), 2), lines]).ravel())
@@ -351,7 +343,7 @@ def from_pyvista(poly) -> tuple[np.ndarray, np.ndarray]:
 
     Polygons with more than three corners are triangulated first (pyvista's ``triangulate``).
     """
-    pv = _pv()
+    pv = pyvista_module()
     poly = pv.wrap(poly)
     if not isinstance(poly, pv.PolyData):
         poly = poly.extract_surface()
@@ -383,8 +375,6 @@ def _as_o3d(obj):
 
 def _set_view(control, geoms) -> None:
     """Look from :data:`primkit.render.CAMERA`'s direction (front-right-above, +Y up) at the geometry."""
-    from .render import CAMERA
-
     lo = np.min([g.get_min_bound() for g in geoms], axis=0)
     hi = np.max([g.get_max_bound() for g in geoms], axis=0)
     control.set_lookat((lo + hi) / 2)
@@ -416,7 +406,6 @@ def draw(*objects, png=None, window_size: tuple[int, int] = (800, 600), title: s
     if png is None:
         o3d.visualization.draw_geometries(geoms, window_name=title, width=window_size[0], height=window_size[1])
         return geoms
-    from ..io import atomic_output
 
     vis = o3d.visualization.Visualizer()
     if not vis.create_window(window_name=title, width=window_size[0], height=window_size[1], visible=False):

@@ -8,102 +8,37 @@ What the rest of primkit uses:
   (thumbnails of a collection; ``benchmarks/bench_render.py`` measures what reuse buys).
 * :func:`render_pairs` / :func:`render_abstractions`: each shape beside its cuboids (the demo and
   the bundled-model build script).
-* :data:`CAMERA`, the camera convention, described next.
 
-**The camera convention** (so pictures of a collection line up): every tile is seen from the same
-direction, ``CAMERA.direction = (1, 0.6, 1.2)`` from the focal point toward the eye, i.e. from the
-front (+X in primkit's canonical frame), a little to the right (+Z) and above (+Y), with +Y up on
-screen, and with a *parallel* projection. The focal point is the centre of the tile's bounding box;
-the scale is common to all tiles of one picture: the largest bounding-sphere radius among them
-(half the box diagonal), plus 5 %. So two shapes of the same size are drawn at the same size, a
-shape half as large is drawn half as large, and a moved shape is drawn the same. For canonical
-shapes (inside [-0.5, 0.5]^3) pass ``radius=CANONICAL_RADIUS`` to fix the scale across pictures
-too. Perspective would make sizes depend on depth, hence parallel.
+The camera is :data:`primkit.viz.camera.CAMERA` (the convention is written there).
 
-The vtk wheel renders through EGL (Mesa) when there is no X display; we ask for EGL directly so
-it does not first try (and warn about) an X server.
 """
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
+from ..io import atomic_output
+from .backend import pyvista_module
+from .camera import CAMERA, Camera, apply_camera
+from .interop import to_pyvista
+from .palette import part_colors
+
 __all__ = [
-    "Camera",
-    "CAMERA",
-    "CANONICAL_RADIUS",
     "Layer",
     "Tile",
     "mesh_layer",
     "cuboid_layer",
     "segmentation_layer",
     "points_layer",
-    "apply_camera",
     "render_tiles",
     "write_png",
     "ThumbnailRenderer",
     "render_pairs",
     "render_abstractions",
-    "pyvista_module",
 ]
-
-#: Bounding-sphere radius of the canonical cube [-0.5, 0.5]^3.
-CANONICAL_RADIUS = float(np.sqrt(3) / 2)
-
-
-def pyvista_module():
-    """Import pyvista, asking VTK for an EGL window when there is no X display."""
-    if not os.environ.get("DISPLAY"):
-        os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
-    import pyvista as pv
-
-    return pv
-
-
-_pyvista = pyvista_module  # the name the older code used
-
-
-@dataclass(frozen=True)
-class Camera:
-    """A view direction and up vector shared by every tile (see the module notes).
-
-    direction : (3,) float, from the focal point toward the eye; up : (3,) float; margin : fraction
-    of the radius left around the shape.
-    """
-
-    direction: tuple = (1.0, 0.6, 1.2)
-    up: tuple = (0.0, 1.0, 0.0)
-    margin: float = 0.05
-
-    def basis(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Unit vectors ``(toward the eye, screen up, screen right)``, each (3,) float."""
-        d = np.asarray(self.direction, float)
-        d = d / np.linalg.norm(d)
-        up = np.asarray(self.up, float)
-        up = up - d * (up @ d)
-        up = up / np.linalg.norm(up)
-        return d, up, np.cross(up, d)
-
-
-CAMERA = Camera()
-
-
-def apply_camera(renderer, center, radius: float, camera: Camera = CAMERA) -> None:
-    """Point ``renderer``'s camera (a pyvista Plotter or Renderer) at ``center`` (3,) from
-    ``camera.direction``, parallel projection, a viewport half-height of ``radius * (1 + margin)``."""
-    d, up, _ = camera.basis()
-    center = np.asarray(center, float)
-    radius = float(max(radius, 1e-9))
-    cam = renderer.camera
-    cam.focal_point = tuple(center)
-    cam.position = tuple(center + d * 4.0 * radius)
-    cam.up = tuple(up)
-    cam.enable_parallel_projection()
-    cam.parallel_scale = radius * (1.0 + camera.margin)
-    renderer.reset_camera_clipping_range()
 
 
 @dataclass
@@ -130,8 +65,6 @@ class Layer:
         return np.stack([v.min(0), v.max(0)])
 
     def to_pyvista(self):
-        from .interop import to_pyvista
-
         if self.faces is None:
             return to_pyvista(np.asarray(self.vertices, float))
         return to_pyvista((self.vertices, self.faces), face_colors=self.face_colors)
@@ -185,8 +118,6 @@ def mesh_layer(vertices, faces, face_colors=None, **kwargs) -> Layer:
 def cuboid_layer(cuboids, colors=None, **kwargs) -> Layer:
     """The present cuboids coloured by part index (``colors`` (m, 3) uint8, default
     :func:`primkit.abstractor.part_colors`), edges drawn."""
-    from ..model.abstractor import part_colors
-
     v, f, part = cuboids.to_mesh()
     palette = part_colors(cuboids.count) if colors is None else np.asarray(colors, np.uint8)
     kwargs.setdefault("edges", True)
@@ -196,8 +127,6 @@ def cuboid_layer(cuboids, colors=None, **kwargs) -> Layer:
 def segmentation_layer(vertices, faces, labels, count: int | None = None, **kwargs) -> Layer:
     """A mesh coloured by a part index per face (``labels`` (f,) int; -1 or out of range: grey),
     with the same colours as the cuboids of those indices."""
-    from ..model.abstractor import part_colors
-
     labels = np.asarray(labels, np.int64)
     count = int(max(count or 0, labels.max(initial=-1) + 1))
     palette = np.vstack([part_colors(max(count, 1)), [[200, 200, 200]]]).astype(np.uint8)
@@ -258,8 +187,6 @@ def render_tiles(tiles, *, columns: int = 4, tile: int = 260, camera: Camera = C
 def _save_image(image: np.ndarray, path, overwrite: bool) -> None:
     from PIL import Image
 
-    from ..io import atomic_output
-
     with atomic_output(path, overwrite=overwrite) as tmp:
         Image.fromarray(image).save(tmp, format="PNG", optimize=True)
 
@@ -267,8 +194,6 @@ def _save_image(image: np.ndarray, path, overwrite: bool) -> None:
 def write_png(path, tiles, *, overwrite: bool = False, **kwargs):
     """Render ``tiles`` (see :func:`render_tiles`, same keywords) into the PNG ``path``, atomically;
     an existing file is kept unless ``overwrite``. Returns the path."""
-    from pathlib import Path
-
     _save_image(render_tiles(tiles, **kwargs), path, overwrite)
     return Path(path)
 
@@ -353,8 +278,6 @@ def render_abstractions(results, meshes, path, *, canonical: bool = False, note:
     note : str
         Appended to each tile's title.
     """
-    from ..model.abstractor import part_colors
-
     items = []
     for r, (v, f) in zip(results, meshes):
         cub = r.canonical if canonical else r.cuboids

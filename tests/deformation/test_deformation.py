@@ -186,18 +186,6 @@ def test_quality_measures_against_hand_computations():
     assert rel["all"]["max"] < 1e-12
 
 
-def test_parse_edit_resolves_part_names():
-    names = ["seat", "legs", "legs", "back"]
-    assert D.parse_edit("legs=1.3", names, kind="scale") == {1: 1.3, 2: 1.3}
-    r = D.parse_edit("part3,seat=0,0.05,0", names, kind="move")
-    assert sorted(r) == [0, 3] and np.allclose(r[3], [0, 0.05, 0])
-    assert D.parse_edit("3=15", names, kind="rotate") == {3: 15.0}
-    with pytest.raises(ValueError, match="unknown part 'arms'.*seat, legs, back"):
-        D.parse_edit("arms=2", names, kind="scale")
-    with pytest.raises(ValueError, match="expected 3 number"):
-        D.parse_edit("seat=0.1", names, kind="move")
-
-
 def test_legs_edit_on_a_procedural_chair():
     """Lengthening the legs by 30% raises the chair by 30% of the leg cuboids' height, and the
     back keeps its shape (edge lengths within 1%)."""

@@ -8,8 +8,10 @@ import pytest
 import torch
 
 from primkit import data, io, primitives, synthetic
-from primkit.image import views
-from primkit.image import distill as im
+from primkit import image as im
+from primkit import image as views
+from primkit.image.backgrounds import _hsv_to_rgb
+from primkit.image.distill import _geometric_loss
 from primkit.primitives import matrix_to_quaternion
 
 
@@ -87,7 +89,7 @@ def test_hsv_to_rgb_matches_colorsys():
     import colorsys
 
     hsv = torch.rand(200, 3, generator=torch.Generator().manual_seed(1))
-    ours = im._hsv_to_rgb(hsv[:, 0], hsv[:, 1], hsv[:, 2]).numpy()
+    ours = _hsv_to_rgb(hsv[:, 0], hsv[:, 1], hsv[:, 2]).numpy()
     ref = np.array([colorsys.hsv_to_rgb(*row) for row in hsv.tolist()])
     assert np.abs(ours - ref).max() < 1e-6
 
@@ -210,9 +212,9 @@ def test_geometric_loss_against_brute_force_on_a_box():
     used_one = torch.tensor([[True, False]])
     # the box explains itself: no coverage error, and its surface lies on the shape's (up to the
     # closest-point grid's resolution: a lookup is off by a fraction of a 1/32 cell along the face)
-    assert float(im._geometric_loss(exact, used_one, pts, closest, 150, gen)) < 0.25 * (1 / 32) ** 2
+    assert float(_geometric_loss(exact, used_one, pts, closest, 150, gen)) < 0.25 * (1 / 32) ** 2
     # a part the teacher does not use costs nothing; used, the far cube's consistency counts
-    assert float(im._geometric_loss(exact, torch.tensor([[True, True]]), pts, closest, 150, gen)) > 1.0
+    assert float(_geometric_loss(exact, torch.tensor([[True, True]]), pts, closest, 150, gen)) > 1.0
     # a shrunken box, brute force: coverage is the mean squared excess of the shape's points over the
     # smaller box; consistency the area-weighted mean squared distance of the smaller box's surface
     # (dense samples) to the box's, which from inside is min over axes of (extent - |x|). The loss
@@ -224,7 +226,7 @@ def test_geometric_loss_against_brute_force_on_a_box():
     dense = primitives.sample_surface(inner, 6000, seed=1)
     d = (box - np.abs(dense.points.reshape(-1, 3))).min(1)
     consistency = float((dense.weights.reshape(-1) * d ** 2).sum() / dense.weights.sum())
-    got = float(im._geometric_loss(_pred([small, far[0]], [np.zeros(3), far[1]]), used_one, pts, closest, 150, gen))
+    got = float(_geometric_loss(_pred([small, far[0]], [np.zeros(3), far[1]]), used_one, pts, closest, 150, gen))
     assert got == pytest.approx(coverage + consistency, rel=0.15)
 
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from primkit.model import losses, training
+from primkit.model import losses, network, training
 from primkit import primitives
 
 
@@ -145,7 +145,7 @@ def test_end_to_end_training_reduces_the_loss(prepared_chairs, tmp_path):
     first, last = result.history[0]["total"], result.history[-1]["total"]
     assert last < 0.5 * first
     assert out.exists() and (tmp_path / "m.training.png").exists() and (tmp_path / "m.history.json").exists()
-    net, meta = training.load_network(out)
+    net, meta = network.load_network(out)
     assert meta["training"]["iterations"] == 180 and meta["network"]["parts"] == 8
     x = torch.from_numpy(prepared_chairs[0].occupancy[None].astype(np.float32))
     with torch.no_grad():
@@ -207,7 +207,7 @@ def test_two_process_ddp_on_gloo(prepared_chairs, tmp_path):
     assert (tmp_path / "ddp.safetensors").exists()
     h0, h1 = (tmp_path / "rank0.txt").read_text(), (tmp_path / "rank1.txt").read_text()
     assert h0 == h1  # DDP kept the two replicas identical
-    _, meta = training.load_network(tmp_path / "ddp.safetensors")
+    _, meta = network.load_network(tmp_path / "ddp.safetensors")
     assert meta["training"]["processes"] == 2
 
 

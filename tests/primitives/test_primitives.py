@@ -9,7 +9,9 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-from primkit.primitives import cuboids as P
+from primkit import primitives as P
+from primkit.primitives.differentiable import _sample_surface_from_uv_torch
+from primkit.primitives.sampling import _surface_from_uv
 from primkit.primitives import Cuboids
 
 # ----------------------------------------------------------------------------------------------
@@ -318,9 +320,9 @@ def test_torch_surface_sampling_matches_numpy():
     B, m, k = 2, 3, 24
     cs, z, q, t = batch_of_cuboids(rng, B, m)
     uv = rng.uniform(-1, 1, size=(B, m, k, 2))
-    pts, w = P._sample_surface_from_uv_torch(z, q, t, torch.tensor(uv))
+    pts, w = _sample_surface_from_uv_torch(z, q, t, torch.tensor(uv))
     for b in range(B):
-        ref = P._surface_from_uv(cs[b], uv[b])
+        ref = _surface_from_uv(cs[b], uv[b])
         np.testing.assert_allclose(pts[b].numpy(), ref.points, atol=1e-12)
         np.testing.assert_allclose(w[b].numpy(), ref.weights, atol=1e-12)
     # the public sampler: shapes, points on the surface, weights sum to the area, reproducible

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from primkit.viz import interop
-from primkit.model.abstractor import part_colors
+from primkit.viz.palette import part_colors
 from primkit.primitives import Cuboids, matrix_to_quaternion
 
 

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from primkit.viz import render
+from primkit.viz.camera import CAMERA
 from primkit.primitives import Cuboids
 
 REFERENCE = Path(__file__).parent / "reference_images"
@@ -55,8 +56,8 @@ def test_cube_projects_to_the_closed_form_size():
     half = 0.25
     img = render.render_tiles([render.Tile("", [render.cuboid_layer(_box(half=half), edges=False)])], tile=TILE)
     h, w, centre = _extent(_silhouette(img))
-    _, up, right = render.CAMERA.basis()
-    scale = half * np.sqrt(3) * (1 + render.CAMERA.margin)  # radius of the framed sphere, plus margin
+    _, up, right = CAMERA.basis()
+    scale = half * np.sqrt(3) * (1 + CAMERA.margin)  # radius of the framed sphere, plus margin
     # an axis-aligned cube's shadow along a unit screen axis a spans 2 h (|a_x| + |a_y| + |a_z|)
     want_h = 2 * half * np.abs(up).sum() / (2 * scale) * TILE
     want_w = 2 * half * np.abs(right).sum() / (2 * scale) * TILE
@@ -100,7 +101,7 @@ def test_write_png_keeps_existing_files(tmp_path):
 
 
 def test_segmentation_layer_uses_part_colours():
-    from primkit.model.abstractor import part_colors
+    from primkit.viz.palette import part_colors
 
     layer = render.segmentation_layer(np.eye(3), [[0, 1, 2], [0, 2, 1]], [3, -1], count=5)
     assert np.array_equal(layer.face_colors[0], part_colors(5)[3])

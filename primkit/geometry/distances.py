@@ -1,0 +1,176 @@
+"""Distances to a surface: exact closest points on triangles, the closest-point grid of a shape,
+and its lookup at arbitrary points (the NumPy twin of :mod:`primkit.model.distance_field`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .grids import grid_centres
+
+__all__ = ["closest_points_on_triangles", "DistanceGrid", "distance_grid", "lookup_distance_sq"]
+
+
+def closest_points_on_triangles(points: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """Exact closest point on triangle ``(a, b, c)`` to each point, vectorised over rows.
+
+    Written here (rather than calling a library) because it runs on arbitrary point/triangle
+    *pairs*, which the libraries' mesh-level queries do not offer. Region tests follow the standard
+    Voronoi-region construction (vertex, edge, face regions).
+
+    Parameters
+    ----------
+    points, a, b, c : (n, 3) float
+
+    Returns
+    -------
+    closest : (n, 3) float
+    """
+    p = np.asarray(points, np.float64)
+    ab, ac, ap = b - a, c - a, p - a
+    d1 = np.einsum("ij,ij->i", ab, ap)
+    d2 = np.einsum("ij,ij->i", ac, ap)
+    bp = p - b
+    d3 = np.einsum("ij,ij->i", ab, bp)
+    d4 = np.einsum("ij,ij->i", ac, bp)
+    cp = p - c
+    d5 = np.einsum("ij,ij->i", ab, cp)
+    d6 = np.einsum("ij,ij->i", ac, cp)
+    va = d3 * d6 - d5 * d4
+    vb = d5 * d2 - d1 * d6
+    vc = d1 * d4 - d3 * d2
+
+    with np.errstate(divide="ignore", invalid="ignore"):
+        # face interior by default
+        denom = va + vb + vc
+        v = vb / denom
+        w = vc / denom
+        out = a + ab * v[:, None] + ac * w[:, None]
+        # edge bc
+        m = (va <= 0) & ((d4 - d3) >= 0) & ((d5 - d6) >= 0)
+        t = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        out[m] = (b + (c - b) * t[:, None])[m]
+        # edge ac
+        m = (vb <= 0) & (d2 >= 0) & (d6 <= 0)
+        t = d2 / (d2 - d6)
+        out[m] = (a + ac * t[:, None])[m]
+        # edge ab
+        m = (vc <= 0) & (d1 >= 0) & (d3 <= 0)
+        t = d1 / (d1 - d3)
+        out[m] = (a + ab * t[:, None])[m]
+        # vertex regions
+        m = (d6 >= 0) & (d5 <= d6)
+        out[m] = c[m]
+        m = (d3 >= 0) & (d4 <= d3)
+        out[m] = b[m]
+        m = (d1 <= 0) & (d2 <= 0)
+        out[m] = a[m]
+    # degenerate triangles (zero area) can leave NaNs: fall back to the nearest vertex
+    bad = ~np.isfinite(out).all(axis=1)
+    if bad.any():
+        cand = np.stack([a[bad], b[bad], c[bad]], axis=1)
+        k = np.argmin(((cand - p[bad, None]) ** 2).sum(-1), axis=1)
+        out[bad] = cand[np.arange(len(k)), k]
+    return out
+
+
+@dataclass(frozen=True)
+class DistanceGrid:
+    """Unsigned distance to the surface and the closest surface point, per cell of the canonical grid.
+
+    Attributes
+    ----------
+    distance : (R, R, R) float32
+        Distance from each cell centre to the surface.
+    closest : (R, R, R, 3) float32
+        The closest surface point to each cell centre.
+    """
+
+    distance: np.ndarray
+    closest: np.ndarray
+
+    @property
+    def resolution(self) -> int:
+        return self.distance.shape[0]
+
+
+def _raycasting_scene(vertices, faces):
+    import open3d as o3d
+
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(
+        o3d.core.Tensor(np.ascontiguousarray(vertices, np.float32)),
+        o3d.core.Tensor(np.ascontiguousarray(faces, np.uint32)),
+    )
+    return scene
+
+
+def distance_grid(vertices: np.ndarray, faces: np.ndarray, resolution: int = 32) -> DistanceGrid:
+    """Distance to the surface and closest surface point at every cell centre of the canonical grid.
+
+    Open3D's BVH finds the closest triangle of every cell (in float32); the closest point on that
+    triangle is then recomputed in float64 by :func:`closest_points_on_triangles`, so the stored
+    distances are exact point-to-triangle distances up to float32 storage.
+
+    We tried answering only a band of cells near the surface with the BVH and finishing far cells
+    from the band's closest triangles: on finely tessellated meshes (triangles much smaller than a
+    cell) it was off by up to 1.5e-3 of the unit cube, so every cell is queried.
+
+    Parameters
+    ----------
+    vertices : (n, 3) float
+        Canonical-frame vertices.
+    faces : (f, 3) int
+
+    Returns
+    -------
+    DistanceGrid
+    """
+    import open3d as o3d
+
+    vertices = np.asarray(vertices, np.float64)
+    faces = np.asarray(faces, np.int64)
+    centres = grid_centres(resolution).reshape(-1, 3)
+    result = _raycasting_scene(vertices, faces).compute_closest_points(o3d.core.Tensor(centres.astype(np.float32)))
+    t = faces[result["primitive_ids"].numpy().astype(np.int64)]
+    closest = closest_points_on_triangles(centres, vertices[t[:, 0]], vertices[t[:, 1]], vertices[t[:, 2]])
+    distance = np.linalg.norm(closest - centres, axis=1)
+    shape = (resolution,) * 3
+    return DistanceGrid(distance.reshape(shape).astype(np.float32), closest.reshape(shape + (3,)).astype(np.float32))
+
+
+def lookup_distance_sq(closest: Any, points: Any) -> np.ndarray:
+    """Squared distance to the surface from a closest-point grid (NumPy twin of
+    :func:`primkit.model.distance_field.lookup_distance_sq`).
+
+    ``d(x)^2 = min over the 8 cell centres around x of |x - closest[cell]|^2``, the cells being
+    ``floor(u)`` and ``floor(u) + 1`` per axis with ``u = (x + 0.5) R - 0.5``, clamped to the
+    grid (points outside keep their own position, so the distance keeps growing).
+
+    Parameters
+    ----------
+    closest : (R, R, R, 3) float
+        Closest surface point of every cell centre of the canonical grid.
+    points : (n, 3) float
+
+    Returns
+    -------
+    (n,) float
+    """
+    grid = np.asarray(closest, dtype=np.float64)
+    if grid.ndim != 4 or grid.shape[-1] != 3 or len(set(grid.shape[:3])) != 1:
+        raise ValueError(f"`closest` must be (R, R, R, 3) float, got shape {grid.shape}")
+    pts = np.asarray(points, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise ValueError(f"`points` must be (n, 3) float, got shape {pts.shape}")
+    res = grid.shape[0]
+    base = np.floor((pts + 0.5) * res - 0.5).astype(np.int64)
+    best = np.full(len(pts), np.inf)
+    for corner in range(8):
+        offset = np.array([(corner >> 2) & 1, (corner >> 1) & 1, corner & 1])
+        idx = np.clip(base + offset, 0, res - 1)
+        cp = grid[idx[:, 0], idx[:, 1], idx[:, 2]]
+        best = np.minimum(best, np.sum((pts - cp) ** 2, axis=1))
+    return best

@@ -1,0 +1,87 @@
+"""The image network: a small 2D CNN from a picture to ``m`` cuboids and a viewpoint (the
+architecture is drawn in :mod:`primkit.image`)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+__all__ = ["ImageNetConfig", "ImageNet", "images_to_float"]
+
+
+@dataclass(frozen=True)
+class ImageNetConfig:
+    """The image network's shape: input side, channels of the strided convolutions, FC width, parts."""
+
+    size: int = 64
+    channels: tuple = (32, 48, 64, 96, 128)
+    fc_width: int = 256
+    parts: int = 20
+    max_half_extent: float = 0.5
+
+    def __post_init__(self):
+        if self.size % (2 ** len(self.channels)):
+            raise ValueError(f"`size` ({self.size}) must be divisible by 2^{len(self.channels)}")
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["channels"] = list(self.channels)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "ImageNetConfig":
+        d = dict(d)
+        d["channels"] = tuple(d["channels"])
+        return cls(**d)
+
+
+class ImageNet(nn.Module):
+    """2D CNN from a ``(B, 3, S, S)`` image (floats in [0, 1]) to ``m`` cuboids and a viewpoint.
+
+    ``forward`` returns a dict of tensors: ``half_extents (B, m, 3)``, ``quaternions (B, m, 4)``,
+    ``translations (B, m, 3)``, ``existence (B, m)``, ``existence_logits (B, m)``,
+    ``viewpoint (B, 3)`` (cos azimuth, sin azimuth, elevation in radians).
+    """
+
+    def __init__(self, config: ImageNetConfig = ImageNetConfig()):
+        super().__init__()
+        self.config = config
+        layers, c_in = [], 3
+        for c_out in config.channels:
+            layers += [nn.Conv2d(c_in, c_out, 3, stride=2, padding=1, bias=False), nn.BatchNorm2d(c_out), nn.ReLU()]
+            c_in = c_out
+        side = config.size // 2 ** len(config.channels)
+        layers += [nn.Flatten(), nn.Linear(c_in * side * side, config.fc_width), nn.ReLU()]
+        self.encoder = nn.Sequential(*layers)
+        m, w = config.parts, config.fc_width
+        self.half_extent_head = nn.Linear(w, m * 3)
+        self.quaternion_head = nn.Linear(w, m * 4)
+        self.translation_head = nn.Linear(w, m * 3)
+        self.existence_head = nn.Linear(w, m)
+        self.viewpoint_head = nn.Linear(w, 3)
+        with torch.no_grad():  # start as the volume network does: small cubes near identity rotation
+            self.half_extent_head.bias.fill_(math.log(0.05 / (config.max_half_extent - 0.05)))
+            self.quaternion_head.bias.view(m, 4).copy_(torch.tensor([1.0, 0.0, 0.0, 0.0]))
+            self.quaternion_head.weight.mul_(0.1)
+
+    def forward(self, images: torch.Tensor) -> dict:
+        x = (images - 0.5) / 0.25
+        h = self.encoder(x)
+        m = self.config.parts
+        logits = self.existence_head(h)
+        return {
+            "half_extents": self.config.max_half_extent * torch.sigmoid(self.half_extent_head(h).unflatten(1, (m, 3))),
+            "quaternions": F.normalize(self.quaternion_head(h).unflatten(1, (m, 4)), dim=-1, eps=1e-12),
+            "translations": 0.5 * torch.tanh(self.translation_head(h).unflatten(1, (m, 3))),
+            "existence": torch.sigmoid(logits),
+            "existence_logits": logits,
+            "viewpoint": self.viewpoint_head(h),
+        }
+
+
+def images_to_float(images_uint8: torch.Tensor) -> torch.Tensor:
+    return images_uint8.permute(0, 3, 1, 2).float() / 255.0
