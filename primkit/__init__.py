@@ -16,10 +16,47 @@ Conventions used everywhere (written once, here):
   ``(n, 3) float``. Letters: ``n`` points, ``f`` faces, ``m`` primitives (parts), ``s`` shapes.
   torch stays inside the model and training code.
 
-Imports run one way: io / geometry -> primitives -> data -> model and training -> applications
--> viewers and the command line.
+Imports run one way (README, "Layout"; ``lint-imports`` checks it): io -> geometry -> primitives
+-> data, synthetic, viz -> model, metrics -> applications -> report, viewers, demo -> cli.
+
+For scripts::
+
+    import primkit
+    a = primkit.abstract("chair.off", model="chair")      # or a mesh, (vertices, faces), points
+    a.cuboids                                             # primkit.Cuboids, in the input's frame
+    seg = primkit.segment("chair.off", model="chair")     # face_labels: part index per face
+    model = primkit.load_model("chair")                   # for many predictions
+    shape = primkit.read_shape("chair.off")               # primkit.Mesh, PointCloud or VoxelGrid
 """
 
 from .version import __version__
 
-__all__ = ["__version__"]
+#: the names ``import primkit`` offers, and where each lives (imported on first use, so that
+#: ``import primkit`` loads neither torch nor VTK)
+_EXPORTS = {
+    "abstract": "primkit.model.abstraction",
+    "abstract_shapes": "primkit.model.abstraction",
+    "load_model": "primkit.model.abstraction",
+    "Abstraction": "primkit.model.abstraction",
+    "segment": "primkit.segmentation",
+    "read_shape": "primkit.io",
+    "Mesh": "primkit.io",
+    "PointCloud": "primkit.io",
+    "VoxelGrid": "primkit.io",
+    "Cuboids": "primkit.primitives",
+}
+
+__all__ = ["__version__", *_EXPORTS]
+
+
+def __getattr__(name):
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'primkit' has no attribute {name!r}")
+    import importlib  # the lazy exports' loader: the modules above are imported on first use
+
+    return getattr(importlib.import_module(module), name)
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_EXPORTS))

@@ -37,7 +37,7 @@ from .viz.palette import part_colors
 from .viz.camera import CANONICAL_RADIUS
 from .viz.render import cuboid_layer, mesh_layer, segmentation_layer, ThumbnailRenderer, Tile, write_png
 from .model.abstractor import Abstractor
-from .data import prepare_collection
+from .model.abstraction import abstract_shapes
 from .metrics import score
 
 __all__ = ["ReportShape", "Report", "build_report", "write_report", "scene_data", "VIEWER_JS"]
@@ -72,18 +72,18 @@ class Report:
     notes: dict = field(default_factory=dict)
 
 
-def _canonical_mesh(result, prepared):
-    """The shape's mesh in the frame of ``result``'s canonical frame (input cuboids brought along).
+def _canonical_mesh(a):
+    """The shape's mesh in the frame of its abstraction's canonical frame (input cuboids brought along).
 
     Meshes are read again from their file; voxel grids and point clouds are drawn as the boundary
     of the occupancy grid the network read."""
-    matrix = result.frame.matrix
-    cub = result.cuboids.transformed(matrix)
+    result = a.result
+    cub = result.cuboids.transformed(result.frame.matrix)
     try:
-        mesh = io.read_mesh(result.source)
+        mesh = a.mesh
         return result.frame.to_canonical(mesh.vertices), mesh.faces, cub
     except (io.ShapeFileError, ValueError, OSError):
-        v, f = voxel_boundary_mesh(np.asarray(prepared.occupancy, bool))
+        v, f = voxel_boundary_mesh(np.asarray(a.prepared.occupancy, bool))
         if result.alignment is not None:  # the grid was read turned; turn it back
             v = v @ np.asarray(result.alignment["rotation"], float)
         return v, f, cub
@@ -189,22 +189,20 @@ def build_report(paths, model, output, *, refine: int = 0, align=None, overwrite
     ``settings``: :class:`primkit.data.PrepareSettings` (the inputs' axes); default the model's.
     Returns ``(report, errors)``; ``errors`` has one line per unusable input (the rest goes on).
     """
-    abstractor = model if isinstance(model, Abstractor) else Abstractor.load(model)
-    coll = prepare_collection(paths, settings or abstractor.settings, cache_dir=cache_dir, workers=workers, progress=progress)
-    prepared = list(coll)
-    if not prepared:
+    out = abstract_shapes(paths, model, settings=settings, align=align, refine=refine, cache=cache_dir, workers=workers,
+                          progress=progress)
+    if not out.shapes:
         raise ValueError("no usable shapes for the report")
-    results = abstractor.predict(prepared, align=align, refine=refine)
     shapes = []
-    for r, p in zip(results, prepared):
-        v, f, cub = _canonical_mesh(r, p)
-        shapes.append(ReportShape(r.name, str(r.source), v, f, cub, _face_labels(v, f, cub),
-                                  score(r.canonical, r.canonical_shape(p))))
+    for a in out:
+        v, f, cub = _canonical_mesh(a)
+        shapes.append(ReportShape(a.name, str(a.source), v, f, cub, _face_labels(v, f, cub),
+                                  score(a.canonical, a.canonical_shape())))
     meta = {"model": model_label or (str(model) if not isinstance(model, Abstractor) else "given"), "refine": refine,
             "align": align or "none"}
-    report = write_report(output, shapes, results, abstractor.part_names, overwrite=overwrite, progress=progress,
+    report = write_report(output, shapes, out.results, out.model.part_names, overwrite=overwrite, progress=progress,
                           meta=meta)
-    return report, [str(e) for e in coll.errors]
+    return report, [str(e) for e in out.errors]
 
 
 def write_report(output, shapes, results, part_names, *, overwrite: bool = False, progress: bool = True,

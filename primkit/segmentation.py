@@ -41,7 +41,7 @@ import numpy as np
 from . import io, primitives
 from .model import parts
 from .viz.palette import part_colors
-from .model.abstractor import Abstractor
+from .model.abstraction import abstract, abstract_shapes, load_model
 from .data import parallel_map
 
 __all__ = [
@@ -51,6 +51,7 @@ __all__ = [
     "Segmentation",
     "segment_mesh",
     "Segmenter",
+    "segment",
     "GroundTruth",
     "read_ground_truth",
     "majority_mapping",
@@ -210,7 +211,7 @@ class Segmenter:
     model : str, Path or Abstractor
         A model file or a bundled model's name (``"chair"``).
     up, front : str
-        The inputs' up and front axes (``"+y"`` and ``"+x"`` for ShapeNet and primkit's procedural
+        The inputs' up and front axes (default ``"+y"`` and ``"+x"``: ShapeNet and primkit's procedural
         shapes; Shape COSEG chairs face ``"+z"``).
     align, refine, existence_threshold, prune_threshold
         Passed to :meth:`primkit.abstractor.Abstractor.predict`.
@@ -222,9 +223,9 @@ class Segmenter:
     >>> results[0].face_labels                                      # doctest: +SKIP
     """
 
-    def __init__(self, model, *, up: str = "+y", front: str = "+x", align=None, refine: int = 0,
+    def __init__(self, model, *, up: str | None = None, front: str | None = None, align=None, refine: int = 0,
                  existence_threshold: float = 0.5, prune_threshold: float | None = 0.6):
-        self.abstractor = model if isinstance(model, Abstractor) else Abstractor.load(model)
+        self.abstractor = load_model(model)
         self.up, self.front = up, front
         self.predict_options = {"align": align, "refine": refine, "existence_threshold": existence_threshold,
                                 "prune_threshold": prune_threshold}
@@ -234,12 +235,10 @@ class Segmenter:
         return self.abstractor.part_names
 
     def abstract_files(self, paths, *, cache_dir=None, workers=None, progress=True):
-        """Abstractions of shape files: ``(results, errors)``."""
-        from dataclasses import replace
-
-        settings = replace(self.abstractor.settings, up=self.up, front=self.front)
-        return self.abstractor.abstract_files(paths, cache_dir=cache_dir, workers=workers, progress=progress,
-                                              settings=settings, **self.predict_options)
+        """Abstractions of shape files: ``(results, errors)`` (:func:`primkit.model.abstraction.abstract_shapes`)."""
+        out = abstract_shapes(paths, self.abstractor, up=self.up, front=self.front, cache=cache_dir, workers=workers,
+                              progress=progress, **self.predict_options)
+        return out.results, out.errors
 
     def segment_files(self, paths, *, cache_dir=None, workers=None, progress=True):
         """Abstract and co-segment mesh files.
@@ -260,6 +259,22 @@ class Segmenter:
             else:
                 segs.append(seg)
         return segs, errors
+
+
+def segment(shape, model="chair", **options) -> Segmentation:
+    """Co-segment one mesh: a path, an :class:`primkit.io.Mesh`, ``(vertices, faces)``, or a trimesh,
+    pyvista or Open3D mesh (:func:`primkit.model.abstraction.abstract`; ``options`` are its own:
+    ``up``, ``front``, ``align``, ``refine``, ...). Raises ShapeFileError for a point cloud or a voxel
+    grid, which have no faces to label (use :func:`point_labels` with the abstraction's cuboids).
+
+    >>> seg = primkit.segment("chair.off", model="chair")          # doctest: +SKIP
+    >>> seg.face_labels                                           # doctest: +SKIP
+    """
+    abstractor = load_model(model)
+    a = abstract(shape, abstractor, **options)
+    mesh = a.mesh
+    return segment_mesh(mesh.vertices, mesh.faces, a.cuboids, name=a.name, source=a.source,
+                        part_names=abstractor.part_names)
 
 
 # ---------------------------------------------------------------------------------------------

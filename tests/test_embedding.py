@@ -155,7 +155,8 @@ def test_embed_and_similar_commands(tmp_path, capsys):
     cache = tmp_path / "cache"
     out = tmp_path / "embed"
     common = ["--model", "chair", "--cache", str(cache), "--workers", "1"]
-    assert main(["embed", str(shapes), *common, "--parts", "16,18", "--what", "orientation,size", "-o", str(out)]) == 0
+    assert main(["embed", str(shapes), *common, "--parts", "16,18", "--what", "orientation,size", "-o", str(out),
+                 "--png", str(out / "map.png")]) == 0
     D = np.load(out / "distances.npy")
     X = np.load(out / "descriptors.npy")
     assert D.shape == (6, 6) and np.allclose(D, D.T) and np.allclose(np.diag(D), 0)
@@ -168,14 +169,14 @@ def test_embed_and_similar_commands(tmp_path, capsys):
     assert main(["embed", str(shapes), *common, "-o", str(out)]) == 2
     # voxel IoU baseline
     out2 = tmp_path / "iou"
-    assert main(["embed", str(shapes), *common, "--metric", "voxel-iou", "-o", str(out2), "--no-png"]) == 0
+    assert main(["embed", str(shapes), *common, "--metric", "voxel-iou", "-o", str(out2)]) == 0
     Di = np.load(out2 / "distances.npy")
     assert np.all((Di >= 0) & (Di <= 1)) and np.allclose(np.diag(Di), 0)
     capsys.readouterr()
     # similar: the query is left out of its own ranking; the ranking follows the descriptor distances
     out3 = tmp_path / "similar"
     assert main(["similar", str(shapes / "chair_0000.ply"), str(shapes), *common, "--parts", "16,18",
-                 "--what", "orientation,size", "-k", "3", "-o", str(out3)]) == 0
+                 "--what", "orientation,size", "-k", "3", "-o", str(out3), "--png", str(out3 / "similar.png")]) == 0
     rows = (out3 / "similar.csv").read_text().splitlines()[1:]
     assert len(rows) == 3 and all("chair_0000" not in r for r in rows)
     dist = [float(r.split(",")[2]) for r in rows]
@@ -195,7 +196,7 @@ def test_embed_refine_passes_through(tmp_path):
     shapes = tmp_path / "chairs"
     synthetic.write_collection(shapes, "chair", 4, seed=7)
     cache = tmp_path / "cache"
-    common = ["--model", "chair", "--cache", str(cache), "--workers", "1", "--parts", "16,18", "--no-png"]
+    common = ["--model", "chair", "--cache", str(cache), "--workers", "1", "--parts", "16,18"]
     assert main(["embed", str(shapes), *common, "--refine", "5", "-o", str(tmp_path / "r")]) == 0
     assert main(["embed", str(shapes), *common, "-o", str(tmp_path / "n")]) == 0
     model = Abstractor.load("chair")

@@ -198,7 +198,7 @@ def test_segment_command_goes_past_a_bad_file(tmp_path, capsys):
     (folder / "broken.off").write_text("OFF\n3 1 0\n0 0 0\n1 0 0\n")  # truncated
     out = tmp_path / "out"
     code = main(["segment", str(folder), "--model", "chair", "-o", str(out), "--refine", "0", "--workers", "1",
-                 "--gt", str(folder), "--cache", str(tmp_path / "cache")])
+                 "--gt", str(folder), "--cache", str(tmp_path / "cache"), "--png", str(out / "segmentation.png")])
     captured = capsys.readouterr()
     assert code == 1
     assert "broken.off" in captured.err
@@ -238,7 +238,7 @@ def test_name_parts_writes_a_named_copy(tmp_path, capsys):
     assert named.metadata["part_naming"]["shapes"] == 4
     seg = tmp_path / "seg"
     assert main(["segment", str(folder / "chair_0000.ply"), "--model", str(out), "-o", str(seg), "--semantic",
-                 "--refine", "0", "--workers", "1", "--no-png", "--cache", str(tmp_path / "cache")]) == 0
+                 "--refine", "0", "--workers", "1", "--cache", str(tmp_path / "cache")]) == 0
     legend = (seg / "labels.csv").read_text().splitlines()
     codes = set(io.read_labels(seg / "chair_0000.seg").tolist())
     assert codes <= set(range(1, len(legend)))

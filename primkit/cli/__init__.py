@@ -1,5 +1,8 @@
 """The ``primkit`` command: each subcommand is a thin wrapper over one library call.
 
+The top layer: it may import every part of primkit, and nothing imports it. The shared options
+are defined once, in :mod:`primkit.cli._common`; the application commands live one per module.
+
 Exit codes: 0 success; 1 some inputs could not be used (each reported on one line, the batch goes
 on); 2 bad usage or a fatal error (one line: ``primkit: error: ...``); 130 interrupted.
 """
@@ -15,7 +18,18 @@ from pathlib import Path
 
 __all__ = ["main", "build_parser"]
 
-from ._common import add_prepare_options, collect, err, report_errors, settings_from_args
+from ._common import (
+    abstraction_options,
+    add_abstraction_options,
+    add_force,
+    add_output,
+    add_png,
+    add_prepare_options,
+    collect,
+    err,
+    report_errors,
+    settings_from_args,
+)
 
 
 def _cmd_generate(args) -> int:
@@ -42,58 +56,29 @@ def _cmd_prepare(args) -> int:
 
 
 def _cmd_train(args) -> int:
-    from dataclasses import replace
-
     from ..data import PrepareSettings, prepare_collection, split_files
     from ..io import refuse_existing
-    from ..model.training import ShapeTensors, TrainConfig, train
+    from ..model.presets import recipe
+    from ..model.training import ShapeTensors, train
 
     out = Path(args.output)
     refuse_existing(out, args.force)
-    preset = None
-    config = TrainConfig()
-    hold_out = 0
-    up, front = "+y", "+x"
-    if args.preset:
-        from ..model.presets import get_preset
-
-        preset = get_preset(args.preset)
-        config, hold_out = preset.config, preset.hold_out_every
-        up, front = preset.prepare.get("up", up), preset.prepare.get("front", front)
-    explicit = {k: getattr(args, k) for k in ("parts", "batch_size", "encoder", "seed") if getattr(args, k) is not None}
-    if args.lr is not None:
-        explicit["learning_rate"] = args.lr
-    if args.symmetry is not None:
-        explicit["symmetry_weight"] = args.symmetry
-    config = replace(config, **explicit)
-    if args.hold_out is not None:
-        hold_out = args.hold_out
-    files, held = split_files(collect(args.inputs), hold_out)
-    settings = settings_from_args(args, PrepareSettings(up=up, front=front))
+    plan = recipe(args.preset, stage1=args.stage1, stage2=args.stage2, full_schedule=args.full_schedule,
+                  hold_out_every=args.hold_out, up=args.up, front=args.front, parts=args.parts,
+                  batch_size=args.batch_size, encoder=args.encoder, seed=args.seed, learning_rate=args.lr,
+                  symmetry_weight=args.symmetry)
+    files, held = split_files(collect(args.inputs), plan.hold_out_every)
+    settings = settings_from_args(args, PrepareSettings(up=plan.up, front=plan.front))
     coll = prepare_collection(files, settings, cache_dir=args.cache, workers=args.workers)
     status = report_errors(coll.errors)
     if len(coll) == 0:
         err("no usable shapes to train on")
         return 2
     shapes = ShapeTensors(coll)
-    if args.stage1 is not None or args.stage2 is not None:
-        config = replace(config, stage1_iterations=args.stage1 if args.stage1 is not None else config.stage1_iterations,
-                         stage2_iterations=args.stage2 if args.stage2 is not None else config.stage2_iterations)
-    elif args.full_schedule:
-        config = replace(config, stage1_iterations=TrainConfig.stage1_iterations, stage2_iterations=TrainConfig.stage2_iterations)
-    elif preset is None:
-        config = config.scaled_for(len(shapes))
+    config = plan.schedule(len(shapes))
     print(f"training on {len(shapes)} shapes ({len(held)} held out): {config.stage1_iterations} + {config.stage2_iterations} "
           f"iterations, {config.parts} parts, batch {config.batch_size}", file=sys.stderr)
-    description = {
-        "inputs": [str(p) for p in args.inputs],
-        "terms": args.data_terms or (preset.terms if preset else "not stated"),
-        "hold_out_every": hold_out,
-        "held_out": len(held),
-        "prepare": {"up": settings.up, "front": settings.front},
-    }
-    if preset is not None:
-        description["preset"] = preset.to_dict()
+    description = plan.description(args.inputs, len(held), args.data_terms)
     result = train(shapes, out, config, device=args.device, resume=args.resume, description=description, overwrite=args.force)
     if result.interrupted:
         return 130
@@ -105,26 +90,23 @@ def _cmd_train(args) -> int:
     return status
 
 
-def _align(args):
-    return None if args.align == "none" else args.align
-
-
 def _cmd_abstract(args) -> int:
-    from ..model.abstractor import Abstractor
-    from ..model.modelfile import read_metadata
+    from ..io import refuse_existing
     from ..model.bundled import resolve_model
+    from ..model.modelfile import read_metadata
 
     if read_metadata(resolve_model(args.model)).get("kind") == "image-abstractor":
         from .image import run_abstract_images
 
         return run_abstract_images(args)
-    abstractor = Abstractor.load(args.model)
-    results, errors = abstractor.abstract_files(collect(args.inputs), cache_dir=args.cache, workers=args.workers,
-                                                existence_threshold=args.threshold,
-                                                prune_threshold=None if args.prune <= 0 else args.prune,
-                                                align=_align(args), refine=args.refine)
-    failed = list(errors)
-    for r in results:
+    from ..model.abstraction import abstract_shapes
+    from ..viz.render import render_abstractions
+
+    refuse_existing(args.png, args.force)
+    out = abstract_shapes(collect(args.inputs), args.model, existence_threshold=args.threshold,
+                          prune_threshold=None if args.prune <= 0 else args.prune, **abstraction_options(args))
+    failed = list(out.errors)
+    for r in out.results:
         try:
             j, m = r.save(args.output, overwrite=args.force)
         except FileExistsError as exc:
@@ -136,29 +118,19 @@ def _cmd_abstract(args) -> int:
         if r.refinement is not None:
             extra += f"; refined: loss {r.refinement['loss_before']:.2e} -> {r.refinement['loss_after']:.2e}"
         print(f"{r.name}: {int(r.cuboids.existence.sum())} parts{extra} -> {j}")
-    if args.png and results:
-        from ..io import read_mesh, refuse_existing
-        from ..viz.render import render_abstractions
-
-        picture = Path(args.output) / "abstractions.png"
-        try:
-            refuse_existing(picture, args.force)
-        except FileExistsError as exc:
-            failed.append(str(exc))
-        else:
-            shown, meshes = [], []
-            for r in results:
-                try:  # meshes only (a point cloud or a voxel grid is left out of the picture)
-                    m = read_mesh(r.source)
-                except ValueError:
-                    continue
-                shown.append(r)
-                meshes.append((m.vertices, m.faces))
-                if len(shown) == 16:
-                    break
-            if shown:
-                render_abstractions(shown, meshes, picture)
-                print(f"picture: {picture}")
+    if args.png and out.shapes:
+        shown = []
+        for a in out:
+            try:  # meshes only (a point cloud or a voxel grid is left out of the picture)
+                a.mesh
+            except ValueError:
+                continue
+            shown.append(a)
+            if len(shown) == 16:
+                break
+        if shown:
+            render_abstractions([a.result for a in shown], [(a.vertices, a.faces) for a in shown], args.png)
+            print(f"picture: {args.png}")
     return report_errors(failed)
 
 
@@ -175,20 +147,16 @@ def _split_inputs(files, abstractor, split: str) -> list:
 
 
 def _cmd_eval(args) -> int:
-    from ..model.abstractor import Abstractor
-    from ..data import prepare_collection
     from ..metrics import ChamferConvention, score, summarize
+    from ..model.abstraction import abstract_shapes, load_model
 
-    abstractor = Abstractor.load(args.model)
+    abstractor = load_model(args.model)
     files = _split_inputs(collect(args.inputs), abstractor, args.split)
     if args.limit:
         files = files[: args.limit]
-    settings = settings_from_args(args, abstractor.settings)
-    coll = prepare_collection(files, settings, cache_dir=args.cache, workers=args.workers)
-    shapes = list(coll)
-    results = abstractor.predict(shapes, align=_align(args), refine=args.refine)
+    out = abstract_shapes(files, abstractor, **abstraction_options(args))
     conv = ChamferConvention(power=args.chamfer_power)
-    scores = [score(r.canonical, r.canonical_shape(s), conv) for r, s in zip(results, shapes)]
+    scores = [score(a.canonical, a.canonical_shape(), conv) for a in out]
     summary = summarize(scores) if scores else {}
     print(f"metric convention: {conv.describe()}")
     for key in ("chamfer", "iou", "coverage", "consistency", "parts"):
@@ -201,8 +169,8 @@ def _cmd_eval(args) -> int:
 
         with atomic_output(args.json, overwrite=args.force) as tmp:
             Path(tmp).write_text(json.dumps({"convention": conv.describe(), "summary": summary,
-                                             "shapes": {r.name: s.to_dict() for r, s in zip(results, scores)}}, indent=1))
-    return report_errors(coll.errors)
+                                             "shapes": {a.name: s.to_dict() for a, s in zip(out, scores)}}, indent=1))
+    return report_errors(out.errors)
 
 
 def _cmd_models(args) -> int:
@@ -256,19 +224,19 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("demo", help="the main job: generate procedural chairs, train, abstract, draw a picture")
-    p.add_argument("-o", "--output", default="primkit-demo", help="output folder (default primkit-demo)")
+    add_output(p, "output folder (default primkit-demo)", default="primkit-demo", required=False)
     p.add_argument("--quick", action="store_true", help="a much shorter run (for tests)")
-    p.add_argument("--force", action="store_true", help="overwrite an existing output folder's files")
+    add_force(p)
     p.set_defaults(func=_cmd_demo)
 
     p = sub.add_parser("generate", help="write procedural part-labelled shapes")
     p.add_argument("category", choices=["chair", "table", "airplane", "animal"])
     p.add_argument("-n", "--count", type=int, default=10)
-    p.add_argument("-o", "--output", required=True)
+    add_output(p, "output folder")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--rate", action="append", metavar="ATTRIBUTE=FRACTION",
                    help="fraction of shapes with a yes/no attribute, e.g. --rate has_arms=0.5 (repeatable)")
-    p.add_argument("--force", action="store_true")
+    add_force(p)
     p.set_defaults(func=_cmd_generate)
 
     p = sub.add_parser("prepare", help="prepare shapes into the cache (grids, samples, distances)")
@@ -278,7 +246,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("train", help="train an abstractor on a folder of shapes")
     p.add_argument("inputs", nargs="+", help="folders or files of shapes")
-    p.add_argument("-o", "--output", required=True, help="model file to write (.safetensors)")
+    add_output(p, "model file to write (.safetensors)")
     p.add_argument("--preset", default=None, help="a bundled model's recipe (chair, table, airplane, animal): schedule, "
                    "hold-out rule, data terms; other flags override it")
     p.add_argument("--parts", type=int, default=None, help="part slots M (default 20)")
@@ -295,41 +263,31 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--device", default=None, help="cpu or cuda (default: cuda when available)")
     p.add_argument("--resume", default=None, help="checkpoint to resume from (<model>.checkpoint.safetensors)")
     p.add_argument("--data-terms", default=None, help="the training data's terms of use, recorded in the model file")
-    p.add_argument("--force", action="store_true")
+    add_force(p)
     add_prepare_options(p)
     p.set_defaults(func=_cmd_train)
 
-    p = sub.add_parser("abstract", help="abstract shapes (or pictures, with an image model) with a trained model: JSON + coloured cuboid mesh per shape")
+    p = sub.add_parser("abstract", help="abstract shapes (or pictures, with an image model) with a trained model: JSON + "
+                       "coloured cuboid mesh per shape; --png: the shapes beside their cuboids (for an image model, each "
+                       "picture with its cuboids drawn over it)")
     p.add_argument("inputs", nargs="+")
-    p.add_argument("--model", required=True, help="a model file, or a bundled model's name (primkit models)")
-    p.add_argument("--refine", type=int, default=0, metavar="N", help="N gradient steps per shape on its own losses (0: off)")
-    p.add_argument("--align", choices=["none", "auto"], default="none",
-                   help="auto: try the 24 axis-aligned orientations and keep the one the model explains best")
-    p.add_argument("-o", "--output", required=True, help="output folder")
-    p.add_argument("--png", action="store_true", help="also draw the shapes beside their cuboids (abstractions.png; "
-                   "for an image model, each picture with its cuboids drawn over it)")
+    add_output(p, "output folder")
+    add_abstraction_options(p)
+    add_png(p)
     p.add_argument("--threshold", type=float, default=0.5, help="existence probability above which a part exists")
     p.add_argument("--prune", type=float, default=0.6, help="drop parts more than this fraction inside others (0: off)")
-    p.add_argument("--cache", default=None)
-    p.add_argument("--workers", type=int, default=None)
-    p.add_argument("--force", action="store_true")
+    add_force(p)
     p.set_defaults(func=_cmd_abstract)
 
     p = sub.add_parser("eval", help="Chamfer, IoU, coverage, consistency and parts of a model's abstractions")
     p.add_argument("inputs", nargs="+")
-    p.add_argument("--model", required=True, help="a model file, or a bundled model's name")
+    add_abstraction_options(p)
     p.add_argument("--split", choices=["all", "held-out", "train"], default="all",
                    help="evaluate on the files the model held out from training (its recorded rule), or those it trained on")
     p.add_argument("--limit", type=int, default=0, help="evaluate at most this many files (0: all)")
-    p.add_argument("--refine", type=int, default=0, metavar="N")
-    p.add_argument("--align", choices=["none", "auto"], default="none")
-    p.add_argument("--up", default=None, help="the inputs' up axis (default: the model's, +y)")
-    p.add_argument("--front", default=None, help="the inputs' front axis (default +x)")
     p.add_argument("--chamfer-power", type=int, choices=[1, 2], default=1, help="1: unsquared distances, 2: squared")
     p.add_argument("--json", default=None, help="also write the scores to this JSON file")
-    p.add_argument("--cache", default=None)
-    p.add_argument("--workers", type=int, default=None)
-    p.add_argument("--force", action="store_true")
+    add_force(p)
     p.set_defaults(func=_cmd_eval)
 
     p = sub.add_parser("models", help="list the bundled models with their model cards")

@@ -1,13 +1,41 @@
 """Shared pieces of the ``primkit`` subcommands: one-line errors, batch error reports, input
-collection and preparation options. Each subcommand module under :mod:`primkit.cli` defines
-``register(subparsers)`` and a ``run(args) -> int`` and stays a thin wrapper over library calls."""
+collection, and the options the commands share.
+
+Every shared option is defined once, here (the ``add_*`` functions), so that a flag means the same
+thing, with the same default and help, in every command that has it; ``tests/cli/test_options.py``
+walks every subcommand's parser and checks it. Each subcommand module under :mod:`primkit.cli`
+defines ``register(subparsers)`` and stays a thin wrapper over library calls; it imports the
+library when its command runs (the model layer imports torch, the drawing kit VTK, and
+``primkit --help`` needs neither).
+"""
 
 from __future__ import annotations
 
 import sys
 from pathlib import Path
 
-__all__ = ["err", "report_errors", "collect", "settings_from_args", "add_prepare_options"]
+__all__ = [
+    "err",
+    "report_errors",
+    "collect",
+    "settings_from_args",
+    "abstraction_options",
+    "add_model",
+    "add_output",
+    "add_force",
+    "add_axes",
+    "add_align",
+    "add_refine",
+    "add_cache",
+    "add_workers",
+    "add_png",
+    "add_prepare_options",
+    "add_abstraction_options",
+    "SHARED_OPTIONS",
+]
+
+#: the shared options' destinations, as ``tests/cli/test_options.py`` checks them
+SHARED_OPTIONS = ("model", "output", "force", "up", "front", "align", "refine", "cache", "workers", "png")
 
 
 def err(msg: str) -> None:
@@ -43,10 +71,71 @@ def settings_from_args(args, base=None):
     return replace(base, **{k: v for k, v in given.items() if v is not None})
 
 
-def add_prepare_options(p) -> None:
-    p.add_argument("--resolution", type=int, default=32, help="grid cells per axis (default 32)")
-    p.add_argument("--samples", type=int, default=10000, help="surface samples per shape (default 10000)")
-    p.add_argument("--up", default=None, help="the inputs' up axis, e.g. +y (COSEG, ShapeNet; the default) or +z")
-    p.add_argument("--front", default=None, help="the inputs' front axis (default +x)")
-    p.add_argument("--cache", default=None, help="cache folder (default $PRIMKIT_CACHE or ~/.cache/primkit/prepared)")
+def abstraction_options(args) -> dict:
+    """The keyword arguments of :func:`primkit.model.abstraction.abstract_shapes` that the shared
+    options give (the inputs' axes only when given, so the library's defaults stand otherwise)."""
+    options = {"align": args.align, "refine": args.refine, "cache": args.cache, "workers": args.workers}
+    options.update({k: getattr(args, k) for k in ("up", "front") if getattr(args, k, None) is not None})
+    return options
+
+
+def add_model(p) -> None:
+    p.add_argument("--model", required=True, help="a model file, or a bundled model's name (primkit models)")
+
+
+def add_output(p, help: str, **kwargs) -> None:
+    kwargs.setdefault("required", True)
+    p.add_argument("-o", "--output", help=help, **kwargs)
+
+
+def add_force(p) -> None:
+    p.add_argument("--force", action="store_true", help="replace existing outputs")
+
+
+def add_axes(p) -> None:
+    p.add_argument("--up", default=None, help="the inputs' up axis, e.g. +z (default +y: ShapeNet, COSEG)")
+    p.add_argument("--front", default=None, help="the inputs' front axis, e.g. +z for the COSEG chairs (default +x)")
+
+
+def add_align(p) -> None:
+    p.add_argument("--align", choices=["none", "auto"], default="none",
+                   help="auto: try the 24 axis-aligned orientations of each shape and keep the one the model "
+                        "explains best (default none)")
+
+
+def add_refine(p) -> None:
+    p.add_argument("--refine", type=int, default=0, metavar="N",
+                   help="N gradient steps per shape on its own losses after the network (default 0: the network's "
+                        "answer; 100-200 fit the cuboids closer, at 0.4-1.3 s per shape per 100 steps on one core)")
+
+
+def add_cache(p) -> None:
+    p.add_argument("--cache", default=None, help="preparation cache folder (default $PRIMKIT_CACHE or ~/.cache/primkit/prepared)")
+
+
+def add_workers(p) -> None:
     p.add_argument("--workers", type=int, default=None, help="processes for preparation (default: all cores)")
+
+
+def add_png(p) -> None:
+    p.add_argument("--png", default=None, metavar="PATH", help="also draw the command's picture into this PNG file")
+
+
+def add_prepare_options(p) -> None:
+    """How shapes are prepared: grid resolution, surface samples, the inputs' axes, cache, processes."""
+    p.add_argument("--resolution", type=int, default=None, help="grid cells per axis (default 32, or the model's)")
+    p.add_argument("--samples", type=int, default=None, help="surface samples per shape (default 10000)")
+    add_axes(p)
+    add_cache(p)
+    add_workers(p)
+
+
+def add_abstraction_options(p) -> None:
+    """What a command that abstracts shapes with a model takes: the model, the inputs' axes,
+    align, refine, cache and processes."""
+    add_model(p)
+    add_axes(p)
+    add_align(p)
+    add_refine(p)
+    add_cache(p)
+    add_workers(p)

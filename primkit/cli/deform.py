@@ -15,9 +15,9 @@ from pathlib import Path
 import numpy as np
 
 from ..model.parts import resolve_parts
-from ._common import err, report_errors, settings_from_args
+from ._common import abstraction_options, add_abstraction_options, add_force, add_output, add_png, err, report_errors
 
-__all__ = ["register", "parse_edit", "write_like"]
+__all__ = ["register", "parse_edit"]
 
 
 def parse_edit(text: str, names, *, kind: str) -> dict:
@@ -45,26 +45,21 @@ def _outputs(args) -> tuple[Path, Path | None, Path]:
     from ..io import refuse_existing
 
     out = Path(args.output)
-    png = None if args.png == "none" else Path(args.png) if args.png else out.with_suffix(".png")
+    png = Path(args.png) if args.png else None
     js = Path(args.json) if args.json else out.with_suffix(".json")
     refuse_existing((out, png, js), args.force)
     return out, png, js
 
 
-def _abstract(args, paths, abstractor=None):
-    """(abstractor, [(prepared shape, result)] in the order of ``paths``, errors)."""
-    from ..model.abstractor import Abstractor
-    from ..data import prepare_collection
+def _abstract(args, paths, model=None):
+    """(model, [(prepared shape, result)] in the order of ``paths``, errors): the inputs through
+    :func:`primkit.model.abstraction.abstract_shapes`."""
+    from ..model.abstraction import abstract_shapes
 
-    abstractor = abstractor or Abstractor.load(args.model)
-    settings = settings_from_args(args, abstractor.settings)
-    coll = prepare_collection(paths, settings, cache_dir=args.cache, workers=args.workers)
-    shapes = {str(s.source): s for s in coll}
-    if coll.errors:
-        return abstractor, None, coll.errors
-    ordered = [shapes[str(p)] for p in paths]
-    results = abstractor.predict(ordered, refine=args.refine)
-    return abstractor, list(zip(ordered, results)), []
+    out = abstract_shapes(paths, model or args.model, **abstraction_options(args))
+    if out.errors:
+        return out.model, None, out.errors
+    return out.model, [(a.prepared, a.result) for a in out], []
 
 
 def _source_mesh(path):
@@ -74,36 +69,6 @@ def _source_mesh(path):
     if not isinstance(shape, Mesh):
         raise ShapeFileError(path, "the source must be a triangle mesh (a point cloud or voxel grid has no surface to deform)")
     return shape
-
-
-def write_like(source_path, path, vertices, faces, *, overwrite: bool = False) -> Path:
-    """Write ``vertices`` with the source's faces; when ``path`` has the source's suffix (PLY, OBJ,
-    GLB) and trimesh reads the source with the same vertices and faces, its other attributes
-    (vertex colours, texture coordinates) are kept. Otherwise :func:`primkit.io.write_mesh`."""
-    from .. import io
-
-    src, path = Path(source_path), Path(path)
-    if src.suffix.lower() == path.suffix.lower() and path.suffix.lower() in (".ply", ".obj", ".glb"):
-        try:
-            import trimesh
-
-            tm = trimesh.load(str(src), process=False, maintain_order=True, force="mesh")
-            same = len(tm.vertices) == len(vertices) and np.array_equal(np.asarray(tm.faces), np.asarray(faces))
-        except Exception:  # noqa: BLE001 - fall back to the plain writer
-            same = False
-        if same:
-            tm.vertices = np.asarray(vertices, float)
-            payload = tm.export(file_type=path.suffix.lower()[1:])
-            with io.atomic_output(path, overwrite=overwrite) as tmp:
-                Path(tmp).write_bytes(payload if isinstance(payload, bytes) else payload.encode())
-            return path
-    return io.write_mesh(path, vertices, faces, overwrite=overwrite)
-
-
-def _face_labels(labels, faces):
-    """A part per face from the vertices' parts (two corners agreeing win, else the first)."""
-    lab = np.asarray(labels)[np.asarray(faces)]
-    return np.where(lab[:, 1] == lab[:, 2], lab[:, 1], lab[:, 0])
 
 
 def _parts_tile(title, vertices, faces, face_parts, cuboids, count=None):
@@ -143,7 +108,8 @@ def _named(q, names):
 
 
 def _cmd_deform(args) -> int:
-    from .. import deformation
+    from .. import deformation, io
+    from ..segmentation import face_labels
     from ..io import atomic_output
     from ..viz.camera import CANONICAL_RADIUS
     from ..viz.render import Tile, cuboid_layer, write_png
@@ -171,7 +137,7 @@ def _cmd_deform(args) -> int:
     print(f"Chamfer-L1 to the target (canonical frames, 10000+10000 samples): source {q['chamfer_source_target']:.4f} "
           f"-> result {q['chamfer_result_target']:.4f}")
     print(_summary_line(q) + f"; blending distance {d.binding.falloff:.4f}")
-    write_like(src, out, rs.frame.from_canonical(d.vertices), mesh.faces, overwrite=args.force)
+    io.write_like(src, out, rs.frame.from_canonical(d.vertices), mesh.faces, overwrite=args.force)
     report = {"source": str(src), "target": str(tgt), "model": str(args.model), "output": str(out),
               "frame": "canonical frame of each shape (bbox centred, longest side 1)",
               "chamfer": "Chamfer-L1 = (mean_A min_B |a-b| + mean_B min_A |b-a|) / 2, unsquared",
@@ -179,7 +145,7 @@ def _cmd_deform(args) -> int:
     with atomic_output(js, overwrite=args.force) as tmp:
         Path(tmp).write_text(json.dumps(report, indent=1))
     if png is not None:
-        flab = _face_labels(d.binding.labels, mesh.faces)
+        flab = face_labels(v, mesh.faces, rs.canonical)  # the co-segmentation rule, drawn on both
         tiles = [_parts_tile(f"source {ss.name}", v, mesh.faces, flab, rs.canonical),
                  Tile(f"target {ts.name}", [_target_layer(ts), cuboid_layer(rt.canonical, opacity=0.25)]),
                  _parts_tile("result", d.vertices, mesh.faces, flab, rt.canonical, rs.canonical.count)]
@@ -189,16 +155,17 @@ def _cmd_deform(args) -> int:
 
 
 def _cmd_edit(args) -> int:
-    from .. import deformation
+    from .. import deformation, io
+    from ..segmentation import face_labels
     from ..io import atomic_output
     from ..viz.camera import CANONICAL_RADIUS
     from ..viz.render import write_png
 
-    out, png, js = _outputs(args)
-    from ..model.abstractor import Abstractor
+    from ..model.abstraction import load_model
 
+    out, png, js = _outputs(args)
     src = Path(args.mesh)
-    abstractor = Abstractor.load(args.model)
+    abstractor = load_model(args.model)
     names = abstractor.part_names
     edits = {"scale": {}, "rotate": {}, "move": {}, "lengthen": {}}
     for kind in edits:  # checked before any shape is read
@@ -234,7 +201,7 @@ def _cmd_edit(args) -> int:
         print(f"lengthened between the floor at {L.floor:.4f} and the cut plane at {L.cut:.4f} ({held}); "
               f"expected rise {max(L.rise(k) for k in L.factors):.4f}")
     print(_summary_line(q) + f"; blending distance {d.binding.falloff:.4f}")
-    write_like(src, out, shape.frame.from_canonical(d.vertices), mesh.faces, overwrite=args.force)
+    io.write_like(src, out, shape.frame.from_canonical(d.vertices), mesh.faces, overwrite=args.force)
     report = {"source": str(src), "model": str(args.model), "output": str(out),
               "edits": {kind: {f"{names[k]}[{k}]": np.atleast_1d(val).tolist() for k, val in chosen.items()}
                         for kind, chosen in edits.items()},
@@ -246,7 +213,7 @@ def _cmd_edit(args) -> int:
     with atomic_output(js, overwrite=args.force) as tmp:
         Path(tmp).write_text(json.dumps(report, indent=1))
     if png is not None:
-        flab = _face_labels(d.binding.labels, mesh.faces)
+        flab = face_labels(v, mesh.faces, res.canonical)  # the co-segmentation rule, drawn on both
         tiles = [_parts_tile(f"before {shape.name}", v, mesh.faces, flab, res.canonical),
                  _parts_tile("after", d.vertices, mesh.faces, flab, e.cuboids, res.canonical.count)]
         write_png(png, tiles, overwrite=args.force, columns=2, radius=CANONICAL_RADIUS)
@@ -255,18 +222,13 @@ def _cmd_edit(args) -> int:
 
 
 def _common_options(p) -> None:
-    p.add_argument("--model", required=True, help="a model file, or a bundled model's name (chair, table, ...)")
-    p.add_argument("-o", "--output", required=True, help="the deformed mesh (.ply, .obj, .off, .glb, .stl)")
-    p.add_argument("--up", default=None, help="the inputs' up axis (default +y)")
-    p.add_argument("--front", default=None, help="the inputs' front axis (default +x; COSEG chairs: +z)")
-    p.add_argument("--refine", type=int, default=0, metavar="N", help="refine each abstraction with N gradient steps")
+    add_abstraction_options(p)
+    add_output(p, "the deformed mesh (.ply, .obj, .off, .glb, .stl)")
     p.add_argument("--falloff", type=float, default=None,
                    help="blending distance at seams, canonical units (default: widened to the seams' discrepancy)")
-    p.add_argument("--png", default=None, help="picture path (default OUTPUT with .png; 'none': no picture)")
+    add_png(p)
     p.add_argument("--json", default=None, help="quality measures (default OUTPUT with .json)")
-    p.add_argument("--cache", default=None)
-    p.add_argument("--workers", type=int, default=None)
-    p.add_argument("--force", action="store_true", help="replace existing outputs")
+    add_force(p)
 
 
 def register(subparsers) -> None:

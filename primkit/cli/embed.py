@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._common import add_prepare_options, collect, err, report_errors
+from ._common import abstraction_options, add_abstraction_options, add_force, add_output, add_png, collect, err, report_errors
 
 #: Above this many shapes ``embed`` writes no full distance matrix unless --distances yes.
 _MATRIX_LIMIT = 4000
@@ -33,29 +33,18 @@ def _scales(text):
 
 
 def _abstract(args, files):
-    """Abstract files in batches, keeping only what the commands need: results and occupancy grids."""
+    """Abstract files (:func:`primkit.model.abstraction.abstract_shapes`), keeping only what the
+    commands need: the results and the occupancy grids the network read."""
     from dataclasses import replace
 
-    from tqdm import tqdm
-
-    from ..model.abstractor import Abstractor
-    from ..data import prepare_collection
+    from ..model.abstraction import abstract_shapes, load_model
     from ._common import settings_from_args
 
-    abstractor = Abstractor.load(args.model)
-    settings = settings_from_args(args, abstractor.settings)
-    settings = replace(settings, resolution=abstractor.resolution)
-    coll = prepare_collection(files, settings, cache_dir=args.cache, workers=args.workers)
-    results, grids = [], []
-    batch = 128
-    with tqdm(total=len(coll), desc="abstracting", unit="shape", disable=len(coll) <= batch) as bar:
-        for i in range(0, len(coll), batch):
-            shapes = [coll[j] for j in range(i, min(i + batch, len(coll)))]
-            part = abstractor.predict(shapes, align=None if args.align == "none" else args.align, refine=args.refine)
-            results.extend(part)
-            grids.extend(r.canonical_shape(s).occupancy for r, s in zip(part, shapes))
-            bar.update(len(shapes))
-    return abstractor, results, np.array(grids, dtype=bool), coll.errors
+    abstractor = load_model(args.model)
+    settings = replace(settings_from_args(args, abstractor.settings), resolution=abstractor.resolution)
+    out = abstract_shapes(files, abstractor, settings=settings, **abstraction_options(args))
+    grids = [a.canonical_shape().occupancy for a in out]
+    return abstractor, out.results, np.array(grids, dtype=bool), out.errors
 
 
 def _thumb_meshes(results, grids, kind, selected):
@@ -103,10 +92,10 @@ def _cmd_embed(args) -> int:
     from ..io import atomic_output, refuse_existing
 
     out = Path(args.output)
-    names_out = ["distances.npy", "distances.csv", "map.csv"] + (["map.png"] if args.png else []) + (["map.svg"] if args.svg else [])
+    names_out = ["distances.npy", "distances.csv", "map.csv"]
     if args.metric == "descriptor":
         names_out += ["descriptors.npy"]
-    refuse_existing([out / n for n in names_out], args.force)
+    refuse_existing([out / n for n in names_out] + [args.png, args.svg], args.force)
     files = collect(args.inputs)
     if not files:
         raise ValueError(f"no shape files found in {', '.join(args.inputs)}")
@@ -146,8 +135,7 @@ def _cmd_embed(args) -> int:
     if args.png or args.svg:
         meshes = _thumb_meshes(results, grids, args.thumbnails, None if desc is None else desc.parts_)
         images = embedding.render_thumbnails(meshes, size=args.thumb_size, progress=True)
-        embedding.draw_map(coords, images, out / "map.png" if args.png else None, svg=out / "map.svg" if args.svg else None,
-                           title=f"t-SNE map of {s} shapes: {what}")
+        embedding.draw_map(coords, images, args.png, svg=args.svg, title=f"t-SNE map of {s} shapes: {what}")
     print(f"{s} shapes embedded ({what}) -> {out}")
     return report_errors(errors)
 
@@ -157,7 +145,7 @@ def _cmd_similar(args) -> int:
     from ..io import refuse_existing
 
     out = Path(args.output)
-    refuse_existing([out / "similar.csv"] + ([out / "similar.png"] if args.png else []), args.force)
+    refuse_existing([out / "similar.csv", args.png], args.force)
     query_files = collect([args.query])
     if len(query_files) != 1:
         raise ValueError(f"{args.query}: expected one shape file, found {len(query_files)}")
@@ -193,13 +181,12 @@ def _cmd_similar(args) -> int:
         meshes = _thumb_meshes([query] + [results[j] for j in order], np.concatenate([qgrid, grids[order]]), args.thumbnails, sel)
         images = embedding.render_thumbnails(meshes, size=160)
         what = "voxel IoU" if X is None else f"parts {args.parts or 'all'}, {','.join(desc.what_)}"
-        embedding.draw_matches(images[0], images[1:], [results[j].name for j in order], dist, out / "similar.png",
+        embedding.draw_matches(images[0], images[1:], [results[j].name for j in order], dist, args.png,
                                query_name=query.name, title=f"nearest to {query.name} by {what}")
     return report_errors(errors)
 
 
 def _common_options(p) -> None:
-    p.add_argument("--model", required=True, help="a model file, or a bundled model's name (primkit models)")
     p.add_argument("--parts", default=None, help="parts to compare, by name or index: back,seat or 3,7 (default: all)")
     p.add_argument("--what", default="size,position,orientation,presence",
                    help="properties compared: any of size, position, orientation, presence (default: all)")
@@ -210,15 +197,11 @@ def _common_options(p) -> None:
                    help="descriptor (the parts' cuboids) or voxel-iou (1 - IoU of the occupancy grids, the baseline)")
     p.add_argument("--thumbnails", choices=["shape", "cuboids"], default="shape",
                    help="draw each shape's voxel surface, or its cuboids (selected parts coloured)")
-    p.add_argument("--refine", type=int, default=0, metavar="N",
-                   help="fit each shape's cuboids to its own surface with N gradient steps before comparing "
-                        "(0: the network's answer). Slower (roughly 0.4-1.3 s per shape for 100 steps on one core) "
-                        "but orientations then follow the shape: use it for --what orientation")
-    p.add_argument("--align", choices=["none", "auto"], default="none")
-    p.add_argument("-o", "--output", required=True, help="output folder")
-    p.add_argument("--no-png", dest="png", action="store_false", help="skip the picture")
-    p.add_argument("--force", action="store_true")
-    add_prepare_options(p)
+    add_abstraction_options(p)
+    p.add_argument("--samples", type=int, default=None, help="surface samples per shape (default 10000)")
+    add_output(p, "output folder")
+    add_png(p)
+    add_force(p)
 
 
 def register(subparsers) -> None:
@@ -229,7 +212,7 @@ def register(subparsers) -> None:
                    help=f"write the full distance matrix (auto: up to {_MATRIX_LIMIT} shapes)")
     p.add_argument("--perplexity", type=float, default=30.0)
     p.add_argument("--seed", type=int, default=0, help="t-SNE random state")
-    p.add_argument("--svg", action="store_true", help="also write map.svg")
+    p.add_argument("--svg", default=None, metavar="PATH", help="also draw the map into this SVG file")
     p.add_argument("--thumb-size", type=int, default=96, help="thumbnail size in pixels")
     p.set_defaults(func=_cmd_embed)
 

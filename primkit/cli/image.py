@@ -10,7 +10,9 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from ._common import add_prepare_options, collect, err, report_errors, settings_from_args
+import numpy as np
+
+from ._common import add_force, add_output, add_prepare_options, collect, err, report_errors, settings_from_args
 
 __all__ = ["register", "run_train_image", "run_abstract_images", "collect_images"]
 
@@ -38,8 +40,9 @@ def collect_images(inputs) -> tuple[list[Path], list[str]]:
 def run_abstract_images(args) -> int:
     """Abstract pictures with an image model: per image ``<name>.cuboids.json`` (canonical frame,
     with the estimated viewpoint), ``<name>.cuboids.ply`` (coloured by part index) and, with
-    ``--png``, ``<name>.png``: the picture beside the same picture with the cuboid edges projected
-    through the predicted viewpoint and the training views' distance and field of view.
+    ``--png PATH``, one PNG holding, per picture (a row each), the picture beside the same picture
+    with the cuboid edges projected through the predicted viewpoint and the training views'
+    distance and field of view.
 
     ``args``: ``.inputs`` (image files or folders), ``.model``, ``.output``, ``.force``, ``.png``.
     """
@@ -58,8 +61,14 @@ def run_abstract_images(args) -> int:
     out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
     vs = model.view_settings
+    try:
+        refuse_existing(args.png, args.force)
+    except FileExistsError as exc:
+        failed.append(str(exc))
+        args.png = None
+    rows = []
     for r in results:
-        paths = [out / f"{r.name}.cuboids.json", out / f"{r.name}.cuboids.ply"] + ([out / f"{r.name}.png"] if args.png else [])
+        paths = [out / f"{r.name}.cuboids.json", out / f"{r.name}.cuboids.ply"]
         try:
             refuse_existing(paths, args.force)
         except FileExistsError as exc:
@@ -70,9 +79,14 @@ def run_abstract_images(args) -> int:
         v, f, part = r.cuboids.to_mesh()
         write_mesh(paths[1], v, f, face_colors=part_colors(r.cuboids.count)[part], overwrite=True)
         if args.png:
-            draw_over_image(r, paths[2], distance=float(sum(vs.distance) / 2), view_angle_deg=vs.view_angle_deg)
+            rows.append(draw_over_image(r, None, distance=float(sum(vs.distance) / 2), view_angle_deg=vs.view_angle_deg))
         print(f"{r.name}: {int(r.cuboids.existence.sum())} parts, seen from azimuth {r.azimuth_deg:.0f} deg, "
               f"elevation {r.elevation_deg:.0f} deg -> {paths[0]}")
+    if rows:
+        from PIL import Image
+
+        with atomic_output(args.png, overwrite=True) as tmp:
+            Image.fromarray(np.concatenate(rows)).save(str(tmp), format="PNG")
     return report_errors(failed)
 
 
@@ -143,7 +157,7 @@ def run_train_image(args) -> int:
 def register(subparsers) -> None:
     p = subparsers.add_parser("train-image", help="distil a volume model into an image model (rendered views)")
     p.add_argument("inputs", nargs="+", help="shape files or folders (the teacher's category)")
-    p.add_argument("-o", "--output", required=True, help="the image model file to write (.safetensors)")
+    add_output(p, "the image model file to write (.safetensors)")
     p.add_argument("--teacher", default="chair", help="the volume model to distil (a file or a bundled name)")
     p.add_argument("--views", type=int, default=2, help="rendered views per shape (default 2)")
     p.add_argument("--size", type=int, default=64, help="image side in pixels (default 64; divisible by 32)")
@@ -160,6 +174,6 @@ def register(subparsers) -> None:
     p.add_argument("--hold-out", type=int, default=None,
                    help="hold out every Nth sorted file (default: the teacher's own rule, so no held-out shape is seen)")
     p.add_argument("--limit", type=int, default=0, help="use at most this many training shapes (0: all)")
-    p.add_argument("--force", action="store_true")
+    add_force(p)
     add_prepare_options(p)
     p.set_defaults(func=run_train_image)

@@ -3,13 +3,13 @@ deform) on a collection, into a static HTML page (:func:`primkit.report.build_re
 
 from __future__ import annotations
 
-from ._common import collect, err, report_errors, settings_from_args
+from ._common import add_abstraction_options, add_force, add_output, collect, err, report_errors, settings_from_args
 
 __all__ = ["register"]
 
 
 def _run(args) -> int:
-    from ..model.abstractor import Abstractor
+    from ..model.abstraction import load_model
     from ..report import build_report
 
     files = collect(args.inputs)
@@ -18,10 +18,10 @@ def _run(args) -> int:
     if not files:
         err("no shape files found in " + " ".join(map(str, args.inputs)))
         return 2
-    model = Abstractor.load(args.model)
+    model = load_model(args.model)
     report, errors = build_report(files, model, args.output, refine=args.refine,
                                   settings=settings_from_args(args, model.settings), model_label=args.model,
-                                  align=None if args.align == "none" else args.align, overwrite=args.force,
+                                  align=args.align, overwrite=args.force,
                                   cache_dir=args.cache, workers=args.workers)
     for note in report.notes.values():
         print(f"primkit: note: {note}")
@@ -33,14 +33,8 @@ def register(subparsers) -> None:
     p = subparsers.add_parser("report", help="a static HTML report of a collection: thumbnails, segmentation, "
                               "similarity map, deformation, metrics, interactive 3D scene")
     p.add_argument("inputs", nargs="+", help="folders or files of shapes")
-    p.add_argument("--model", required=True, help="a model file, or a bundled model's name")
-    p.add_argument("-o", "--output", required=True, help="output folder (index.html, report.json, images/)")
+    add_abstraction_options(p)
+    add_output(p, "output folder (index.html, report.json, images/)")
     p.add_argument("--limit", type=int, default=0, help="at most this many shapes (0: all)")
-    p.add_argument("--refine", type=int, default=0, metavar="N")
-    p.add_argument("--align", choices=["none", "auto"], default="none")
-    p.add_argument("--up", default=None, help="the inputs' up axis (default +y)")
-    p.add_argument("--front", default=None, help="the inputs' front axis (default +x; COSEG chairs: +z)")
-    p.add_argument("--cache", default=None)
-    p.add_argument("--workers", type=int, default=None)
-    p.add_argument("--force", action="store_true", help="replace an existing report")
+    add_force(p)
     p.set_defaults(func=_run)

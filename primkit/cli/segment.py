@@ -6,7 +6,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from ._common import collect, err, report_errors
+from ._common import add_abstraction_options, add_force, add_output, add_png, collect, err, report_errors
 
 __all__ = ["register"]
 
@@ -70,10 +70,12 @@ def _picture(segs, path, limit: int = 16) -> None:
 def _cmd_segment(args) -> int:
     from ..segmentation import Segmenter, evaluate, read_ground_truth, write_summary
 
+    from ..io import atomic_output, refuse_existing
+
     out = Path(args.output)
-    segmenter = Segmenter(args.model, up=args.up, front=args.front, align=None if args.align == "none" else args.align,
-                          refine=args.refine)
     sources = _ground_truth_files(args)
+    refuse_existing([args.png] + ([out / "evaluation.json"] if sources else []), args.force)
+    segmenter = Segmenter(args.model, up=args.up, front=args.front, align=args.align, refine=args.refine)
     segs, errors = segmenter.segment_files(collect(args.inputs), cache_dir=args.cache, workers=args.workers)
     failed = list(errors)
     written = []
@@ -99,11 +101,11 @@ def _cmd_segment(args) -> int:
             (out / "labels.csv").write_text("code,name\n" + "".join(f"{i + 1},{n}\n" for i, n in enumerate(names)))
         for s in written:
             s.cuboids.save_json(out / f"{s.name}.cuboids.json", overwrite=True)
-        if not args.no_png:
-            _picture(segs, out / "segmentation.png")
+        if args.png:
+            _picture(segs, args.png)
     except FileExistsError as exc:
         failed.append(str(exc))
-    print(f"summary: {out / 'summary.csv'}" + ("" if args.no_png else f"; picture: {out / 'segmentation.png'}"))
+    print(f"summary: {out / 'summary.csv'}" + (f"; picture: {args.png}" if args.png else ""))
 
     if sources:
         pairs, names = [], []
@@ -119,9 +121,7 @@ def _cmd_segment(args) -> int:
         if pairs:
             report = evaluate([p[0] for p in pairs], [p[1] for p in pairs], part_names=segmenter.part_names)
             _print_evaluation(report, [p[0].name for p in pairs])
-            from ..io import atomic_output
-
-            with atomic_output(out / "evaluation.json", overwrite=True) as tmp:
+            with atomic_output(out / "evaluation.json", overwrite=args.force) as tmp:
                 Path(tmp).write_text(json.dumps(report, indent=1))
             print(f"\nevaluation written to {out / 'evaluation.json'}")
     return report_errors(failed)
@@ -137,7 +137,7 @@ def _cmd_name_parts(args) -> int:
 
     out = Path(args.output)
     refuse_existing(out, args.force)
-    segmenter = Segmenter(args.model, up=args.up, front=args.front, refine=args.refine)
+    segmenter = Segmenter(args.model, up=args.up, front=args.front, align=args.align, refine=args.refine)
     segs, errors = segmenter.segment_files(collect(args.inputs), cache_dir=args.cache, workers=args.workers)
     failed = list(errors)
     sources = [(args.labels, args.names)] if args.labels else []
@@ -186,38 +186,27 @@ def _model_path(model):
     return resolve_model(model)
 
 
-def _add_abstraction_options(p) -> None:
-    p.add_argument("--model", required=True, help="a model file, or a bundled model's name (primkit models)")
-    p.add_argument("--up", default="+y", help="the inputs' up axis (default +y: ShapeNet, COSEG)")
-    p.add_argument("--front", default="+x", help="the inputs' front axis (default +x; COSEG chairs: +z)")
-    p.add_argument("--refine", type=int, default=200, metavar="N",
-                   help="N gradient steps per shape on its own losses before projecting (default 200; 0: the network alone)")
-    p.add_argument("--cache", default=None, help="preparation cache folder")
-    p.add_argument("--workers", type=int, default=None, help="processes (default: all cores)")
-
-
 def register(sub) -> None:
     p = sub.add_parser("segment", help="co-segment a collection: each face to its primitive, the same part index on every shape")
     p.add_argument("inputs", nargs="+", help="mesh files or folders")
-    p.add_argument("-o", "--output", required=True, help="output folder")
-    _add_abstraction_options(p)
-    p.add_argument("--align", choices=["none", "auto"], default="none")
+    add_output(p, "output folder")
+    add_abstraction_options(p)
+    add_png(p)
     p.add_argument("--semantic", action="store_true", help="write the model's part names' codes (labels.csv) instead of indices")
     p.add_argument("--gt", action="append", metavar="FOLDER", help="folder of ground-truth .seg files (same stems); repeatable")
     p.add_argument("--gt-names", action="append", metavar="NAMES",
                    help="what the ground-truth values mean: 'back,seat,legs' names values 1,2,3 ('1=back,2=seat' also); "
                    "'legs/base' accepts either model name; once, or once per --gt")
-    p.add_argument("--no-png", action="store_true", help="do not draw segmentation.png")
-    p.add_argument("--force", action="store_true")
+    add_force(p)
     p.set_defaults(func=_cmd_segment)
 
     p = sub.add_parser("name-parts", help="name a model's part indices from labelled shapes; writes a copy of the model")
     p.add_argument("inputs", nargs="+", help="labelled mesh files or folders")
-    p.add_argument("-o", "--output", required=True, help="model file to write (the input model is never modified)")
-    _add_abstraction_options(p)
+    add_output(p, "model file to write (the input model is never modified)")
+    add_abstraction_options(p)
     p.add_argument("--labels", default=None, help="folder of .seg files (default: the .seg beside each mesh)")
     p.add_argument("--names", default=None,
                    help="what the label values mean ('back,seat,legs' for values 1,2,3); default: the .json beside "
                    "procedural shapes (primkit generate), else the values")
-    p.add_argument("--force", action="store_true")
+    add_force(p)
     p.set_defaults(func=_cmd_name_parts)

@@ -1,4 +1,4 @@
-"""``primkit view ...``: open one of the interactive viewers of ``apps/`` (pyvista windows).
+"""``primkit view ...``: one of the interactive viewers of :mod:`primkit.viewers` (pyvista windows).
 
     primkit view abstraction SHAPE --model chair
     primkit view collection FOLDER --model chair [--mode segmentation]
@@ -7,24 +7,25 @@
 
 ``--png PATH`` draws the viewer's first frame off screen into a PNG instead of opening a window
 (no display needed); with ``--window`` as well, the picture is taken from a real window (under X,
-e.g. ``xvfb-run -a``) which then closes.
-
-The viewers live in ``apps/`` of a source checkout (they sit above the library and are not
-installed with it); :func:`load_app` finds them beside the package.
+e.g. ``xvfb-run -a``) which then closes. The viewers are part of the installed package; the
+scripts in the checkout's ``apps/`` run the same commands.
 """
 
 from __future__ import annotations
 
-import importlib
 import os
 
-from ._common import err, report_errors
+from ._common import (
+    abstraction_options,
+    add_abstraction_options,
+    add_force,
+    add_png,
+    collect,
+    err,
+    report_errors,
+)
 
-__all__ = ["register", "load_app", "show"]
-
-def load_app(name: str):
-    """Import the viewer module ``primkit.viewers.<name>``."""
-    return importlib.import_module(f"primkit.viewers.{name}")
+__all__ = ["register", "show"]
 
 
 def show(plotter, png=None, window: bool = False) -> None:
@@ -45,16 +46,6 @@ def show(plotter, png=None, window: bool = False) -> None:
     print(f"wrote {png}")
 
 
-def _common(p, model_required=True):
-    p.add_argument("--model", required=model_required, help="a model file, or a bundled model's name")
-    p.add_argument("--refine", type=int, default=0, metavar="N", help="N gradient steps per shape (0: off)")
-    p.add_argument("--align", choices=["none", "auto"], default="none")
-    p.add_argument("--png", default=None, help="write the viewer's first frame to this PNG instead of opening it")
-    p.add_argument("--window", action="store_true", help="with --png: take the picture from a real window (needs X)")
-    p.add_argument("--size", default="1280x900", help="window size WxH (default 1280x900)")
-    p.add_argument("--force", action="store_true", help="replace an existing --png file")
-
-
 def _size(text: str) -> tuple[int, int]:
     try:
         w, h = (int(x) for x in text.lower().split("x"))
@@ -63,79 +54,139 @@ def _size(text: str) -> tuple[int, int]:
     return w, h
 
 
+def _meshes(args, inputs, progress: bool = True):
+    """The inputs abstracted (:func:`primkit.model.abstraction.abstract_shapes`), meshes only:
+    ``(shapes, model, errors)``, a point cloud or voxel grid reported as an error (no surface to draw)."""
+    from ..model.abstraction import abstract_shapes
+
+    out = abstract_shapes(inputs, args.model, progress=progress, **abstraction_options(args))
+    shapes, errors = [], list(out.errors)
+    for a in out:
+        try:
+            a.mesh
+        except ValueError as exc:
+            errors.append(str(exc))
+            continue
+        shapes.append(a)
+    return shapes, out.model, errors
+
+
+def _files(args):
+    files = collect(args.folder)
+    return files[: args.limit] if args.limit else files
+
+
+def _view_abstraction(args, off, size) -> int:
+    from ..viewers.abstraction_viewer import abstraction_viewer
+
+    shapes, model, errors = _meshes(args, [args.shape], progress=False)
+    if not shapes:
+        err(errors[0] if errors else f"{args.shape}: not usable")
+        return 2
+    s = shapes[0]
+    viewer = abstraction_viewer(s.vertices, s.faces, s.cuboids, model.part_names, title=s.name, off_screen=off,
+                                window_size=size)
+    if args.select is not None:
+        viewer.select(args.select)
+    elif viewer.part_actors:
+        viewer.select(max(viewer.part_actors, key=lambda k: s.cuboids.volumes[k]))
+    show(viewer.plotter, args.png, args.window)
+    return 0
+
+
+def _view_collection(args, off, size) -> int:
+    from ..viewers.collection_browser import collection_browser
+
+    shapes, model, errors = _meshes(args, _files(args))
+    if not shapes:
+        report_errors(errors)
+        err("no usable shapes")
+        return 2
+    browser = collection_browser(shapes, model.part_names, mode=args.mode, off_screen=off, window_size=size,
+                                 title=" ".join(args.folder))
+    show(browser.plotter, args.png, args.window)
+    return report_errors(errors)
+
+
+def _view_embedding(args, off, size) -> int:
+    from ..viewers.embedding_explorer import embedding_explorer
+
+    shapes, model, errors = _meshes(args, _files(args))
+    if len(shapes) < 3:
+        report_errors(errors)
+        err(f"the map needs at least 3 usable shapes, got {len(shapes)}")
+        return 2
+    explorer = embedding_explorer(shapes, model.part_names, parts=args.parts, neighbors=args.neighbors,
+                                  off_screen=off, window_size=size, title=" ".join(args.folder))
+    explorer.select(min(max(args.select, 0), len(shapes) - 1))
+    show(explorer.plotter, args.png, args.window)
+    return report_errors(errors)
+
+
+def _view_deformation(args, off, size) -> int:
+    from ..model.parts import resolve_parts
+    from ..viewers.deformation_viewer import deformation_viewer
+
+    shapes, model, errors = _meshes(args, [args.source, args.target], progress=False)
+    if len(shapes) != 2:
+        report_errors(errors)
+        err("deformation needs a usable source and target")
+        return 2
+    part = None
+    if args.part is not None:
+        chosen = resolve_parts(args.part, model.part_names)
+        if len(chosen) != 1:
+            err(f"--part must name one part, got {args.part!r}")
+            return 2
+        part = int(chosen[0])
+    viewer = deformation_viewer(shapes[0], shapes[1], model.part_names, part=part, off_screen=off, window_size=size)
+    show(viewer.plotter, args.png, args.window)
+    return 0
+
+
+_VIEWERS = {"abstraction": _view_abstraction, "collection": _view_collection, "embedding": _view_embedding,
+            "deformation": _view_deformation}
+
+
 def _run(args) -> int:
     from ..io import refuse_existing
 
     refuse_existing(args.png, args.force)
-    align = None if args.align == "none" else args.align
     off = args.png is not None and not args.window
-    size = _size(args.size)
-    common = load_app("common")
-    if args.viewer == "abstraction":
-        app = load_app("abstraction_viewer")
-        shapes, model, errors = common.abstract_shapes([args.shape], args.model, refine=args.refine, align=align,
-                                                       progress=False)
-        if not shapes:
-            err(errors[0] if errors else f"{args.shape}: not usable")
-            return 2
-        s = shapes[0]
-        viewer = app.abstraction_viewer(s.vertices, s.faces, s.cuboids, model.part_names, title=s.name,
-                                        off_screen=off, window_size=size)
-        if args.select is not None:
-            viewer.select(args.select)
-        elif viewer.part_actors:
-            viewer.select(max(viewer.part_actors, key=lambda k: s.cuboids.volumes[k]))
-        show(viewer.plotter, args.png, args.window)
-        return 0
-    if args.viewer == "collection":
-        from ._common import collect
+    return _VIEWERS[args.viewer](args, off, _size(args.size))
 
-        app = load_app("collection_browser")
-        files = collect(args.folder)
-        if args.limit:
-            files = files[: args.limit]
-        shapes, model, errors = common.abstract_shapes(files, args.model, refine=args.refine, align=align)
-        if not shapes:
-            report_errors(errors)
-            err("no usable shapes")
-            return 2
-        browser = app.collection_browser(shapes, model.part_names, mode=args.mode, off_screen=off, window_size=size,
-                                         title=" ".join(args.folder))
-        show(browser.plotter, args.png, args.window)
-        return report_errors(errors)
-    if args.viewer == "embedding":
-        app = load_app("embedding_explorer")
-        return app.run(args, off_screen=off, window_size=size, show=show)
-    if args.viewer == "deformation":
-        app = load_app("deformation_viewer")
-        return app.run(args, off_screen=off, window_size=size, show=show)
-    err(f"unknown viewer {args.viewer}")
-    return 2
+
+def _options(p) -> None:
+    add_abstraction_options(p)
+    add_png(p)
+    p.add_argument("--window", action="store_true", help="with --png: take the picture from a real window (needs X)")
+    p.add_argument("--size", default="1280x900", help="window size WxH (default 1280x900)")
+    add_force(p)
 
 
 def register(subparsers) -> None:
     p = subparsers.add_parser("view", help="interactive viewers (pyvista windows): abstraction, collection, embedding, "
-                              "deformation")
+                              "deformation; --png: the first frame into a PNG instead of a window")
     sub = p.add_subparsers(dest="viewer", required=True)
     q = sub.add_parser("abstraction", help="one shape and its cuboids: toggle parts, opacity, click a cuboid")
     q.add_argument("shape")
     q.add_argument("--select", type=int, default=None, help="part index selected at start (default: the largest)")
-    _common(q)
+    _options(q)
     q = sub.add_parser("collection", help="a grid of shapes, parts coloured alike; mesh / cuboids / segmentation")
     q.add_argument("folder", nargs="+")
     q.add_argument("--mode", choices=["mesh", "cuboids", "segmentation"], default="cuboids")
     q.add_argument("--limit", type=int, default=0, help="at most this many shapes (0: all)")
-    _common(q)
+    _options(q)
     q = sub.add_parser("embedding", help="the t-SNE map of a collection; click a shape for its nearest neighbours")
     q.add_argument("folder", nargs="+")
     q.add_argument("--parts", default="all", help="parts the similarity looks at (names or indices, e.g. back,seat)")
     q.add_argument("--neighbors", type=int, default=4, help="neighbours shown beside the chosen shape")
     q.add_argument("--select", type=int, default=0, help="shape chosen at start (its position in the collection)")
     q.add_argument("--limit", type=int, default=0)
-    _common(q)
+    _options(q)
     q = sub.add_parser("deformation", help="source, target and result; blend slider; move, scale, turn a part")
     q.add_argument("source")
     q.add_argument("target")
     q.add_argument("--part", default=None, help="part edited by the widgets (name or index; default: the largest)")
-    _common(q)
+    _options(q)
     p.set_defaults(func=_run)

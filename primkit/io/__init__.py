@@ -50,28 +50,9 @@ Modules: :mod:`~primkit.io.values` (the value types and the error), :mod:`~primk
 layer: it imports nothing else of primkit.
 """
 
+from . import files, formats, values
 from .files import atomic_output, refuse_existing
-from .formats import LABEL_SUFFIXES, MESH_SUFFIXES, POINT_SUFFIXES, VOXEL_SUFFIXES, is_shape_file, read_labels, read_mesh, read_points, read_shape, read_voxels, write_labels, write_mesh, write_points
+from .formats import LABEL_SUFFIXES, MESH_SUFFIXES, POINT_SUFFIXES, VOXEL_SUFFIXES, is_shape_file, read_labels, read_mesh, read_points, read_shape, read_voxels, write_labels, write_like, write_mesh, write_points
 from .values import Mesh, PointCloud, ShapeFileError, VoxelGrid
 
-__all__ = [
-    "ShapeFileError",
-    "Mesh",
-    "PointCloud",
-    "VoxelGrid",
-    "MESH_SUFFIXES",
-    "POINT_SUFFIXES",
-    "VOXEL_SUFFIXES",
-    "LABEL_SUFFIXES",
-    "is_shape_file",
-    "read_mesh",
-    "read_points",
-    "read_voxels",
-    "read_shape",
-    "read_labels",
-    "write_mesh",
-    "write_labels",
-    "write_points",
-    "atomic_output",
-    "refuse_existing",
-]
+__all__ = values.__all__ + formats.__all__ + files.__all__

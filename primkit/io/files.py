@@ -18,7 +18,7 @@ def refuse_existing(paths, overwrite: bool = False) -> None:
     Writers call it before they start work, so that nothing a user made is replaced without
     ``--force``; :func:`atomic_output` makes the same check when it writes.
     """
-    if overwrite:
+    if overwrite or paths is None:
         return
     for path in [paths] if isinstance(paths, (str, os.PathLike)) else paths:
         if path is not None and os.path.lexists(path):

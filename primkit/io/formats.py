@@ -25,6 +25,7 @@ __all__ = [
     "write_mesh",
     "write_labels",
     "write_points",
+    "write_like",
 ]
 
 
@@ -618,3 +619,25 @@ def _write_obj(path: Path, mesh: Mesh, colors, overwrite: bool) -> None:
     ) as mtl_tmp:
         mtl_tmp.write_text(mtl, encoding="ascii")
         obj_tmp.write_text(text, encoding="ascii")
+
+
+def write_like(source_path, path, vertices, faces, *, overwrite: bool = False) -> Path:
+    """Write ``vertices`` with the source's faces; when ``path`` has the source's suffix (PLY, OBJ,
+    GLB) and trimesh reads the source with the same vertices and faces, its other attributes
+    (vertex colours, texture coordinates) are kept. Otherwise :func:`write_mesh`."""
+    src, path = Path(source_path), Path(path)
+    if src.suffix.lower() == path.suffix.lower() and path.suffix.lower() in (".ply", ".obj", ".glb"):
+        try:
+            import trimesh  # imported on first use, as by the readers
+
+            tm = trimesh.load(str(src), process=False, maintain_order=True, force="mesh")
+            same = len(tm.vertices) == len(vertices) and np.array_equal(np.asarray(tm.faces), np.asarray(faces))
+        except Exception:  # noqa: BLE001 - fall back to the plain writer
+            same = False
+        if same:
+            tm.vertices = np.asarray(vertices, float)
+            payload = tm.export(file_type=path.suffix.lower()[1:])
+            with atomic_output(path, overwrite=overwrite) as tmp:
+                Path(tmp).write_bytes(payload if isinstance(payload, bytes) else payload.encode())
+            return path
+    return write_mesh(path, vertices, faces, overwrite=overwrite)

@@ -1,7 +1,8 @@
 """Inference: a trained abstractor turns prepared shapes into indexed cuboids.
 
-``Abstractor.load(path).predict(shapes)`` for many shapes (the network's cost is paid once and
-shapes go through it in batches); :func:`abstract` for one file.
+``Abstractor.load(path).predict(shapes)`` for prepared shapes (the network's cost is paid once and
+shapes go through it in batches); :mod:`primkit.model.abstraction` takes shapes as the user has them
+(files, meshes, arrays) and is what the commands use.
 
 Which parts are kept: a part exists when its probability is above ``existence_threshold`` (0.5),
 then parts mostly inside the others are pruned (:func:`primkit.primitives.prune_covered`: while the
@@ -41,7 +42,7 @@ from .fitting import fit_losses
 from .fitting import refine as refine_cuboids
 from .network import load_network
 
-__all__ = ["Abstractor", "AbstractionResult", "abstract"]
+__all__ = ["Abstractor", "AbstractionResult"]
 
 
 @dataclass(frozen=True)
@@ -243,20 +244,3 @@ class Abstractor:
             back = np.linalg.inv(s.frame.matrix)
             results.append(AbstractionResult(s.name, cub.transformed(back), cub, s.frame, s.source, al, rf))
         return results
-
-    def abstract_files(self, paths, *, cache_dir=None, workers=None, progress=True, settings=None, **kwargs):
-        """Prepare (through the cache) and abstract files; returns (results, errors).
-
-        ``settings``: how to prepare the files (:class:`primkit.data.PrepareSettings`, e.g. the
-        inputs' up and front axes); the model's own by default. Its resolution must be the model's.
-        """
-        coll = data.prepare_collection(paths, settings or self.settings, cache_dir=cache_dir, workers=workers,
-                                       progress=progress)
-        return self.predict(list(coll), **kwargs), coll.errors
-
-
-def abstract(path, model, **kwargs) -> AbstractionResult:
-    """Abstract one shape file with a model file; raises ShapeFileError for an unusable file."""
-    abstractor = model if isinstance(model, Abstractor) else Abstractor.load(model)
-    shape = data.prepare_file(path, abstractor.settings)
-    return abstractor.predict([shape], **kwargs)[0]

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field, replace
 
 from .training import TrainConfig
 
-__all__ = ["Preset", "PRESETS", "get_preset"]
+__all__ = ["Preset", "PRESETS", "get_preset", "Recipe", "recipe"]
 
 SHAPENET_TERMS = (
     "ShapeNetVox32 (3D-R2N2, Choy et al. 2016), voxelised from ShapeNetCore v1: ShapeNet's terms of use, "
@@ -105,3 +105,74 @@ def get_preset(name: str) -> Preset:
         return PRESETS[name]
     except KeyError:
         raise ValueError(f"unknown preset {name!r} (choose from {', '.join(PRESETS)})") from None
+
+
+@dataclass(frozen=True)
+class Recipe:
+    """How to train: a preset's (or the defaults') schedule, hold-out rule and input axes, with the
+    caller's overrides merged in (:func:`recipe`).
+
+    Attributes
+    ----------
+    config : TrainConfig
+    hold_out_every : int
+        Files of rank ``r % hold_out_every == hold_out_every - 1`` (sorted paths) are held out; 0: none.
+    up, front : str
+        The training data's axes.
+    preset : Preset or None
+    fixed : bool
+        The schedule was given (a preset, explicit stages, or the full schedule); otherwise
+        :meth:`schedule` shortens it to the collection's size.
+    """
+
+    config: TrainConfig
+    hold_out_every: int
+    up: str
+    front: str
+    preset: Preset | None = None
+    fixed: bool = False
+
+    def schedule(self, shapes: int) -> TrainConfig:
+        """The config to train ``shapes`` shapes with (:meth:`TrainConfig.scaled_for` unless ``fixed``)."""
+        return self.config if self.fixed else self.config.scaled_for(shapes)
+
+    def description(self, inputs, held_out: int, terms: str | None = None) -> dict:
+        """What the model file records about its data (``training.data``)."""
+        d = {
+            "inputs": [str(p) for p in inputs],
+            "terms": terms or (self.preset.terms if self.preset else "not stated"),
+            "hold_out_every": self.hold_out_every,
+            "held_out": held_out,
+            "prepare": {"up": self.up, "front": self.front},
+        }
+        if self.preset is not None:
+            d["preset"] = self.preset.to_dict()
+        return d
+
+
+def recipe(preset: str | None = None, *, stage1: int | None = None, stage2: int | None = None,
+           full_schedule: bool = False, hold_out_every: int | None = None, up: str | None = None,
+           front: str | None = None, **overrides) -> Recipe:
+    """A preset (by name; None: the defaults) with the caller's overrides.
+
+    ``overrides`` are :class:`TrainConfig` fields (``parts``, ``batch_size``, ``learning_rate``, ...);
+    None values are ignored, so a command line's unset options keep the preset's. ``stage1`` /
+    ``stage2`` set the iterations of either stage and ``full_schedule`` the paper's 20k + 30k;
+    either fixes the schedule, as a preset does.
+    """
+    base = get_preset(preset) if preset else None
+    config = base.config if base is not None else TrainConfig()
+    config = replace(config, **{k: v for k, v in overrides.items() if v is not None})
+    fixed = base is not None
+    if stage1 is not None or stage2 is not None:
+        config = replace(config, stage1_iterations=config.stage1_iterations if stage1 is None else stage1,
+                         stage2_iterations=config.stage2_iterations if stage2 is None else stage2)
+        fixed = True
+    elif full_schedule:
+        config = replace(config, stage1_iterations=TrainConfig.stage1_iterations,
+                         stage2_iterations=TrainConfig.stage2_iterations)
+        fixed = True
+    hold = base.hold_out_every if base is not None else 0
+    prepare = base.prepare if base is not None else {}
+    return Recipe(config, hold if hold_out_every is None else hold_out_every, up or prepare.get("up", "+y"),
+                  front or prepare.get("front", "+x"), base, fixed)

@@ -18,10 +18,7 @@ from ..viz.palette import part_colors
 from ..viz.interop import to_pyvista
 from ..viz.camera import apply_camera
 
-try:
-    from . import common
-except ImportError:  # run as a script
-    import common
+from . import common
 
 __all__ = ["AbstractionViewer", "abstraction_viewer"]
 

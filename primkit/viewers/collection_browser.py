@@ -23,10 +23,7 @@ from ..viz.palette import part_colors
 from ..viz.interop import to_pyvista
 from ..viz.camera import CAMERA, apply_camera
 
-try:
-    from . import common
-except ImportError:  # run as a script
-    import common
+from . import common
 
 __all__ = ["CollectionBrowser", "collection_browser", "MODES"]
 
@@ -95,7 +92,7 @@ def collection_browser(shapes, part_names=None, *, columns: int | None = None, m
 
     Parameters
     ----------
-    shapes : list of apps.common.Shape (a mesh and its AbstractionResult)
+    shapes : list of primkit.model.abstraction.Abstraction (a mesh and its AbstractionResult)
     part_names : one name per part slot (the model's ``part_names``)
     columns : shapes per row (default about the square root of the count, wider than tall)
     """

@@ -1,70 +1,21 @@
-"""Pieces shared by the viewers: abstracting input files, segmentation labels, text and picking."""
+"""Pieces shared by the viewers: segmentation labels, text and picking."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
-from .. import io
+from ..segmentation import face_labels as segmentation_face_labels
 from ..viz.backend import pyvista_module
-from ..model.abstractor import Abstractor
 
-__all__ = ["Shape", "abstract_shapes", "face_labels", "describe_part", "text_of", "pick_actor", "on_click",
+__all__ = ["face_labels", "describe_part", "text_of", "pick_actor", "on_click",
            "display_position", "new_plotter"]
 
 
-@dataclass
-class Shape:
-    """A mesh with its abstraction (input frame), as the viewers draw it.
-
-    vertices : (n, 3) float; faces : (f, 3) int; result : primkit.abstractor.AbstractionResult.
-    """
-
-    name: str
-    vertices: np.ndarray
-    faces: np.ndarray
-    result: object
-
-    @property
-    def cuboids(self):
-        return self.result.cuboids
-
-    def canonical_vertices(self) -> np.ndarray:
-        """(n, 3) float: the mesh in the canonical frame of :attr:`result`'s ``canonical`` cuboids."""
-        return self.result.frame.to_canonical(self.vertices)
-
-
-def abstract_shapes(paths, model, *, refine: int = 0, align=None, progress: bool = True):
-    """Read and abstract mesh files with a model (name or path, or an Abstractor).
-
-    Returns ``(shapes, abstractor, errors)``: the usable files as :class:`Shape` s in input order,
-    and one error line per unusable file (the batch goes on).
-    """
-    abstractor = model if isinstance(model, Abstractor) else Abstractor.load(model)
-    results, errors = abstractor.abstract_files([str(p) for p in paths], progress=progress, refine=refine, align=align)
-    shapes, errors = [], [str(e) for e in errors]
-    for r in results:
-        try:
-            mesh = io.read_mesh(r.source)
-        except io.ShapeFileError as exc:  # a point cloud or a voxel grid: draw what the model saw
-            errors.append(str(exc))
-            continue
-        shapes.append(Shape(r.name, mesh.vertices, mesh.faces, r))
-    return shapes, abstractor, errors
-
-
 def face_labels(vertices, faces, cuboids) -> np.ndarray:
-    """(f,) int: the co-segmentation (primitive index per face), -1 when no part is present."""
+    """(f,) int: the co-segmentation (:func:`primkit.segmentation.face_labels`), -1 when no part is present."""
     if not cuboids.existence.any():
         return np.full(len(faces), -1, np.int64)
-    try:
-        from ..segmentation import face_labels as labels
-    except ImportError:  # before primkit.segmentation existed: the same rule at the face centroids
-        from ..primitives import assign_points
-
-        return assign_points(np.asarray(vertices)[np.asarray(faces)].mean(1), cuboids)
-    return labels(vertices, faces, cuboids)
+    return segmentation_face_labels(vertices, faces, cuboids)
 
 
 def describe_part(cuboids, k: int, names) -> str:

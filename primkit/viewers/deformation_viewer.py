@@ -30,15 +30,10 @@ from ..viz.palette import part_colors
 from ..viz.interop import to_pyvista
 from ..viz.camera import CAMERA, apply_camera
 from ..deformation import bind, edit_cuboids, seam_falloff, transfer_transforms
-from ..cli._common import err, report_errors
-from ..model.parts import resolve_parts
 
-try:
-    from . import common
-except ImportError:  # run as a script
-    import common
+from . import common
 
-__all__ = ["DeformationViewer", "deformation_viewer", "run"]
+__all__ = ["DeformationViewer", "deformation_viewer"]
 
 STEP = 1.4  # distance between the panels, in canonical shape sizes
 
@@ -114,7 +109,7 @@ class DeformationViewer:
 
 def deformation_viewer(source, target, part_names=None, *, part: int | None = None, off_screen: bool = False,
                        window_size=(1280, 700), title: str = "") -> DeformationViewer:
-    """Build the viewer for two :class:`apps.common.Shape` s abstracted by one model."""
+    """Build the viewer for two :class:`primkit.model.abstraction.Abstraction` s abstracted by one model."""
     sc, tc = source.result.canonical, target.result.canonical
     sv, tv = source.canonical_vertices(), target.canonical_vertices()
     names = list(part_names) if part_names is not None else [f"part{k}" for k in range(sc.count)]
@@ -159,24 +154,3 @@ def deformation_viewer(source, target, part_names=None, *, part: int | None = No
     common.on_click(p, viewer.pick_at)
     return viewer
 
-
-def run(args, *, off_screen, window_size, show) -> int:
-    """``primkit view deformation``."""
-    align = None if args.align == "none" else args.align
-    shapes, model, errors = common.abstract_shapes([args.source, args.target], args.model, refine=args.refine,
-                                                   align=align, progress=False)
-    if len(shapes) != 2:
-        report_errors(errors)
-        err("deformation needs a usable source and target")
-        return 2
-    part = None
-    if args.part is not None:
-        chosen = resolve_parts(args.part, model.part_names)
-        if len(chosen) != 1:
-            err(f"--part must name one part, got {args.part!r}")
-            return 2
-        part = int(chosen[0])
-    viewer = deformation_viewer(shapes[0], shapes[1], model.part_names, part=part, off_screen=off_screen,
-                                window_size=window_size)
-    show(viewer.plotter, args.png, args.window)
-    return 0

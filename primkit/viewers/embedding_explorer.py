@@ -19,14 +19,10 @@ import numpy as np
 from ..viz.interop import to_pyvista
 from ..viz.camera import CAMERA, apply_camera
 from .. import embedding
-from ..cli._common import collect, err, report_errors
 
-try:
-    from . import common
-except ImportError:  # run as a script
-    import common
+from . import common
 
-__all__ = ["EmbeddingExplorer", "embedding_explorer", "run"]
+__all__ = ["EmbeddingExplorer", "embedding_explorer"]
 
 GREY, ORANGE, BLUE = "lightgrey", "#f28e2b", "#4e79a7"
 MAP_WIDTH = 8.0  # the map's larger side, in canonical shape sizes
@@ -106,7 +102,7 @@ def embedding_explorer(shapes, part_names=None, *, parts="all", neighbors: int =
 
     Parameters
     ----------
-    shapes : list of apps.common.Shape (at least 3)
+    shapes : list of primkit.model.abstraction.Abstraction (at least 3)
     parts : the parts the similarity looks at (:class:`primkit.embedding.PartDescriptor`)
     coords : (s, 2) float, optional: a map computed elsewhere (default t-SNE of the descriptors)
     """
@@ -149,20 +145,3 @@ def embedding_explorer(shapes, part_names=None, *, parts="all", neighbors: int =
     common.on_click(p, explorer.pick_at)
     return explorer
 
-
-def run(args, *, off_screen, window_size, show) -> int:
-    """``primkit view embedding``."""
-    files = collect(args.folder)
-    if args.limit:
-        files = files[: args.limit]
-    align = None if args.align == "none" else args.align
-    shapes, model, errors = common.abstract_shapes(files, args.model, refine=args.refine, align=align)
-    if len(shapes) < 3:
-        report_errors(errors)
-        err(f"the map needs at least 3 usable shapes, got {len(shapes)}")
-        return 2
-    explorer = embedding_explorer(shapes, model.part_names, parts=args.parts, neighbors=args.neighbors,
-                                  off_screen=off_screen, window_size=window_size, title=" ".join(args.folder))
-    explorer.select(min(max(args.select, 0), len(shapes) - 1))
-    show(explorer.plotter, args.png, args.window)
-    return report_errors(errors)

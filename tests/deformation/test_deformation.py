@@ -230,7 +230,7 @@ def test_cli_edit_unknown_part_is_usage_error(tmp_path, capsys):
     s = synthetic.generate("chair", 1, seed=1)[0]
     path = io.write_mesh(tmp_path / "c.off", s.vertices, s.faces)
     rc = main(["edit", str(path), "--model", "chair", "--scale", "wings=2", "-o", str(tmp_path / "out.off"),
-               "--cache", str(tmp_path / "cache"), "--workers", "1", "--png", "none"])
+               "--cache", str(tmp_path / "cache"), "--workers", "1"])
     err = [line for line in capsys.readouterr().err.splitlines() if line.startswith("primkit:")]
     assert rc == 2 and len(err) == 1 and "unknown part 'wings'" in err[0]
 
@@ -244,7 +244,7 @@ def test_cli_deform_writes_source_topology(tmp_path):
     pb = io.write_mesh(tmp_path / "b.off", b.vertices, b.faces)
     out = tmp_path / "a_to_b.off"
     rc = main(["deform", str(pa), str(pb), "--model", "chair", "-o", str(out), "--cache", str(tmp_path / "cache"),
-               "--workers", "1", "--png", "none"])
+               "--workers", "1"])
     assert rc == 0
     m = io.read_mesh(out)
     assert np.array_equal(m.faces, np.asarray(a.faces)) and m.vertices.shape == np.asarray(a.vertices).shape
@@ -252,7 +252,7 @@ def test_cli_deform_writes_source_topology(tmp_path):
 
     q = json.loads(out.with_suffix(".json").read_text())["quality"]
     assert q["chamfer_result_target"] < q["chamfer_source_target"]
-    assert main(["deform", str(pa), str(pb), "--model", "chair", "-o", str(out), "--png", "none",
+    assert main(["deform", str(pa), str(pb), "--model", "chair", "-o", str(out),
                  "--cache", str(tmp_path / "cache")]) == 2  # exists, no --force
 
 

@@ -260,7 +260,7 @@ def test_run_abstract_images_writes_outputs_and_reports_bad_files(tiny_model, tm
     (tmp_path / "broken.png").write_bytes(b"not an image")
     out = tmp_path / "out"
     args = SimpleNamespace(inputs=[str(tmp_path / "chair.png"), str(tmp_path / "broken.png")], model=str(tiny_model),
-                           output=str(out), force=False, png=True)
+                           output=str(out), force=False, png=str(out / "chair.png"))
     assert run_abstract_images(args) == 1
     d = json.loads((out / "chair.cuboids.json").read_text())
     assert len(d["parts"]) == 20 and "viewpoint" in d
@@ -300,6 +300,6 @@ def test_train_image_command_writes_a_model_the_abstract_side_reads(tmp_path):
     assert meta["training"]["config"]["geometric"] == 2 and meta["training"]["final"]["geometric"] > 0
     Image.fromarray(np.full((40, 40, 3), 200, np.uint8)).save(tmp_path / "grey.png")
     args = SimpleNamespace(inputs=[str(tmp_path / "grey.png")], model=str(model), output=str(tmp_path / "out"),
-                           force=False, png=False)
+                           force=False, png=None)
     assert run_abstract_images(args) == 0
     assert (tmp_path / "out" / "grey.cuboids.json").is_file() and not (tmp_path / "out" / "grey.png").exists()

@@ -1,4 +1,4 @@
-"""The viewers in apps/: built off screen, their widgets driven as a user would (checkbox state
+"""The viewers (primkit.viewers): built off screen, their widgets driven as a user would (checkbox state
 changes, slider moves, clicks at the display position of a cuboid), the effect checked on the scene.
 
 One test opens a real window under Xvfb (skipped, with the reason, when xvfb-run is missing;
@@ -12,7 +12,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from primkit.cli.view import load_app
+from primkit import io
+from primkit.model.abstraction import Abstraction
+from primkit.viewers import abstraction_viewer as av_module
+from primkit.viewers import collection_browser as cb_module
+from primkit.viewers import common as common_module
+from primkit.viewers import deformation_viewer as dv_module
+from primkit.viewers import embedding_explorer as ee_module
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -21,10 +27,10 @@ ROOT = Path(__file__).resolve().parents[2]
 def shapes(chairs, prepared_chairs):
     from primkit.model.abstractor import Abstractor
 
-    common = load_app("common")
     model = Abstractor.load("chair")
     results = model.predict(prepared_chairs[:4])
-    return [common.Shape(r.name, c.vertices, c.faces, r) for r, c in zip(results, chairs[:4])], model
+    return [Abstraction(r, given=io.Mesh(c.vertices, c.faces), shape=p)
+            for r, c, p in zip(results, chairs[:4], prepared_chairs[:4])], model
 
 
 def _click_widget(widget, state):
@@ -39,7 +45,7 @@ def _move_slider(widget, value):
 
 
 def test_abstraction_viewer_controls(shapes):
-    av, common = load_app("abstraction_viewer"), load_app("common")
+    av, common = av_module, common_module
     (s, *_), model = shapes
     names = [f"name{k}" for k in range(s.cuboids.count)]
     viewer = av.abstraction_viewer(s.vertices, s.faces, s.cuboids, names, off_screen=True, window_size=(400, 300))
@@ -79,7 +85,7 @@ def test_abstraction_viewer_controls(shapes):
 
 
 def test_collection_browser_modes_and_picking(shapes):
-    cb, common = load_app("collection_browser"), load_app("common")
+    cb, common = cb_module, common_module
     shape_list, model = shapes
     browser = cb.collection_browser(shape_list, model.part_names, columns=2, off_screen=True, window_size=(500, 400))
     p = browser.plotter
@@ -138,7 +144,7 @@ def test_viewer_opens_a_real_window_under_xvfb(tmp_path):
 
 
 def test_embedding_explorer_click_shows_nearest_neighbours(shapes, chairs, prepared_chairs):
-    ee, common = load_app("embedding_explorer"), load_app("common")
+    ee, common = ee_module, common_module
     from primkit import embedding
 
     shape_list, model = shapes
@@ -164,7 +170,7 @@ def test_embedding_explorer_click_shows_nearest_neighbours(shapes, chairs, prepa
 
 
 def test_deformation_viewer_blend_and_part_edit(shapes):
-    dv, common = load_app("deformation_viewer"), load_app("common")
+    dv, common = dv_module, common_module
     from primkit import deformation
 
     (a, b, *_), model = shapes

@@ -3,7 +3,8 @@
 Each bundled model is ``<name>.safetensors`` (a primkit model file, :mod:`primkit.modelfile`)
 whose metadata carries its model card under ``"card"``: the data it was trained on and the data's
 terms, the schedule, the training time, and metrics on shapes it did not train on. ``primkit
-models`` prints the cards. How each was trained is in :mod:`primkit.presets`.
+models`` prints the cards. How each was trained is in :mod:`primkit.model.presets`. This package
+imports nothing of primkit: it only finds files.
 """
 
 from __future__ import annotations

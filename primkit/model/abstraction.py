@@ -1,0 +1,299 @@
+"""The one way in: shapes as the user has them (files, folders, meshes, arrays) -> prepared shapes
+with their abstractions.
+
+:func:`abstract_shapes` is what every command, the report, the demo and the viewers call;
+:func:`abstract` is the one-shape form (``primkit.abstract(mesh, model="chair")``), and
+:func:`load_model` the model alone (``primkit.load_model("chair")``), for scripts that predict
+many times (:meth:`Abstractor.predict`).
+
+Inputs, each one of:
+
+* a path: a shape file (mesh, point cloud or binvox grid, :func:`primkit.io.read_shape`) or a
+  folder of them (searched recursively, sorted); prepared through the cache, in parallel;
+* a :class:`primkit.io.Mesh`, :class:`~primkit.io.PointCloud` or :class:`~primkit.io.VoxelGrid`;
+* ``(vertices, faces)``: ``(n, 3) float`` and ``(f, 3) int``; or ``(n, 3) float`` points;
+* a ``trimesh.Trimesh`` / ``trimesh.PointCloud``, a ``pyvista.PolyData`` (any VTK surface), or an
+  Open3D ``TriangleMesh`` / ``PointCloud``.
+
+Shapes given in memory are prepared here (no cache); their names are ``shape<i>`` unless ``names``
+says otherwise.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from .. import data, io
+from ..viz import interop
+from .abstractor import AbstractionResult, Abstractor
+
+__all__ = ["Abstraction", "Abstractions", "as_shape", "abstract_shapes", "abstract", "load_model"]
+
+
+@dataclass(frozen=True, eq=False)
+class Abstraction:
+    """One shape with its abstraction.
+
+    Attributes
+    ----------
+    result : AbstractionResult
+        The cuboids in the input's frame (``cuboids``) and in the network's canonical frame
+        (``canonical``), with the frame, the alignment and the refinement.
+    given : io.Mesh, io.PointCloud, io.VoxelGrid or None
+        The shape as given in memory; None for a file (read again on demand, see :attr:`mesh`).
+
+    A shape from a file keeps no arrays: :attr:`prepared` reads it back from the preparation cache
+    each time it is asked for, so that abstracting 10,000 shapes does not hold 5 GB of grids.
+    """
+
+    result: AbstractionResult
+    given: object = None
+    collection: object = None  # data.PreparedCollection holding the prepared shape, for files
+    index: int = -1
+    shape: object = None  # data.PreparedShape, for shapes given in memory
+
+    @property
+    def name(self) -> str:
+        return self.result.name
+
+    @property
+    def source(self) -> str:
+        return self.result.source
+
+    @property
+    def cuboids(self):
+        """:class:`primkit.primitives.Cuboids` in the input's frame."""
+        return self.result.cuboids
+
+    @property
+    def canonical(self):
+        """:class:`primkit.primitives.Cuboids` in the network's canonical frame."""
+        return self.result.canonical
+
+    @property
+    def prepared(self) -> data.PreparedShape:
+        """The prepared shape as given to the model (before any ``align`` turn)."""
+        return self.shape if self.shape is not None else self.collection[self.index]
+
+    def canonical_shape(self) -> data.PreparedShape:
+        """The prepared shape in the frame of :attr:`canonical` (turned when ``align`` chose an orientation)."""
+        return self.result.canonical_shape(self.prepared)
+
+    @functools.cached_property
+    def mesh(self) -> io.Mesh:
+        """The input's surface in its own frame: the mesh given, or the file read again.
+
+        Raises :class:`primkit.io.ShapeFileError` for point clouds and voxel grids (no faces)."""
+        if isinstance(self.given, io.Mesh):
+            return self.given
+        if self.given is not None:
+            raise io.ShapeFileError(self.name, f"a {type(self.given).__name__} has no faces")
+        return io.read_mesh(self.source)
+
+    @property
+    def vertices(self) -> np.ndarray:
+        """(n, 3) float: :attr:`mesh`'s vertices, input frame."""
+        return self.mesh.vertices
+
+    @property
+    def faces(self) -> np.ndarray:
+        """(f, 3) int: :attr:`mesh`'s faces."""
+        return self.mesh.faces
+
+    def canonical_vertices(self) -> np.ndarray:
+        """(n, 3) float: the mesh in the frame of :attr:`canonical`."""
+        return self.result.frame.to_canonical(self.vertices)
+
+
+@dataclass(frozen=True, eq=False)
+class Abstractions:
+    """What :func:`abstract_shapes` returns: the usable shapes in input order, one line per input
+    that could not be used (the batch goes on), and the model that abstracted them."""
+
+    shapes: list
+    errors: list
+    model: Abstractor
+
+    def __len__(self) -> int:
+        return len(self.shapes)
+
+    def __iter__(self):
+        return iter(self.shapes)
+
+    def __getitem__(self, i):
+        return self.shapes[i]
+
+    @property
+    def results(self) -> list:
+        """The :class:`AbstractionResult` of every shape."""
+        return [s.result for s in self.shapes]
+
+
+def load_model(model="chair", device: str | None = None) -> Abstractor:
+    """A volume model: a bundled model's name, a model file's path, or an :class:`Abstractor` (returned as is)."""
+    return model if isinstance(model, Abstractor) else Abstractor.load(model, device)
+
+
+def _is_array_like(obj) -> bool:
+    return isinstance(obj, (np.ndarray, list)) and not isinstance(obj, (str, os.PathLike))
+
+
+def as_shape(obj):
+    """One input as a primkit value: :class:`io.Mesh`, :class:`io.PointCloud` or :class:`io.VoxelGrid`.
+
+    Takes the in-memory forms listed in the module notes (not paths). Raises TypeError naming the
+    accepted forms for anything else, ValueError for arrays of the wrong shape.
+    """
+    if isinstance(obj, (io.Mesh, io.PointCloud, io.VoxelGrid)):
+        return obj
+    package = type(obj).__module__.split(".")[0]
+    if package == "trimesh":
+        if type(obj).__name__ == "Scene":
+            obj = obj.to_geometry()
+        if hasattr(obj, "faces") and len(obj.faces):
+            return io.Mesh(obj.vertices, obj.faces)
+        return io.PointCloud(obj.vertices)
+    if package == "open3d":
+        if type(obj).__name__ == "TriangleMesh":
+            m = interop.mesh_from_o3d(obj)
+            return io.Mesh(m.vertices, m.faces)
+        if type(obj).__name__ == "PointCloud":
+            return io.PointCloud(interop.points_from_o3d(obj)[0])
+    if package in ("pyvista", "vtkmodules", "vtk"):
+        vertices, faces = interop.from_pyvista(obj)
+        return io.Mesh(vertices, faces) if len(faces) else io.PointCloud(vertices)
+    if isinstance(obj, tuple) and len(obj) == 2:
+        return io.Mesh(*obj)
+    if _is_array_like(obj):
+        a = np.asarray(obj)
+        if a.ndim == 3 and a.dtype == bool:
+            return io.VoxelGrid(a, np.zeros(3), 1.0)
+        return io.PointCloud(a)
+    raise TypeError(f"cannot abstract a {type(obj).__name__}: give a path, an io.Mesh / PointCloud / VoxelGrid, "
+                    "(vertices, faces), (n, 3) points, or a trimesh, pyvista or Open3D mesh or point cloud")
+
+
+def _inputs(inputs) -> list:
+    """``inputs`` as a list: one path or shape alone, or a list / tuple of them ((v, f) stays one shape)."""
+    if isinstance(inputs, (str, os.PathLike)) or not isinstance(inputs, (list, tuple)):
+        return [inputs]
+    if isinstance(inputs, tuple) and len(inputs) == 2 and all(_is_array_like(x) for x in inputs):
+        return [inputs]  # (vertices, faces)
+    if isinstance(inputs, list) and inputs and all(isinstance(x, (int, float, np.number)) for x in np.ravel(inputs[:1])):
+        return [inputs]  # a nested list of points
+    return list(inputs)
+
+
+def abstract_shapes(
+    inputs,
+    model="chair",
+    *,
+    up: str | None = None,
+    front: str | None = None,
+    align: str | None = None,
+    refine: int = 0,
+    existence_threshold: float = 0.5,
+    prune_threshold: float | None = 0.6,
+    settings: data.PrepareSettings | None = None,
+    names=None,
+    cache=None,
+    workers: int | None = None,
+    progress: bool = True,
+    batch_size: int = 128,
+) -> Abstractions:
+    """Prepare and abstract shapes, in input order.
+
+    Parameters
+    ----------
+    inputs : one input or a list of them (see the module notes); folders expand to their files.
+    model : a bundled model's name, a model file's path, or an :class:`Abstractor`.
+    up, front : the inputs' up and front axes (``"+y"``, ``"-z"``, ...); default ``settings``'
+        (the model's: +Y up, +X front).
+    align, refine, existence_threshold, prune_threshold
+        As :meth:`Abstractor.predict` (``align="auto"`` tries the 24 axis-aligned orientations,
+        ``refine=N`` runs N gradient steps per shape).
+    settings : data.PrepareSettings, optional
+        How to prepare (resolution, samples, axes); default the model's.
+    names : one name per in-memory shape (default ``shape<i>``, ``i`` its position in ``inputs``).
+    cache, workers, progress : the preparation cache folder, processes and progress bars.
+    batch_size : shapes read from the cache and abstracted at once.
+
+    Returns
+    -------
+    Abstractions
+        ``shapes`` (one :class:`Abstraction` per usable input, in input order), ``errors`` (one
+        line per unusable input, naming it) and ``model``.
+    """
+    from tqdm.auto import tqdm  # tqdm: imported when the progress bar is drawn
+
+    abstractor = load_model(model)
+    axes = {k: v for k, v in (("up", up), ("front", front)) if v is not None}
+    settings = replace(settings or abstractor.settings, **axes)
+    if settings.resolution != abstractor.resolution:
+        raise ValueError(f"settings.resolution is {settings.resolution} but the model reads {abstractor.resolution}^3")
+    options = {"align": None if align == "none" else align, "refine": refine,
+               "existence_threshold": existence_threshold, "prune_threshold": prune_threshold}
+    items = _inputs(inputs)
+    files, memory, errors = [], [], []
+    order = []  # ("file", position in files) or ("memory", position in memory), in input order
+    for i, item in enumerate(items):
+        if isinstance(item, (str, os.PathLike)):
+            try:
+                found = data.find_shape_files(item)
+            except FileNotFoundError as exc:
+                errors.append(str(exc))
+                continue
+            for p in found:
+                order.append(("file", len(files)))
+                files.append(p)
+        else:
+            name = names[len(memory)] if names is not None else f"shape{i}"
+            shape = as_shape(item)
+            try:
+                prepared = data.prepare(shape, settings, name=name)
+            except (ValueError, RuntimeError) as exc:
+                errors.append(f"{name}: cannot prepare: {exc}")
+                continue
+            order.append(("memory", len(memory)))
+            memory.append((shape, prepared))
+    coll = data.prepare_collection(files, settings, cache_dir=cache, workers=workers, progress=progress) if files else None
+    if coll is not None:
+        errors = list(coll.errors) + errors
+        usable = {str(p): j for j, p in enumerate(coll.paths)}
+        order = [(kind, usable.get(str(files[k])) if kind == "file" else k) for kind, k in order]
+        order = [(kind, k) for kind, k in order if k is not None]
+    shapes = []
+    with tqdm(total=len(order), desc="abstracting", unit="shape", disable=not progress or len(order) <= batch_size) as bar:
+        for start in range(0, len(order), batch_size):
+            chunk = order[start : start + batch_size]
+            prepared = [coll[k] if kind == "file" else memory[k][1] for kind, k in chunk]
+            for (kind, k), result in zip(chunk, abstractor.predict(prepared, **options)):
+                if kind == "file":
+                    shapes.append(Abstraction(result, collection=coll, index=k))
+                else:
+                    shapes.append(Abstraction(result, given=memory[k][0], shape=memory[k][1]))
+            bar.update(len(chunk))
+    return Abstractions(shapes, errors, abstractor)
+
+
+def abstract(shape, model="chair", **options) -> Abstraction:
+    """Abstract one shape (a path to one file, a mesh, arrays; see the module notes).
+
+    ``options`` are :func:`abstract_shapes`'s. Raises :class:`primkit.io.ShapeFileError` (one line,
+    naming the file) when the shape cannot be used.
+
+    >>> a = primkit.abstract((vertices, faces), model="chair")     # doctest: +SKIP
+    >>> a.cuboids                                                  # doctest: +SKIP
+    """
+    if isinstance(shape, (str, os.PathLike)) and Path(shape).is_dir():
+        raise ValueError(f"{shape}: a folder; abstract one shape, or use abstract_shapes for collections")
+    out = abstract_shapes(shape, model, progress=False, workers=1, **options)
+    if not out.shapes:
+        reason = out.errors[0] if out.errors else f"{shape}: not usable"
+        raise io.ShapeFileError(*reason.split(": ", 1)) if ": " in reason else io.ShapeFileError(shape, reason)
+    return out.shapes[0]
