@@ -417,14 +417,13 @@ def draw_map(coords, images, path, *, colors=None, title: str = "", zoom: float 
     ``colors``: optional ``(s,) float`` values (a known attribute) that colour the dots and the
     thumbnails' frames, with a colour bar.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure  # matplotlib: imported on first use
     from matplotlib.offsetbox import AnnotationBbox, OffsetImage
 
     coords = np.asarray(coords, float)
-    fig, ax = plt.subplots(figsize=(14, 14), dpi=100)
+    # a Figure of its own (no pyplot): drawing here never switches the caller's backend
+    fig = Figure(figsize=(14, 14), dpi=100)
+    ax = fig.subplots()
     edge = None
     if colors is None:
         ax.scatter(coords[:, 0], coords[:, 1], s=12, c="0.6")
@@ -454,18 +453,15 @@ def draw_map(coords, images, path, *, colors=None, title: str = "", zoom: float 
         if out is not None:
             with atomic_output(out, overwrite=True) as tmp:
                 fig.savefig(tmp, format=fmt)
-    plt.close(fig)
 
 
 def draw_matches(query_image, images, names, distances, path, *, query_name: str = "query", title: str = "") -> None:
     """The query's thumbnail, then its matches in rank order with names and distances, in one PNG row."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure  # matplotlib: imported on first use
 
     n = len(images) + 1
-    fig, axes = plt.subplots(1, n, figsize=(2.2 * n, 2.6), dpi=100)
+    fig = Figure(figsize=(2.2 * n, 2.6), dpi=100)  # no pyplot: the caller's backend is left alone
+    axes = fig.subplots(1, n)
     axes = np.atleast_1d(axes)
     panels = [(query_image, f"query\n{query_name[:18]}")]
     panels += [(img, f"#{i + 1} {nm[:16]}\nd = {d:.3g}") for i, (img, nm, d) in enumerate(zip(images, names, distances))]
@@ -479,4 +475,3 @@ def draw_matches(query_image, images, names, distances, path, *, query_name: str
     fig.tight_layout()
     with atomic_output(path, overwrite=True) as tmp:
         fig.savefig(tmp, format="png")
-    plt.close(fig)

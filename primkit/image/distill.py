@@ -13,6 +13,7 @@ import torch.nn.functional as F
 
 from ..model.losses import shape_losses
 from ..model.network import PrimitivePrediction
+from ..model.training import isolated_torch_state
 from .backgrounds import composite, training_backgrounds
 from .camera import viewpoint_targets
 from .network import ImageNet, ImageNetConfig, images_to_float
@@ -142,6 +143,7 @@ class ImageTrainResult:
     seconds: float
 
 
+@isolated_torch_state
 def train_image_model(images: np.ndarray, shape_index: np.ndarray, cameras: np.ndarray, teacher: dict,
                       net_config: ImageNetConfig = ImageNetConfig(), config: ImageTrainConfig = ImageTrainConfig(),
                       *, progress: bool = True, network: ImageNet | None = None,

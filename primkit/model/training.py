@@ -22,6 +22,7 @@ import math
 import os
 import signal
 import sys
+import functools
 import threading
 import time
 from dataclasses import asdict, dataclass, field, replace
@@ -35,7 +36,7 @@ from . import modelfile
 from .losses import LossWeights, MovingBaseline, reinforce_surrogate, shape_losses
 from .network import AbstractionNet, NetworkConfig
 
-__all__ = ["TrainConfig", "ShapeTensors", "PreparedDataset", "TrainResult", "train"]
+__all__ = ["TrainConfig", "ShapeTensors", "PreparedDataset", "TrainResult", "train", "isolated_torch_state"]
 
 
 @dataclass(frozen=True)
@@ -216,15 +217,13 @@ def _save_checkpoint(path, net, optimizer, generator, baseline, iteration, histo
 
 
 def _plot_history(history, path, stage1: int) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure  # matplotlib: imported on first use
 
     if not history:
         return
     it = [h["iteration"] for h in history]
-    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
+    fig = Figure(figsize=(7, 6))  # no pyplot: training never switches the caller's backend
+    ax1, ax2 = fig.subplots(2, 1, sharex=True)
     for key, label in (("total", "total"), ("coverage", "coverage"), ("consistency", "consistency"), ("symmetry", "symmetry")):
         vals = [h[key] for h in history]
         if any(v > 0 for v in vals):
@@ -240,9 +239,31 @@ def _plot_history(history, path, stage1: int) -> None:
     fig.tight_layout()
     with io.atomic_output(path, overwrite=True) as tmp:
         fig.savefig(tmp, format="png", dpi=100)
-    plt.close(fig)
 
 
+def isolated_torch_state(fn):
+    """Decorate a training function so that torch's global state is the caller's again afterwards.
+
+    The function may seed and draw from torch's global generators (initialisation and the surface
+    samples of a training run draw from them, so that a seed gives bit-identical weights, as
+    before) and turn on flushing of denormal floats: it runs inside ``torch.random.fork_rng`` (the
+    CPU generator and every CUDA device's), and flushing is turned off again, torch's default,
+    when it returns or raises (torch has no getter for the flag).
+    """
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        devices = list(range(torch.cuda.device_count())) if torch.cuda.is_available() else []
+        with torch.random.fork_rng(devices=devices):
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                torch.set_flush_denormal(False)
+
+    return wrapper
+
+
+@isolated_torch_state
 def train(
     shapes: ShapeTensors,
     output=None,
@@ -256,7 +277,8 @@ def train(
 ) -> TrainResult:
     """Train an abstractor on ``shapes``; write the model to ``output`` (``.safetensors``).
 
-    Beside the model: ``<output>.checkpoint.safetensors`` (every ``checkpoint_every`` iterations
+    torch's global random state and its denormal flag are the caller's again afterwards
+    (:func:`isolated_torch_state`). Beside the model: ``<output>.checkpoint.safetensors`` (every ``checkpoint_every`` iterations
     and on Ctrl-C; pass it as ``resume`` to go on), ``<stem>.history.json`` and
     ``<stem>.training.png`` (losses and parts in use over iterations).
 

@@ -217,3 +217,15 @@ def test_schedule_scaling():
     small = cfg.scaled_for(64)
     assert small.iterations == 2000 and small.stage1_iterations == 800
     assert cfg.scaled_for(6000).iterations == 50000
+
+
+def test_training_leaves_the_global_torch_state_alone(prepared_chairs, tmp_path):
+    """train() seeds and draws from torch's global generator and flushes denormals for speed; the
+    caller's generator state and torch's default (no flushing) are back when it returns."""
+    torch.manual_seed(1234)
+    before = torch.get_rng_state()
+    training.train(training.ShapeTensors(prepared_chairs[:2]), None, small_config(stage1_iterations=2, stage2_iterations=2),
+                   progress=False)
+    assert torch.equal(torch.get_rng_state(), before)
+    tiny = torch.tensor([1e-40], dtype=torch.float32)
+    assert (tiny * 1.0).item() != 0.0  # denormals are kept again

@@ -606,3 +606,24 @@ def test_transformed_rejects_non_similarity():
         c.transformed(bad)
     with pytest.raises(ValueError, match="similarity"):
         c.transformed(np.zeros((3, 3)))
+
+
+def test_quaternion_conversions_keep_primkit_conventions():
+    """scipy's Rotation does the NumPy conversions: checked against the formula primkit used before
+    (the one the torch twin still uses), real part first, matrices acting on column vectors."""
+    rng = np.random.default_rng(3)
+    q = rng.normal(size=(7, 5, 4))
+    R = P.quaternion_to_matrix(q)
+    assert R.shape == (7, 5, 3, 3)
+    ref = P.quaternion_to_matrix_torch(torch.from_numpy(q)).numpy()
+    np.testing.assert_allclose(R, ref, atol=1e-14)
+    quarter = P.quaternion_to_matrix([np.cos(np.pi / 4), 0.0, 0.0, np.sin(np.pi / 4)])  # 90 degrees about +z
+    np.testing.assert_allclose(quarter @ [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], atol=1e-15)
+    back = P.matrix_to_quaternion(R)
+    unit = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    assert back.shape == q.shape and np.all(back[..., 0] >= 0)
+    np.testing.assert_allclose(np.abs(np.sum(back * unit, axis=-1)), 1.0, atol=1e-12)  # the same rotation
+    np.testing.assert_allclose(P.matrix_to_quaternion(np.diag([1.0, -1.0, -1.0])), [0.0, 1.0, 0.0, 0.0], atol=1e-15)
+    assert P.quaternion_to_matrix(np.zeros((0, 4))).shape == (0, 3, 3)
+    with pytest.raises(ValueError, match="nonzero"):
+        P.quaternion_to_matrix([0.0, 0.0, 0.0, 0.0])
