@@ -292,7 +292,9 @@ def abstract(shape, model="chair", **options) -> Abstraction:
     """
     if isinstance(shape, (str, os.PathLike)) and Path(shape).is_dir():
         raise ValueError(f"{shape}: a folder; abstract one shape, or use abstract_shapes for collections")
-    out = abstract_shapes(shape, model, progress=False, workers=1, **options)
+    options.setdefault("progress", False)
+    options.setdefault("workers", 1)  # one shape: no process pool
+    out = abstract_shapes(shape, model, **options)
     if not out.shapes:
         reason = out.errors[0] if out.errors else f"{shape}: not usable"
         raise io.ShapeFileError(*reason.split(": ", 1)) if ": " in reason else io.ShapeFileError(shape, reason)
