@@ -30,17 +30,12 @@ class ViewSettings:
     view_angle_deg: float = 35.0
 
     def to_dict(self) -> dict:
-        d = asdict(self)
-        d["elevation_deg"] = list(self.elevation_deg)
-        d["distance"] = list(self.distance)
-        return d
+        """JSON-ready: the ranges as lists."""
+        return {**asdict(self), "elevation_deg": list(self.elevation_deg), "distance": list(self.distance)}
 
     @classmethod
     def from_dict(cls, d: dict) -> "ViewSettings":
-        d = dict(d)
-        d["elevation_deg"] = tuple(d["elevation_deg"])
-        d["distance"] = tuple(d["distance"])
-        return cls(**d)
+        return cls(**{**d, "elevation_deg": tuple(d["elevation_deg"]), "distance": tuple(d["distance"])})
 
 
 @dataclass(frozen=True)

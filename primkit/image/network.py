@@ -28,15 +28,12 @@ class ImageNetConfig:
             raise ValueError(f"`size` ({self.size}) must be divisible by 2^{len(self.channels)}")
 
     def to_dict(self) -> dict:
-        d = asdict(self)
-        d["channels"] = list(self.channels)
-        return d
+        """JSON-ready: the channels as a list."""
+        return {**asdict(self), "channels": list(self.channels)}
 
     @classmethod
     def from_dict(cls, d: dict) -> "ImageNetConfig":
-        d = dict(d)
-        d["channels"] = tuple(d["channels"])
-        return cls(**d)
+        return cls(**{**d, "channels": tuple(d["channels"])})
 
 
 class ImageNet(nn.Module):

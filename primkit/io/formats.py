@@ -446,11 +446,7 @@ def _mesh_from_loaded(path, loaded) -> Mesh:
     if len(faces) == 0:
         raise ShapeFileError(path, "no faces (a point cloud? use read_points)")
 
-    bad = ~np.isfinite(vertices).all(axis=1)
-    if bad.any():
-        raise ShapeFileError(
-            path, f"NaN or inf coordinates in {int(bad.sum())} of {len(vertices)} vertices"
-        )
+    _require_finite(path, vertices, "vertices")
     if faces.min() < 0 or faces.max() >= len(vertices):
         raise ShapeFileError(
             path,
@@ -499,14 +495,17 @@ def _points_from_loaded(path, loaded) -> PointCloud:
     return _checked_points(path, points, normals)
 
 
+def _require_finite(path, coordinates, what: str) -> None:
+    """ShapeFileError naming how many rows of ``coordinates`` ((n, 3) float) hold NaN or inf."""
+    bad = ~np.isfinite(coordinates).all(axis=1)
+    if bad.any():
+        raise ShapeFileError(path, f"NaN or inf coordinates in {int(bad.sum())} of {len(coordinates)} {what}")
+
+
 def _checked_points(path, points, normals) -> PointCloud:
     if len(points) == 0:
         raise ShapeFileError(path, "no points")
-    bad = ~np.isfinite(points).all(axis=1)
-    if bad.any():
-        raise ShapeFileError(
-            path, f"NaN or inf coordinates in {int(bad.sum())} of {len(points)} points"
-        )
+    _require_finite(path, points, "points")
     if normals is not None and not np.isfinite(normals).all():
         raise ShapeFileError(path, "normals have NaN or inf values")
     return PointCloud(points, normals)
