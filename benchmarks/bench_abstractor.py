@@ -4,8 +4,8 @@
 
 What it measures, all in one run:
 
-1. One training iteration as :func:`primkit.training.train` runs it (batch 32, 20 parts, 1,000
-   surface points per shape, 150 samples per cuboid): network forward, ``primkit.losses.shape_losses``,
+1. One training iteration as :func:`primkit.model.training.train` runs it (batch 32, 20 parts, 1,000
+   surface points per shape, 150 samples per cuboid): network forward, ``primkit.model.losses.shape_losses``,
    backward, Adam step; stage 1 (every part present) and stage 2 (existence sampled, REINFORCE
    term), for the paper's encoder (stride-2 convs, fc 100) and the released one (conv + batch norm
    + max-pool). Projected time for the paper's 20k + 30k iterations.
@@ -13,7 +13,7 @@ What it measures, all in one run:
    computed one cuboid at a time in a Python loop (running minimum for coverage, one consistency
    term per cuboid); checked to give the same values, then timed alone and inside a whole step.
 3. Peak memory of training (a fresh spawned process per variant; RSS, and CUDA allocations).
-4. Inference with :class:`primkit.abstractor.Abstractor` around a randomly initialised network:
+4. Inference with :class:`primkit.model.abstractor.Abstractor` around a randomly initialised network:
    shapes per second from prepared grids (batched, with and without pruning, against one shape at
    a time) and from mesh files (prepare + predict).
 
@@ -86,7 +86,7 @@ def prepared_chairs(count: int, seed: int = 0) -> list:
 
 
 def loop_losses(prediction, present, points, closest, samples_per_cuboid: int = SAMPLES_PER_CUBOID, generator=None):
-    """The loss terms of :func:`primkit.losses.shape_losses`, one cuboid at a time.
+    """The loss terms of :func:`primkit.model.losses.shape_losses`, one cuboid at a time.
 
     Coverage keeps a running minimum over cuboids of each point's squared distance; consistency
     adds one area-weighted mean per cuboid. The surface coefficients are drawn in one call with
@@ -133,7 +133,7 @@ LOSSES = {"vectorised": ours_losses, "loop": loop_losses}
 
 
 class Trainer:
-    """One training iteration as primkit.training.train runs it (without logging/checkpoints)."""
+    """One training iteration as primkit.model.training.train runs it (without logging/checkpoints)."""
 
     def __init__(self, shapes, encoder: str, device: str, loss: str = "vectorised", seed: int = 0):
         import torch
@@ -304,7 +304,7 @@ def bench_training(shapes, device: str, iterations: int, warmup: int) -> None:
                 r = time_loss_alone(shapes, device, loss, iterations, warmup)
             finally:
                 torch.set_num_threads(threads)
-            label = "primkit.losses.shape_losses" if loss == "vectorised" else "per-cuboid Python loop"
+            label = "primkit.model.losses.shape_losses" if loss == "vectorised" else "per-cuboid Python loop"
             if device == "cpu":
                 label += f", {n_threads} thread{'s' if n_threads > 1 else ''}"
             rows.append([label, ms(med(r["forward"])), ms(p90(r["forward"])), ms(med(r["both"])), ms(p90(r["both"]))])
@@ -379,8 +379,8 @@ def best_time(repeats: int, fn) -> float:
 
 
 def bench_inference(shapes, device: str, count: int, files: int, repeats: int) -> None:
-    from primkit.model import abstractor as abstractor_mod
-    from primkit import synthetic
+    from primkit import data, synthetic
+    from primkit.model.abstraction import abstract_shapes
 
     ab = make_abstractor(device)
     many = [shapes[i % len(shapes)] for i in range(count)]
@@ -414,22 +414,22 @@ def bench_inference(shapes, device: str, count: int, files: int, repeats: int) -
     with tempfile.TemporaryDirectory(prefix="primkit-bench-files-") as tmp:
         paths = synthetic.write_collection(Path(tmp) / "meshes", "chair", files, seed=3)
         rows = []
-        for label, workers in (("abstract_files, workers=1 (prepare + predict)", 1), ("abstract_files, workers=2", 2)):
+        for label, workers in (("abstract_shapes, workers=1 (prepare + predict)", 1), ("abstract_shapes, workers=2", 2)):
             times = []
             for r in range(repeats):
                 cache = Path(tmp) / f"cache-{workers}-{r}"  # empty cache every time
                 t0 = time.perf_counter()
-                results, errors = ab.abstract_files(paths, cache_dir=cache, workers=workers, progress=False)
+                out = abstract_shapes(paths, ab, cache=cache, workers=workers, progress=False)
                 times.append(time.perf_counter() - t0)
-                assert len(results) == files and not errors
+                assert len(out) == files and not out.errors
             rows.append([label, f"{files / min(times):.1f}", f"{1000.0 * min(times) / files:.0f}"])
-        t = best_time(repeats, lambda: [abstractor_mod.abstract(p, ab) for p in paths])
-        rows.append(["abstract(path), one file at a time (no cache)", f"{files / t:.1f}", f"{1000.0 * t / files:.0f}"])
+        t = best_time(repeats, lambda: [ab.predict([data.prepare_file(p, ab.settings)]) for p in paths])
+        rows.append(["prepare_file + predict, one file at a time (no cache)", f"{files / t:.1f}", f"{1000.0 * t / files:.0f}"])
     table(
         f"4b. inference from mesh files on {device} ({files} procedural chairs, PLY, empty cache)",
         ["method", "shapes/s", "ms/shape"],
         rows,
-        "abstract_files prepares through the on-disk cache (hashing + writing .npz) and spawns its worker pool per call.",
+        "abstract_shapes prepares through the on-disk cache (hashing + writing .npz) and spawns its worker pool per call.",
     )
 
 

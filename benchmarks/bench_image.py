@@ -4,11 +4,11 @@
 
 What it measures, in one run:
 
-1. Views per second from :func:`primkit.views.render_views` with one off-screen plotter reused for
-   every view (:class:`primkit.views.ViewRenderer`), against the straightforward alternative of a
+1. Views per second from :func:`primkit.image.views.render_views` with one off-screen plotter reused for
+   every view (:class:`primkit.image.views.ViewRenderer`), against the straightforward alternative of a
    new plotter per view; both at the default 64 x 64 with 2x supersampling, procedural chairs
    (surface extraction included, once per shape).
-2. Inference per picture of the image network (:class:`primkit.image_model.ImageAbstractor`, the
+2. Inference per picture of the image network (:class:`primkit.image.inference.ImageAbstractor`, the
    bundled ``chair-image`` model when present, else an untrained network of the same shape) against
    the volume model (``Abstractor.load("chair")``) per prepared 32^3 grid; the raw network alone
    and with existence thresholding + pruning (``predict``), batched 64 and one at a time.

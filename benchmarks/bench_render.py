@@ -4,11 +4,11 @@
 
 What it measures, in one run, on procedural chairs (:mod:`primkit.synthetic`) and their cuboids:
 
-1. :class:`primkit.render.ThumbnailRenderer`: one off-screen plotter (one OpenGL context) reused
+1. :class:`primkit.viz.render.ThumbnailRenderer`: one off-screen plotter (one OpenGL context) reused
    for every shape, actors cleared in between;
 2. the straightforward alternative: a new ``pyvista.Plotter(off_screen=True)`` per shape, closed
    after its screenshot (what a loop over ``write_png`` does);
-3. a grid of every shape in one picture (:func:`primkit.render.render_tiles`), per shape.
+3. a grid of every shape in one picture (:func:`primkit.viz.render.render_tiles`), per shape.
 
 Each picture draws a shape's mesh and, in a second pass, its cuboids (two thumbnails per shape).
 Reported: shapes per second, median milliseconds per picture, first picture separately (context

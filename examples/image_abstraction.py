@@ -3,7 +3,7 @@
     python examples/image_abstraction.py OUTPUT_FOLDER
 
 1. Renders pictures of procedural chairs from random viewpoints over random backgrounds
-   (primkit.views), with the cameras.
+   (primkit.image.views), with the cameras.
 2. Distils the bundled chair volume model into a tiny image network for a few seconds (the real
    recipe is ``primkit train-image``; this only shows the moving parts and the falling loss).
 3. Abstracts a picture of a chair it never saw with the bundled ``chair-image`` model when it is

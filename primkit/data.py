@@ -4,7 +4,7 @@
 canonical frame. :func:`prepare_collection` does it for a whole folder, in parallel, through a cache
 keyed by each file's content *and* the preparation settings, so an edited file or a changed setting
 is prepared again and nothing stale is read. The torch ``Dataset`` on top lives in
-:mod:`primkit.training` (torch stays in the model and training code).
+:mod:`primkit.model.training` (torch stays in the model and training code).
 
 Cache layout: ``<cache>/<key[:2]>/<key>.npz`` (uncompressed NumPy archives), where ``key`` is the
 SHA-256 of the file's bytes, the bytes of a ``.seg`` label file beside it (if any), and the

@@ -155,14 +155,14 @@ class PartDescriptor:
     Parameters
     ----------
     parts : None, str or sequence of (str or int)
-        The parts to describe, by name or index (:func:`primkit.parts.resolve_parts`: ``"back,seat"``,
+        The parts to describe, by name or index (:func:`primkit.model.parts.resolve_parts`: ``"back,seat"``,
         ``"3,7"``, ``"all"``). None: all.
     what : str or sequence of str
         Properties, from :data:`PROPERTIES` (``"size,orientation"``); default all four.
     scales : dict, optional
         Overrides of :data:`DEFAULT_SCALES` (``{"orientation": 30.0}``).
     part_names : sequence of str, optional
-        The model's name of each index (:attr:`primkit.abstractor.Abstractor.part_names`); default
+        The model's name of each index (:attr:`primkit.model.abstractor.Abstractor.part_names`); default
         ``part0, part1, ...``.
 
     Fitted attributes
@@ -389,7 +389,7 @@ def render_thumbnails(meshes, size: int = 96, progress: bool = False) -> list[np
     """Small pictures of meshes in the canonical frame: ``(size, size, 4) uint8`` RGBA each.
 
     ``meshes``: ``(vertices, faces)`` or ``(vertices, faces, (f, 3) uint8 face colours)``. One
-    off-screen plotter is reused (:class:`primkit.render.ThumbnailRenderer`); every thumbnail is
+    off-screen plotter is reused (:class:`primkit.viz.render.ThumbnailRenderer`); every thumbnail is
     framed on the canonical frame's origin at one scale, so sizes compare across thumbnails.
     """
     from tqdm import tqdm

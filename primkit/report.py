@@ -2,8 +2,8 @@
 
 The report folder holds ``index.html``, ``report.json`` (the same numbers, for machines) and
 ``images/``. The page shows, for every shape, thumbnails of the shape, its cuboids and its
-co-segmentation (one colour per part index on every shape, :func:`primkit.abstractor.part_colors`,
-drawn with the camera convention of :mod:`primkit.render` at one fixed scale so they line up); the
+co-segmentation (one colour per part index on every shape, :func:`primkit.viz.palette.part_colors`,
+drawn with the camera convention of :mod:`primkit.viz.render` at one fixed scale so they line up); the
 similarity map (t-SNE of :class:`primkit.embedding.PartDescriptor`) with each shape's nearest
 neighbours; one deformation transfer (the first shape onto the shape least like it); a table of
 metrics (:func:`primkit.metrics.score`, with its convention sentence); and an interactive 3D scene.
@@ -208,7 +208,7 @@ def build_report(paths, model, output, *, refine: int = 0, align=None, overwrite
 def write_report(output, shapes, results, part_names, *, overwrite: bool = False, progress: bool = True,
                  meta=None) -> Report:
     """Write ``index.html``, ``report.json`` and ``images/`` into ``output`` for shapes already
-    abstracted (:class:`ReportShape`, with the :class:`~primkit.abstractor.AbstractionResult` s)."""
+    abstracted (:class:`ReportShape`, with the :class:`~primkit.model.abstractor.AbstractionResult` s)."""
     out = Path(output)
     page = out / "index.html"
     io.refuse_existing(page, overwrite)

@@ -24,7 +24,7 @@ area and per-label IoU under stated label-mapping protocols:
   label holding most of its area over the evaluated collection;
 * ``"leave-one-out"``: for each shape, the same majority mapping learned on the *other* shapes of
   the collection, applied unchanged;
-* ``"model-names"``: the part names stored in the model file (:mod:`primkit.parts`, learned on
+* ``"model-names"``: the part names stored in the model file (:mod:`primkit.model.parts`, learned on
   other shapes by ``primkit name-parts``), matched to the ground truth's label names, applied
   unchanged. Indices whose name is not a ground-truth label count as wrong.
 """
@@ -159,14 +159,14 @@ class Segmentation:
 
     def semantic_labels(self) -> tuple[list, np.ndarray]:
         """``(names, codes)``: the distinct part names and each face's 1-based name code
-        (:func:`primkit.parts.label_codes`, the same codes on every shape of a model)."""
+        (:func:`primkit.model.parts.label_codes`, the same codes on every shape of a model)."""
         names, codes = parts.label_codes(self.part_names)
         return names, codes[self.face_labels]
 
     def save(self, folder, *, semantic: bool = False, overwrite: bool = False) -> dict:
         """Write ``<name>.seg`` (one label per face: the part index, or with ``semantic`` the
         1-based code of its name) and ``<name>.parts.ply`` (the mesh, faces coloured by part with
-        the colour of :func:`primkit.abstractor.part_colors`, the same on every shape).
+        the colour of :func:`primkit.viz.palette.part_colors`, the same on every shape).
         Returns ``{"labels": path, "mesh": path}``."""
         folder = Path(folder)
         folder.mkdir(parents=True, exist_ok=True)
@@ -214,7 +214,7 @@ class Segmenter:
         The inputs' up and front axes (default ``"+y"`` and ``"+x"``: ShapeNet and primkit's procedural
         shapes; Shape COSEG chairs face ``"+z"``).
     align, refine, existence_threshold, prune_threshold
-        Passed to :meth:`primkit.abstractor.Abstractor.predict`.
+        Passed to :meth:`primkit.model.abstractor.Abstractor.predict`.
 
     Examples
     --------

@@ -10,7 +10,7 @@ the model) are abstracted without and with ``--refine``; the chair model is also
 chairs in ``../shared/data/coseg_chairs`` (+Y up, front +Z) as given with the front named, with
 ``--align auto`` on copies turned into random axis-aligned orientations, and the seat's primitive
 index is checked across chairs. The figures go into the model card (metadata key ``card``), and the
-model file with its card is written to ``primkit/models/NAME.safetensors``. Pictures of the
+model file with its card is written to ``primkit/model/bundled/NAME.safetensors``. Pictures of the
 abstractions go to ``--pictures``.
 """
 
@@ -190,7 +190,7 @@ def main(argv=None) -> int:
     ap.add_argument("--refine", type=int, default=200)
     ap.add_argument("--pictures", type=Path, default=None)
     ap.add_argument("--cache", default=None)
-    ap.add_argument("--dest", type=Path, default=ROOT / "primkit" / "models")
+    ap.add_argument("--dest", type=Path, default=ROOT / "primkit" / "model" / "bundled")
     args = ap.parse_args(argv)
     if args.pictures:
         args.pictures.mkdir(parents=True, exist_ok=True)

@@ -23,7 +23,7 @@ Data: ShapeNetVox32 chairs in ../shared/data/shapenetvox32/03001627, prepared th
 ``--cache`` (default /work/runs/cache), split with the teacher's own hold-out rule
 (:func:`primkit.data.split_files`, every 10th sorted file held out), so the image model never sees
 a chair the teacher held out. Views, teacher outputs and checkpoints go to ``--work`` (default
-/work/runs/image). The finished model is written to primkit/models/chair-image.safetensors.
+/work/runs/image). The finished model is written to primkit/model/bundled/chair-image.safetensors.
 """
 
 from __future__ import annotations
@@ -246,7 +246,7 @@ def _line(label: str, m: dict) -> str:
 
 
 def write_bundled(teacher, model, report: dict, work: Path) -> Path:
-    """The evaluated model with its card, into primkit/models/chair-image.safetensors."""
+    """The evaluated model with its card, into primkit/model/bundled/chair-image.safetensors."""
     from primkit.model.modelfile import update_metadata
 
     tcard = teacher.metadata["card"]
@@ -288,7 +288,7 @@ def write_bundled(teacher, model, report: dict, work: Path) -> Path:
             text += ", colour channels permuted and their gains jittered"
         if c.get("swap_backgrounds"):
             text += (f", {c['swap_backgrounds']:.0%} of each batch laid over fresh training backgrounds "
-                     "(seen-palette kinds and hues plus soft discs; primkit.image_model.training_backgrounds)")
+                     "(seen-palette kinds and hues plus soft discs; primkit.image.backgrounds.training_backgrounds)")
         if c.get("geometric"):
             text += (f", plus {c['geometric']:g} x the method's coverage + consistency losses of the student's cuboids "
                      "against the true chair")
@@ -330,7 +330,7 @@ def write_bundled(teacher, model, report: dict, work: Path) -> Path:
     ])
     card = {"summary": summary, "data": data_line, "terms": tcard["terms"], "command": command, "schedule": schedule,
             "training_time": training_time, "metrics": metrics, "teacher": "chair", "text": text}
-    out = ROOT / "primkit" / "models" / "chair-image.safetensors"
+    out = ROOT / "primkit" / "model" / "bundled" / "chair-image.safetensors"
     changes = {"card": card, "metrics": metrics, "teacher_card": {k: tcard[k] for k in ("summary", "data", "terms", "command")}}
     model.metadata["training"]["data"] = {"source": "ShapeNetVox32 chairs, synset 03001627", "hold_out_every": 10,
                                          "terms": tcard["terms"]}

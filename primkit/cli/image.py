@@ -1,7 +1,7 @@
 """``primkit train-image``: distil a volume model into an image model; and the image side of
 ``primkit abstract`` (:func:`run_abstract_images`, called when ``--model`` is an image model).
 
-Thin wrappers over :mod:`primkit.views` (rendering) and :mod:`primkit.image_model` (training,
+Thin wrappers over :mod:`primkit.image.views` (rendering) and :mod:`primkit.image` (training,
 inference, pictures).
 """
 

@@ -70,7 +70,7 @@ left 72% of pairs with 0.1% or more flipped triangles (0.1: 46%), the adaptive o
 
 Conventions: all functions work in whatever frame the vertices and cuboids share; the editing
 directions (up, front, side) default to the canonical frame of :mod:`primkit` (+Y up, +X front,
-side = front x up = +Z), where :class:`~primkit.abstractor.AbstractionResult`'s
+side = front x up = +Z), where :class:`~primkit.model.abstractor.AbstractionResult`'s
 ``canonical`` cuboids live. Transforms are ``(m, 4, 4)`` homogeneous matrices acting on column
 vectors, one per part slot (identity for absent parts).
 

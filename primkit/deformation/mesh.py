@@ -109,7 +109,7 @@ def deform(vertices, source: Cuboids, target: Cuboids, *, falloff: float | None 
     """Move a mesh bound to ``source`` so its parts take the configuration of ``target``.
 
     vertices : (n, 3) float, in the frame of both cuboid sets (use the canonical frames of two
-    :class:`~primkit.abstractor.AbstractionResult`: the shapes are then normalised alike). See
+    :class:`~primkit.model.abstractor.AbstractionResult`: the shapes are then normalised alike). See
     :func:`bind` and :func:`transfer_transforms`. With ``faces`` (and ``unfold``, the default),
     flipped triangles are re-solved by :func:`unfold`; without faces the result is the plain
     blend :meth:`Binding.apply`.

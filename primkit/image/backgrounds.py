@@ -93,7 +93,7 @@ def _stretch(w: torch.Tensor) -> torch.Tensor:
 def training_backgrounds(count: int, size: int, gen: torch.Generator, hues=None) -> torch.Tensor:
     """Fresh random backgrounds ``(count, 3, size, size)`` in [0, 1] for background swapping.
 
-    The kinds and colours of the training palette (:func:`primkit.views.random_background` with
+    The kinds and colours of the training palette (:func:`primkit.image.backgrounds.random_background` with
     ``palette="seen"``: solid colours, linear gradients, smooth noise of 2-5 cells, hues in
     ``views.PALETTE_HUES["seen"]``), plus two kinds of clutter the palette lacks, in seen colours
     over a gradient: a few large soft-edged discs, or many small ones (confetti: fine detail

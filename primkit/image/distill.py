@@ -128,7 +128,7 @@ def _augment(x: torch.Tensor, gen: torch.Generator, shift: int, colour: bool = F
 
 def _geometric_loss(pred: dict, used: torch.Tensor, points: torch.Tensor, closest: torch.Tensor,
                     samples_per_cuboid: int, gen: torch.Generator) -> torch.Tensor:
-    """Mean over the batch of coverage + consistency (:func:`primkit.losses.shape_losses`, the volume
+    """Mean over the batch of coverage + consistency (:func:`primkit.model.losses.shape_losses`, the volume
     model's own terms) of the predicted cuboids against the true shapes, the parts in ``used (B, m)
     bool`` present."""
     cuboids = PrimitivePrediction(pred["half_extents"], pred["quaternions"], pred["translations"], used.float())
@@ -155,11 +155,11 @@ def train_image_model(images: np.ndarray, shape_index: np.ndarray, cameras: np.n
     ----------
     images : (k, S, S, 3) uint8
     shape_index : (k,) int, which teacher row each image shows
-    cameras : (k, 4) float, camera arrays (:class:`primkit.views.Camera`)
-    teacher : dict of (s, m, ...) arrays, :meth:`primkit.abstractor.Abstractor.predict_canonical`
+    cameras : (k, 4) float, camera arrays (:class:`primkit.image.camera.Camera`)
+    teacher : dict of (s, m, ...) arrays, :meth:`primkit.model.abstractor.Abstractor.predict_canonical`
     network : continue training this network instead of a new one
     foreground : (k, S, S, 3) uint8, alpha : (k, S, S) uint8, optional
-        The views' shapes alone (:class:`primkit.views.RenderedViews` rendered with
+        The views' shapes alone (:class:`primkit.image.views.RenderedViews` rendered with
         ``keep_foreground=True``); needed when ``config.swap_backgrounds > 0``.
     surface_points : (s, n, 3) float, closest : (s, R, R, R, 3) float, optional
         Each teacher row's shape in the canonical frame (:class:`primkit.data.PreparedShape`'s

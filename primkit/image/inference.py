@@ -125,7 +125,7 @@ class ImageAbstractor:
 
     def predict(self, images: np.ndarray, names=None, sources=None, existence_threshold: float = 0.5,
                 prune_threshold: float | None = 0.6) -> list[ImageAbstraction]:
-        """Cuboids per image (kept and pruned as :meth:`primkit.abstractor.Abstractor.predict` does)."""
+        """Cuboids per image (kept and pruned as :meth:`primkit.model.abstractor.Abstractor.predict` does)."""
         raw = self.predict_raw(images)
         results = []
         for i in range(len(images)):

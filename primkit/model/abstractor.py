@@ -14,11 +14,11 @@ output, marked absent.
 Options (both off by default, both in ``primkit abstract``):
 
 * ``align="auto"``: each shape is tried in the 24 axis-aligned orientations
-  (:mod:`primkit.orientation`) and the one whose predicted cuboids have the lowest coverage +
-  consistency loss (:func:`primkit.fitting.fit_losses`) is used; the result records it
+  (:mod:`primkit.model.orientation`) and the one whose predicted cuboids have the lowest coverage +
+  consistency loss (:func:`primkit.model.fitting.fit_losses`) is used; the result records it
   (``alignment``) and the cuboids still come back in the input's frame.
 * ``refine=N``: ``N`` Adam steps on each shape's own losses, from the network's answer, with part
-  indices and existence kept (:func:`primkit.fitting.refine`); the result records the loss before
+  indices and existence kept (:func:`primkit.model.fitting.refine`); the result records the loss before
   and after.
 
 Results come back in the input's own frame (the canonical frame used by the network is undone),
@@ -106,7 +106,7 @@ class Abstractor:
 
     Parameters
     ----------
-    network : primkit.network.AbstractionNet
+    network : primkit.model.network.AbstractionNet
     metadata : dict
     """
 

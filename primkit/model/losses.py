@@ -10,7 +10,7 @@ per cuboid. ``present`` is the sampled existence ``z_e`` of each part, a ``(B, m
 * **Consistency** (parts inside the shape): for each present cuboid, ``k`` points on its surface
   by reparametrisation (equal samples per face, importance weight = face area), the squared distance
   of each to the shape's surface looked up in the shape's closest-point grid
-  (:mod:`primkit.distance_field`); the area-weighted mean over each part's surface, summed over
+  (:mod:`primkit.model.distance_field`); the area-weighted mean over each part's surface, summed over
   present parts (the paper's sum over primitives of an expectation over each primitive's surface).
 * **Symmetry** (optional): the union of present cuboids should be mirror-symmetric about the plane
   Z = 0 of the canonical frame (left-right, with +Y up and +X front): surface samples of each part,
@@ -171,7 +171,7 @@ def shape_losses(
 
     Parameters
     ----------
-    prediction : primkit.network.PrimitivePrediction
+    prediction : primkit.model.network.PrimitivePrediction
     present : (B, m) tensor of 0/1
     points : (B, n, 3) tensor
         Surface points of each shape.

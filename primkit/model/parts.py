@@ -31,7 +31,7 @@ def resolve_parts(spec, names) -> np.ndarray:
         Comma-separated names and/or indices (``"back,seat"``, ``"3,7"``, ``"part3"``). A name
         selects every index that carries it. None or ``"all"`` selects every index.
     names : sequence of str
-        The model's part names, one per index (:attr:`primkit.abstractor.Abstractor.part_names`).
+        The model's part names, one per index (:attr:`primkit.model.abstractor.Abstractor.part_names`).
 
     Returns
     -------

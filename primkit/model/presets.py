@@ -1,7 +1,7 @@
 """Training recipes of the bundled models (``primkit train FOLDER --preset chair``).
 
 A preset fixes everything a bundled model was trained with except the data itself, which is not in
-the project: the schedule and loss settings (a :class:`primkit.training.TrainConfig`), which files
+the project: the schedule and loss settings (a :class:`primkit.model.training.TrainConfig`), which files
 of the folder are held out for evaluation (:func:`primkit.data.split_files`), and the description
 and terms of the data that go into the model file. Running the command named in ``command`` on
 the named data reproduces the bundled model (same seed, same model on CPU).

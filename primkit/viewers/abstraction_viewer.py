@@ -3,7 +3,7 @@
 Controls: a checkbox per present part (coloured like the part) shows or hides it; a checkbox shows
 or hides the mesh; a slider sets the cuboids' opacity; clicking a cuboid (without dragging) shows
 its index, name (the model's ``part_names``) and parameters, and outlines it. The shape is seen
-from the camera convention of :mod:`primkit.render`.
+from the camera convention of :mod:`primkit.viz.render`.
 
     primkit view abstraction chair.off --model chair
 """

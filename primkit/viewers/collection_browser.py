@@ -1,13 +1,13 @@
 """Collection browser: every shape of a folder in one grid, parts coloured the same on every shape.
 
 One network explains the whole category, so part ``k`` is the same part everywhere and gets the
-same colour (:func:`primkit.abstractor.part_colors`) on every shape. Three modes, chosen with the
+same colour (:func:`primkit.viz.palette.part_colors`) on every shape. Three modes, chosen with the
 buttons at the bottom left: the meshes, their cuboids, or the meshes coloured by co-segmentation
 (each face takes its nearest cuboid's index). Clicking a shape names it and lists its parts.
 
 Layout: shapes are drawn in the canonical frame (upright, front toward +X, longest side 1) and
 placed along the screen's right and down directions of the camera convention
-(:data:`primkit.render.CAMERA`, parallel projection), so the grid is a true grid on screen and
+(:data:`primkit.viz.camera.CAMERA`, parallel projection), so the grid is a true grid on screen and
 every shape is drawn at the same scale.
 
     primkit view collection chairs/ --model chair

@@ -18,7 +18,7 @@ and back: :func:`mesh_from_o3d`, :func:`points_from_o3d`, :func:`from_pyvista`.
 
 Decisions:
 
-* **Colours** are ``(k, 3) uint8`` on primkit's side (as :func:`primkit.abstractor.part_colors`
+* **Colours** are ``(k, 3) uint8`` on primkit's side (as :func:`primkit.viz.palette.part_colors`
   and :func:`primkit.io.write_mesh`) and float in [0, 1] on Open3D's side; conversions scale by 255
   and round.
 * **Face colours in Open3D.** ``o3d.geometry.TriangleMesh`` has vertex colours only. A mesh with
@@ -146,7 +146,7 @@ def cuboids_to_lineset(cuboids: Cuboids, colors=None, include_absent: bool = Fal
     """The cuboids' edges as an ``open3d.geometry.LineSet``, each edge coloured by its part.
 
     colors : (m, 3) uint8 or None
-        One colour per part slot; default :func:`primkit.abstractor.part_colors`.
+        One colour per part slot; default :func:`primkit.viz.palette.part_colors`.
     """
     import open3d as o3d
 
@@ -274,7 +274,7 @@ def to_pyvista(obj, *, colors=None, face_colors=None, edges: bool = False, inclu
     obj : one of
         * :class:`~primkit.primitives.Cuboids`: the solid cuboids (or their edges with ``edges=True``)
           with ``cell_data["part"]`` (slot per triangle or edge) and ``cell_data["rgb"]``
-          (``colors`` per slot, default :func:`primkit.abstractor.part_colors`);
+          (``colors`` per slot, default :func:`primkit.viz.palette.part_colors`);
         * ``(vertices, faces)``, a :class:`primkit.io.Mesh` or anything with ``.vertices`` and
           ``.faces``: a triangle mesh (``face_colors`` (f, 3) uint8 become ``cell_data["rgb"]``);
         * ``(n, 3)`` points: a point cloud (``colors`` (n, 3) uint8 become ``point_data["rgb"]``);
@@ -374,7 +374,7 @@ def _as_o3d(obj):
 
 
 def _set_view(control, geoms) -> None:
-    """Look from :data:`primkit.render.CAMERA`'s direction (front-right-above, +Y up) at the geometry."""
+    """Look from :data:`primkit.viz.camera.CAMERA`'s direction (front-right-above, +Y up) at the geometry."""
     lo = np.min([g.get_min_bound() for g in geoms], axis=0)
     hi = np.max([g.get_max_bound() for g in geoms], axis=0)
     control.set_lookat((lo + hi) / 2)
@@ -394,7 +394,7 @@ def draw(*objects, png=None, window_size: tuple[int, int] = (800, 600), title: s
         Write a picture instead of opening a window (Open3D's legacy ``Visualizer`` with an
         invisible window; works off screen through EGL as well as under X). The newer
         ``OffscreenRenderer`` is avoided: it needs Vulkan and took seconds per frame on CPU. The
-        picture is taken from the camera direction of :data:`primkit.render.CAMERA`.
+        picture is taken from the camera direction of :data:`primkit.viz.camera.CAMERA`.
 
     Returns
     -------

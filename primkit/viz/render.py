@@ -117,7 +117,7 @@ def mesh_layer(vertices, faces, face_colors=None, **kwargs) -> Layer:
 
 def cuboid_layer(cuboids, colors=None, **kwargs) -> Layer:
     """The present cuboids coloured by part index (``colors`` (m, 3) uint8, default
-    :func:`primkit.abstractor.part_colors`), edges drawn."""
+    :func:`primkit.viz.palette.part_colors`), edges drawn."""
     v, f, part = cuboids.to_mesh()
     palette = part_colors(cuboids.count) if colors is None else np.asarray(colors, np.uint8)
     kwargs.setdefault("edges", True)
@@ -270,7 +270,7 @@ def render_abstractions(results, meshes, path, *, canonical: bool = False, note:
 
     Parameters
     ----------
-    results : list of primkit.abstractor.AbstractionResult
+    results : list of primkit.model.abstractor.AbstractionResult
     meshes : list of (vertices, faces)
         Each result's shape in the input's frame.
     canonical : bool

@@ -1,4 +1,4 @@
-"""Tests for primkit.modelfile: round trip, refusal to overwrite, rejection of foreign files."""
+"""Tests for primkit.model.modelfile: round trip, refusal to overwrite, rejection of foreign files."""
 
 import json
 import os

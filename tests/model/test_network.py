@@ -1,4 +1,4 @@
-"""Tests for primkit.network: shapes, output ranges, initialisation, head scaling, gradients."""
+"""Tests for primkit.model.network: shapes, output ranges, initialisation, head scaling, gradients."""
 
 import math
 

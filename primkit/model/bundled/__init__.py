@@ -1,6 +1,6 @@
 """The bundled models: ``--model chair`` resolves a name to a model file shipped in this folder.
 
-Each bundled model is ``<name>.safetensors`` (a primkit model file, :mod:`primkit.modelfile`)
+Each bundled model is ``<name>.safetensors`` (a primkit model file, :mod:`primkit.model.modelfile`)
 whose metadata carries its model card under ``"card"``: the data it was trained on and the data's
 terms, the schedule, the training time, and metrics on shapes it did not train on. ``primkit
 models`` prints the cards. How each was trained is in :mod:`primkit.model.presets`. This package
