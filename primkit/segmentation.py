@@ -55,6 +55,7 @@ __all__ = [
     "GroundTruth",
     "read_ground_truth",
     "majority_mapping",
+    "name_mapping",
     "accuracy",
     "label_iou",
     "evaluate",
@@ -385,7 +386,13 @@ def label_iou(predicted_list, truth_list, weights_list, label_count: int) -> np.
         return np.where(union > 0, inter / union, np.nan)
 
 
-def _model_mapping(part_names, label_names) -> np.ndarray:
+def name_mapping(part_names, label_names) -> np.ndarray:
+    """Each primitive index mapped to the ground-truth label its stored name matches.
+
+    part_names : (m,) str, the model's names; label_names : list of str, ground-truth names whose
+    ``/``-separated aliases are matched case-insensitively (``"legs/base"``)  ->  (m,) int code
+    into ``label_names``, -1 where the name is no label.
+    """
     lookup = {}
     for code, name in enumerate(label_names):
         for alias in str(name).lower().split("/"):
@@ -430,7 +437,7 @@ def evaluate(segmentations, truths, *, part_names=None) -> dict:
                                     [weights[j] for j in others], count, len(names)))
     mappings["leave-one-out"] = loo
     if part_names is not None:
-        named = _model_mapping(part_names, names)
+        named = name_mapping(part_names, names)
         if (named >= 0).any():
             mappings["model-names"] = [named] * len(assign)
     report = {"labels": names, "area_weighting": "face area", "protocols": {}}

@@ -157,7 +157,7 @@ def test_aliases_and_label_names(tmp_path):
     np.testing.assert_array_equal(gt.labels, [0, 1, 2, 2])
     other = segmentation.read_ground_truth(path, 4, "3=seat", names)  # same names list: codes agree
     np.testing.assert_array_equal(other.labels, [-1, -1, 1, 1])
-    mapping = segmentation._model_mapping(["base", "seat", "arms"], gt.names)
+    mapping = segmentation.name_mapping(["base", "seat", "arms"], gt.names)
     np.testing.assert_array_equal(mapping, [2, 1, -1])
 
 

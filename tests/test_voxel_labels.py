@@ -1,0 +1,113 @@
+"""Voxel co-segmentation and its evaluation: nearest-cuboid labels against a per-voxel loop, the
+per-shape IoU rule (absent from both counts 1), detection F1 and the two mapping protocols on a
+constructed example, and the PartNet archive reader on a small archive written here."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from primkit import io, primitives, voxel_labels
+
+
+def _grid(res=8, seed=0):
+    rng = np.random.default_rng(seed)
+    occ = rng.random((res, res, res)) < 0.4
+    return io.VoxelGrid(occ, translate=np.array([-0.3, 0.1, -0.5]), scale=1.7)
+
+
+def _cuboids(rng, m=5):
+    return primitives.Cuboids(rng.uniform(0.1, 0.5, (m, 3)), rng.normal(size=(m, 4)),
+                              rng.uniform(-0.2, 1.0, (m, 3)), np.array([True, True, False, True, True]))
+
+
+def test_label_voxels_is_the_nearest_present_cuboid_of_each_voxel_centre():
+    grid = _grid()
+    cub = _cuboids(np.random.default_rng(1))
+    labels = voxel_labels.label_voxels(grid, cub)
+    assert labels.shape == grid.occupancy.shape
+    assert np.all(labels[~grid.occupancy] == -1)
+    centres = grid.voxel_centres()
+    for idx in np.argwhere(grid.occupancy):
+        p = centres[tuple(idx)]
+        d = []
+        for k in range(cub.count):
+            local = primitives.quaternion_to_matrix(cub.quaternions[k]).T @ (p - cub.translations[k])
+            excess = np.maximum(np.abs(local) - cub.half_extents[k], 0.0)
+            d.append(excess @ excess if cub.existence[k] else np.inf)
+        d = np.array(d)
+        assert d[labels[tuple(idx)]] <= d.min() + 1e-12
+
+
+def _truth(codes, names=("back", "seat", "leg", "arm")):
+    return voxel_labels.VoxelGroundTruth(np.asarray(codes), list(names))
+
+
+def test_per_shape_iou_counts_a_label_absent_from_both_as_one_and_averages_over_shapes():
+    # two "shapes" of 6 voxels (a 1-D strip is enough: the evaluation only reads the labels)
+    t1 = _truth([0, 0, 1, 1, 2, 2])      # no arm
+    t2 = _truth([0, 1, 1, 3, 3, -1])     # no leg; last voxel empty
+    # primitive indices: 0 -> back, 1 -> seat, 2 -> leg, 3 -> arm by construction (majority)
+    a1 = np.array([0, 0, 1, 1, 2, 1])    # one leg voxel taken by the seat
+    a2 = np.array([0, 1, 1, 3, 1, -1])   # one arm voxel taken by the seat
+    rep = voxel_labels.evaluate_voxels([a1, a2], [t1, t2], 4, names=["one", "two"])
+    e = rep["protocols"]["collection-majority"]
+    assert e["mapping"] == {"0": "back", "1": "seat", "2": "leg", "3": "arm"}
+    # shape 1: back 1, seat 2/3, leg 1/2, arm absent from both -> 1
+    # shape 2: back 1, seat 2/3, leg absent from both -> 1, arm 1/2
+    assert e["shapes"]["one"]["iou"] == pytest.approx({"back": 1, "seat": 2 / 3, "leg": 0.5, "arm": 1})
+    assert e["shapes"]["two"]["iou"] == pytest.approx({"back": 1, "seat": 2 / 3, "leg": 1, "arm": 0.5})
+    assert e["iou"] == pytest.approx({"back": 1, "seat": 2 / 3, "leg": 0.75, "arm": 0.75})
+    assert e["mean_iou"] == pytest.approx(np.mean([1, 2 / 3, 0.75, 0.75]))
+    assert e["accuracy"] == pytest.approx(np.mean([5 / 6, 4 / 5]))
+    # detection: arm predicted and true on shape 2 only; leg predicted on shape 1 only, true on shape 1
+    assert e["detection"]["arm"]["f1"] == 1.0 and e["detection"]["arm"]["absent_kept_absent"] == 1.0
+    assert e["detection"]["leg"]["shapes_with"] == 1 and e["detection"]["leg"]["true_positive"] == 1
+
+
+def test_detection_counts_false_arms_and_model_names_are_applied_unchanged():
+    partnet = list(voxel_labels.PARTNET_LABEL_NAMES.values())  # aliases: "leg/legs/base", "arm/arms"
+    t = [_truth([0, 1, 2, 2], partnet), _truth([0, 1, 2, 3], partnet), _truth([0, 1, 1, 3], partnet)]
+    a = [np.array([0, 1, 2, 3]), np.array([0, 1, 2, 3]), np.array([0, 1, 1, 2])]
+    # names: index 2 called "arms" (wrong on purpose), 3 "legs"
+    rep = voxel_labels.evaluate_voxels(a, t, 4, part_names=["back", "seat", "arms", "legs"],
+                                       mean_over=["back", "seat", "leg"])
+    named = rep["protocols"]["model-names"]
+    assert named["mapping"] == {"0": "back", "1": "seat", "2": "arm", "3": "leg"}
+    # shape 0: predicted arm on voxel 2 (truth leg), leg on voxel 3 (truth leg) -> leg IoU 1/2,
+    # arm IoU 0 (predicted, not true)
+    assert named["shapes"]["shape0"]["iou"]["arm"] == 0.0
+    assert named["shapes"]["shape0"]["iou"]["leg"] == 0.5
+    det = named["detection"]["arm"]  # arm predicted on shapes 0, 1, 2 (index 2 present); true on 1, 2
+    assert (det["true_positive"], det["false_positive"], det["false_negative"]) == (2, 1, 0)
+    assert det["f1"] == pytest.approx(2 * 2 / (2 * 2 + 1))
+    assert det["absent_kept_absent"] == 0.0
+    assert rep["mean_over"] == ["back", "seat", "leg"]
+    assert named["mean_iou"] == pytest.approx(np.mean([named["iou"][k] for k in ("back", "seat", "leg")]))
+
+
+def test_evaluation_refuses_mismatched_inputs():
+    with pytest.raises(ValueError):
+        voxel_labels.evaluate_voxels([np.zeros(3, int)], [_truth([0, 1])], 2)
+    with pytest.raises(ValueError, match="no primitive index"):
+        voxel_labels.evaluate_voxels([np.array([0, -1])], [_truth([0, 1])], 2)
+    with pytest.raises(ValueError, match="not labels"):
+        voxel_labels.evaluate_voxels([np.array([0, 1])], [_truth([0, 1])], 2, mean_over=["wing"])
+
+
+def test_archive_reads_labels_as_codes_and_checks_the_grid(tmp_path):
+    raw = np.full((4, 4, 4), -1, np.int8)
+    raw[0, 0, 0], raw[1, 0, 0], raw[2, 0, 0], raw[3, 0, 0] = 0, 1, 2, 3
+    np.savez_compressed(tmp_path / "voxlabels.npz", abc=raw)
+    arch = voxel_labels.VoxelLabelArchive(tmp_path)
+    assert "abc" in arch and "xyz" not in arch and len(arch) == 1
+    gt = arch.get("abc", (4, 4, 4))
+    assert gt.names == ["back", "seat", "leg/legs/base", "arm/arms"]
+    assert gt.labels[0, 0, 0] == 0 and gt.labels[3, 0, 0] == 3 and (gt.labels == -1).sum() == 60
+    with pytest.raises(io.ShapeFileError, match="grid is"):
+        arch.get("abc", (8, 8, 8))
+    (tmp_path / "bad.npz").write_bytes(b"not a zip")
+    with pytest.raises(io.ShapeFileError, match="bad.npz"):
+        voxel_labels.VoxelLabelArchive(tmp_path / "bad.npz")
+    with pytest.raises(FileNotFoundError):
+        voxel_labels.VoxelLabelArchive(tmp_path / "none.npz")
