@@ -33,7 +33,8 @@ import torch
 
 from .. import io
 from . import modelfile
-from .losses import LossWeights, MovingBaseline, reinforce_surrogate, shape_losses
+from .losses import (LossWeights, MovingBaseline, SlotPlacement, local_existence_surrogate, reinforce_surrogate,
+                     shape_losses)
 from .network import AbstractionNet, NetworkConfig
 
 __all__ = ["TrainConfig", "ShapeTensors", "PreparedDataset", "TrainResult", "train", "isolated_torch_state"]
@@ -53,6 +54,9 @@ class TrainConfig:
     stage1_iterations: int = 20000
     stage2_iterations: int = 30000
     parsimony: float = 8e-5
+    existence_gradient: str = "reinforce"
+    placement_weight: float = 0.0
+    placement_momentum: float = 0.99
     baseline_momentum: float = 0.9
     coverage_weight: float = 1.0
     consistency_weight: float = 1.0
@@ -310,6 +314,7 @@ def train(
     optimizer = torch.optim.Adam(net.parameters(), lr=config.learning_rate)
     generator = torch.Generator().manual_seed(config.seed * 1000 + rank)
     baseline = MovingBaseline(config.baseline_momentum)
+    placement = SlotPlacement(config.placement_momentum)
     history: list = []
     start = 0
     if resume is not None:
@@ -325,6 +330,8 @@ def train(
         generator.set_state(weights["rng.batches"])
         torch.set_rng_state(weights["rng.torch"])
         baseline.load_state_dict(ck["baseline"])
+        if ck.get("placement"):
+            placement.load_state_dict(ck["placement"])
         history = ck["history"]
         start = int(ck["iteration"])
     model = net
@@ -368,7 +375,15 @@ def train(
                 present = (u < pred.existence.detach()).to(pred.existence.dtype)
             else:
                 present = torch.ones_like(pred.existence)
-            losses = shape_losses(pred, present, pts, closest, weights, config.samples_per_cuboid, generator=None)
+            local = stage2 and config.existence_gradient == "local"
+            losses = shape_losses(pred, present, pts, closest, weights, config.samples_per_cuboid, generator=None,
+                                  presence_effects=local)
+            if config.placement_weight:
+                place = placement.costs(pred.translations)  # (B, m), from the means before this batch
+                placement.update(pred.translations, present)
+                losses.total = losses.total + config.placement_weight * (place * present).sum(1)
+                if losses.presence_effect is not None:
+                    losses.presence_effect = losses.presence_effect + config.placement_weight * place.detach()
             loss = losses.total.mean()
             mean_loss = loss.detach()
             if world > 1:
@@ -376,8 +391,11 @@ def train(
                 dist.all_reduce(mean_loss)
                 mean_loss = mean_loss / world
             if stage2:
-                b = baseline.value if baseline.value is not None else float(mean_loss)
-                loss = loss + reinforce_surrogate(pred.existence_logits, present, losses.total, b, config.parsimony)
+                if local:
+                    loss = loss + local_existence_surrogate(pred.existence_logits, losses.presence_effect, config.parsimony)
+                else:
+                    b = baseline.value if baseline.value is not None else float(mean_loss)
+                    loss = loss + reinforce_surrogate(pred.existence_logits, present, losses.total, b, config.parsimony)
                 baseline.update(float(mean_loss))
             else:
                 # existence is not learned in stage 1; the zero term keeps its head in the graph (DDP)
@@ -405,11 +423,13 @@ def train(
             if stop["requested"] and it + 1 < total:
                 interrupted = True
                 if ckpt_path is not None and rank == 0:
-                    _save_checkpoint(ckpt_path, net, optimizer, generator, baseline, it + 1, history, config, {})
+                    _save_checkpoint(ckpt_path, net, optimizer, generator, baseline, it + 1, history, config,
+                                     {"placement": placement.state_dict()})
                     print(f"\ninterrupted after iteration {it + 1}: checkpoint saved to {ckpt_path} (resume with --resume)", file=sys.stderr)
                 break
             if ckpt_path is not None and rank == 0 and (it + 1) % config.checkpoint_every == 0 and it + 1 < total:
-                _save_checkpoint(ckpt_path, net, optimizer, generator, baseline, it + 1, history, config, {})
+                _save_checkpoint(ckpt_path, net, optimizer, generator, baseline, it + 1, history, config,
+                                     {"placement": placement.state_dict()})
     except KeyboardInterrupt:
         interrupted = True
         print("\ninterrupted twice: stopped without saving this iteration (the last checkpoint stands)", file=sys.stderr)
