@@ -167,25 +167,44 @@ class Abstractor:
             raw["existence"][i] > existence_threshold, probabilities=raw["existence"][i],
         )
 
-    def align(self, shape, existence_threshold: float = 0.5):
-        """The shape turned into the axis-aligned orientation the model explains best.
+    def align(self, shape, existence_threshold: float = 0.5, mode: str = "any"):
+        """One shape turned into the axis-aligned orientation the model explains best
+        (:meth:`orient` for one shape; ``mode`` as there)."""
+        turned, reports = self.orient([shape], mode, existence_threshold)
+        return turned[0], reports[0]
 
-        Returns ``(turned shape, report)``; the report gives the chosen rotation of the shape's
-        canonical frame, the input axes it takes as up and front, and the losses of the identity
-        and of the best orientation.
+    def orient(self, shapes, mode: str = "auto", existence_threshold: float = 0.5, *, up_margin: float | None = None,
+               chunk: int = 16):
+        """Shapes turned into the orientation ``mode`` finds (:data:`primkit.model.orientation.ALIGN_MODES`).
+
+        Each candidate orientation is predicted and scored with the fit losses
+        (:func:`primkit.model.fitting.fit_losses`); shapes go through in chunks of ``chunk``, all their
+        candidates in one batch. Returns ``(turned shapes, reports)``; a report gives the
+        ``mode``, the chosen ``rotation`` of the canonical frame, the input axes taken as ``up``
+        and ``front``, and the losses of the identity and of the chosen orientation.
         """
-        turned = [orientation.rotate_prepared(shape, a) for a in orientation.AXIS_ROTATIONS]
-        raw = self.predict_canonical(np.stack([t.occupancy for t in turned]))
-        cubs = [self._cuboids(raw, i, existence_threshold) for i in range(len(turned))]
-        losses = fit_losses(cubs, turned)["total"]
-        best = int(np.argmin(losses))
-        report = {
-            "rotation": orientation.AXIS_ROTATIONS[best].tolist(),
-            **orientation.describe_rotation(turned[best].frame.rotation),
-            "loss": float(losses[best]),
-            "loss_as_given": float(losses[0]),
-        }
-        return turned[best], report
+        margin = orientation.UP_MARGIN if up_margin is None else float(up_margin)
+        candidates = orientation.candidate_rotations(mode)
+        turned_out, reports = [], []
+        for start in range(0, len(shapes), chunk):
+            block = shapes[start : start + chunk]
+            turned = [orientation.rotate_prepared(s, orientation.AXIS_ROTATIONS[c]) for s in block for c in candidates]
+            raw = self.predict_canonical(np.stack([t.occupancy for t in turned]))
+            cubs = [self._cuboids(raw, i, existence_threshold) for i in range(len(turned))]
+            losses = fit_losses(cubs, turned)["total"].reshape(len(block), len(candidates))
+            for i, s in enumerate(block):
+                best = orientation.choose_orientation(losses[i], candidates, mode, margin)
+                k = int(np.flatnonzero(candidates == best)[0])
+                chosen = turned[i * len(candidates) + k]
+                turned_out.append(chosen)
+                reports.append({
+                    "mode": mode,
+                    "rotation": orientation.AXIS_ROTATIONS[best].tolist(),
+                    **orientation.describe_rotation(chosen.frame.rotation),
+                    "loss": float(losses[i, k]),
+                    "loss_as_given": float(losses[i, 0]),
+                })
+        return turned_out, reports
 
     def predict(
         self,
@@ -205,23 +224,24 @@ class Abstractor:
             Parts with probability above it exist.
         prune_threshold : float or None
             Drop parts whose volume is more than this fraction inside the other parts; None keeps all.
-        align : None or "auto"
-            ``"auto"`` tries the 24 axis-aligned orientations per shape and keeps the best.
+        align : None or a mode of :data:`primkit.model.orientation.ALIGN_MODES`
+            How each shape's orientation is found: ``"auto"`` (the 4 turns about the up axis, and
+            another up axis for a shape clearly lying down), ``"front"``, ``"any"`` (24 turns) or
+            ``None``/``"none"`` (as prepared).
         refine : int
             Gradient steps per shape on its own losses after the network (0: none).
         """
         shapes = list(shapes)
         if not shapes:
             return []
-        if align not in (None, "none", "auto"):
-            raise ValueError(f"align must be None or 'auto', got {align!r}")
+        if align is not None and align not in orientation.ALIGN_MODES:
+            raise ValueError(f"align must be None or one of {', '.join(orientation.ALIGN_MODES)}, got {align!r}")
         for s in shapes:
             if s.resolution != self.resolution:
                 raise ValueError(f"{s.name}: prepared at {s.resolution}^3 but the model reads {self.resolution}^3")
         alignments = [None] * len(shapes)
-        if align == "auto":
-            for i, s in enumerate(shapes):
-                shapes[i], alignments[i] = self.align(s, existence_threshold)
+        if align not in (None, "none"):
+            shapes, alignments = self.orient(shapes, align, existence_threshold)
         raw = self.predict_canonical(np.stack([s.occupancy for s in shapes]), batch_size)
         cubs = []
         for i in range(len(shapes)):

@@ -20,7 +20,8 @@ import numpy as np
 
 from .. import geometry
 
-__all__ = ["AXIS_ROTATIONS", "rotate_prepared", "axis_name", "describe_rotation"]
+__all__ = ["AXIS_ROTATIONS", "UPRIGHT", "ALIGN_MODES", "candidate_rotations", "choose_orientation",
+           "resolve_align", "rotate_prepared", "axis_name", "describe_rotation"]
 
 
 def _axis_rotations() -> np.ndarray:
@@ -37,6 +38,74 @@ def _axis_rotations() -> np.ndarray:
 
 #: (24, 3, 3) float: every proper rotation that maps coordinate axes to coordinate axes; [0] is the identity.
 AXIS_ROTATIONS = _axis_rotations()
+
+
+#: (24,) bool: the rotations of :data:`AXIS_ROTATIONS` that keep +Y up (the 4 turns about the up axis).
+UPRIGHT = np.array([np.allclose(r[1], [0.0, 1.0, 0.0]) for r in AXIS_ROTATIONS])
+
+#: How a shape's orientation is found (``align=``); see :func:`choose_orientation`.
+ALIGN_MODES = {
+    "none": "as given (or as declared with up/front)",
+    "front": "the 4 turns about the up axis; the one the model explains best",
+    "auto": "the 4 turns about the up axis, and another up axis only when the shape is clearly lying down "
+    "(the best orientation with another up axis explained with under `up_margin` of the best upright loss)",
+    "any": "all 24 axis-aligned orientations; the one the model explains best",
+}
+
+#: Default ``up_margin`` of ``align="auto"``: an orientation with another up axis must cut the loss by 30% (measured on validation chairs).
+UP_MARGIN = 0.7
+
+
+def resolve_align(align=None, up=None, front=None) -> str:
+    """The orientation search to run, from an explicit ``align`` or from what the user declared.
+
+    ``align`` given: that mode (``None``/``"none"`` is no search only when given explicitly as
+    ``"none"``). Otherwise: both ``up`` and ``front`` declared -> ``"none"``; only ``up`` ->
+    ``"front"``; neither -> ``"auto"``. ``"auto"`` given as an axis means undeclared.
+    """
+    if align is not None:
+        if align not in ALIGN_MODES:
+            raise ValueError(f"align must be one of {', '.join(ALIGN_MODES)}, got {align!r}")
+        return align
+    declared_up = up not in (None, "auto")
+    declared_front = front not in (None, "auto")
+    if declared_up and declared_front:
+        return "none"
+    return "front" if declared_up else "auto"
+
+
+def candidate_rotations(mode: str) -> np.ndarray:
+    """Indices into :data:`AXIS_ROTATIONS` that ``mode`` tries (identity first)."""
+    if mode == "none":
+        return np.array([0])
+    if mode == "front":
+        return np.flatnonzero(UPRIGHT)
+    if mode in ("auto", "any"):
+        return np.arange(len(AXIS_ROTATIONS))
+    raise ValueError(f"align must be one of {', '.join(ALIGN_MODES)}, got {mode!r}")
+
+
+def choose_orientation(losses, candidates, mode: str, up_margin: float = UP_MARGIN) -> int:
+    """The chosen index into :data:`AXIS_ROTATIONS`, from the fit loss of each candidate.
+
+    ``losses`` (k,) float for ``candidates`` (k,) int. ``"auto"`` keeps the best upright turn
+    unless the best of the others has a loss below ``up_margin`` times it: a chair model explains
+    a lying-down chair far better once it is stood up, while a symmetric stool on its side is at
+    best a little better explained, and is kept upright.
+    """
+    losses = np.asarray(losses, float)
+    candidates = np.asarray(candidates)
+    if mode != "auto":
+        return int(candidates[int(np.argmin(losses))])
+    upright = UPRIGHT[candidates]
+    best_up = int(np.flatnonzero(upright)[np.argmin(losses[upright])])
+    if upright.all():
+        return int(candidates[best_up])
+    others = np.flatnonzero(~upright)
+    best_other = int(others[np.argmin(losses[others])])
+    if losses[best_other] < up_margin * losses[best_up]:
+        return int(candidates[best_other])
+    return int(candidates[best_up])
 
 
 def axis_name(vector) -> str:

@@ -50,3 +50,35 @@ def test_identity_is_a_no_op_and_non_axis_rotations_are_refused(prepared_chairs)
         orientation.rotate_prepared(s, [[c, -d, 0], [d, c, 0], [0, 0, 1]])
     with pytest.raises(ValueError):
         orientation.rotate_prepared(s, np.diag([1.0, 1.0, -1.0]))  # a mirror
+
+
+def test_upright_turns_are_the_four_that_keep_y():
+    up = orientation.AXIS_ROTATIONS[orientation.UPRIGHT]
+    assert len(up) == 4 and np.allclose(up[:, 1], [0, 1, 0])
+    assert orientation.UPRIGHT[0]  # the identity
+    assert list(orientation.candidate_rotations("front")) == list(np.flatnonzero(orientation.UPRIGHT))
+    assert len(orientation.candidate_rotations("auto")) == 24 and orientation.candidate_rotations("none").tolist() == [0]
+
+
+def test_auto_keeps_the_shape_upright_unless_another_up_axis_is_clearly_better():
+    cands = np.arange(24)
+    losses = np.full(24, 1.0)
+    up = np.flatnonzero(orientation.UPRIGHT)
+    losses[up[2]] = 0.8                      # best upright turn
+    other = int(np.flatnonzero(~orientation.UPRIGHT)[5])
+    losses[other] = 0.7                      # better, but not by the margin (0.7 * 0.8 = 0.56)
+    assert orientation.choose_orientation(losses, cands, "auto") == up[2]
+    assert orientation.choose_orientation(losses, cands, "any") == other
+    losses[other] = 0.5                      # clearly lying down: another up axis wins
+    assert orientation.choose_orientation(losses, cands, "auto") == other
+    assert orientation.choose_orientation(losses[up], up, "front") == up[2]
+
+
+def test_resolve_align_follows_what_was_declared():
+    assert orientation.resolve_align() == "auto"
+    assert orientation.resolve_align(up="+z") == "front"
+    assert orientation.resolve_align(up="+z", front="-x") == "none"
+    assert orientation.resolve_align(up="auto", front="auto") == "auto"
+    assert orientation.resolve_align("any", up="+z", front="+x") == "any"
+    with pytest.raises(ValueError):
+        orientation.resolve_align("sideways")
