@@ -107,12 +107,19 @@ class ChamferConvention:
         shape's surface samples.
     frame : str
         The frame the points are in; informational, printed by :meth:`describe`.
+    unit : str
+        ``"longest-side"`` (default): distances in the canonical frame, where the shape's
+        bounding box has longest side 1. ``"diagonal"``: distances divided by the length of the
+        diagonal of the shape's bounding box (of its surface samples), the unit of
+        per-shape fitters' papers (e.g. EMS, Liu et al. 2022); a chair's diagonal is about 1.3-1.6
+        longest sides, so these figures are that much smaller.
     """
 
     power: int = 1
     reduction: str = "mean_of_means"
     samples: int = 10000
     frame: str = "canonical: bbox centred, longest side 1"
+    unit: str = "longest-side"
 
     def __post_init__(self) -> None:
         if self.power not in (1, 2) or isinstance(self.power, bool):
@@ -121,6 +128,8 @@ class ChamferConvention:
             raise ValueError(f"`reduction` must be 'mean_of_means' or 'sum_of_means', got {self.reduction!r}")
         if int(self.samples) != self.samples or self.samples < 1:
             raise ValueError(f"`samples` must be a positive integer, got {self.samples!r}")
+        if self.unit not in ("longest-side", "diagonal"):
+            raise ValueError(f"`unit` must be 'longest-side' or 'diagonal', got {self.unit!r}")
 
     def describe(self) -> str:
         """One line stating the formula, squared or not, the sample counts and the frame."""
@@ -128,9 +137,10 @@ class ChamferConvention:
         body = f"mean_A min_B |a-b|{sq} + mean_B min_A |b-a|{sq}"
         formula = f"({body}) / 2" if self.reduction == "mean_of_means" else body
         squared = "squared" if self.power == 2 else "unsquared"
+        unit = "" if self.unit == "longest-side" else ", in units of the shape's bounding-box diagonal"
         return (
             f"Chamfer-L{self.power} = {formula}, {squared}, "
-            f"{self.samples}+{self.samples} samples, frame {self.frame}"
+            f"{self.samples}+{self.samples} samples, frame {self.frame}{unit}"
         )
 
 
@@ -200,9 +210,12 @@ def cuboid_chamfer(
         return float("inf")
     rng = np.random.default_rng(seed)
     ours = union_surface_samples(c, k, rng)
+    unit = 1.0
+    if convention.unit == "diagonal":
+        unit = float(np.linalg.norm(pts.max(axis=0) - pts.min(axis=0)))  # of all the samples, before the subset
     if len(pts) > k:
         pts = pts[rng.choice(len(pts), size=k, replace=False)]
-    return chamfer_distance(ours, pts, convention)
+    return chamfer_distance(ours, pts, convention) / unit**convention.power
 
 
 # --------------------------------------------------------------------------------------------

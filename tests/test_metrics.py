@@ -408,3 +408,17 @@ def test_summarize_rejects_mixed_conventions_and_empty():
     out = M.summarize([a, empty, a])
     assert out["empty"] == 1 and out["chamfer"]["mean"] == float("inf")
     assert out["chamfer"]["median"] == pytest.approx(0.1)
+
+
+@pytest.mark.parametrize("power", [1, 2])
+def test_diagonal_unit_divides_by_the_bounding_box_diagonal(power):
+    rng = np.random.default_rng(8)
+    c = random_cuboids(rng, 3)
+    pts = rng.uniform([-0.5, -0.2, -0.1], [0.5, 0.2, 0.1], size=(2000, 3))
+    diag = np.linalg.norm(pts.max(0) - pts.min(0))
+    plain = M.cuboid_chamfer(c, pts, M.ChamferConvention(power=power, samples=1000), seed=1)
+    scaled = M.cuboid_chamfer(c, pts, M.ChamferConvention(power=power, samples=1000, unit="diagonal"), seed=1)
+    assert scaled == pytest.approx(plain / diag**power, rel=1e-12)
+    assert "diagonal" in M.ChamferConvention(unit="diagonal").describe()
+    with pytest.raises(ValueError):
+        M.ChamferConvention(unit="metres")
