@@ -98,9 +98,10 @@ def add_axes(p) -> None:
 
 
 def add_align(p) -> None:
-    p.add_argument("--align", choices=["none", "auto"], default="none",
-                   help="auto: try the 24 axis-aligned orientations of each shape and keep the one the model "
-                        "explains best (default none)")
+    p.add_argument("--align", choices=["none", "front", "auto", "any"], default="none",
+                   help="how each shape's orientation is found: front (the 4 turns about the up axis), auto (those, "
+                        "and another up axis for a shape clearly lying down), any (all 24 axis-aligned turns; the "
+                        "model's best), none (as given; the default)")
 
 
 def add_refine(p) -> None:
