@@ -8,12 +8,14 @@ similarity map (t-SNE of :class:`primkit.embedding.PartDescriptor`) with each sh
 neighbours; one deformation transfer (the first shape onto the shape least like it); a table of
 metrics (:func:`primkit.metrics.score`, with its convention sentence); and an interactive 3D scene.
 
-The 3D scene works offline and in any browser: the page carries its own small viewer, a canvas 2D
-painter's-algorithm renderer of a few thousand triangles (the meshes are decimated for it with
-Open3D's quadric decimation), with the data inlined as JSON. Why not pyvista's ``export_html``:
-it needs trame (not a dependency of primkit) and its page loads its JavaScript at view time; a
-WebGL page would need a GL context, which headless browsers on CPU-only machines provide only
-through a deprecated software fallback that logs warnings. The canvas viewer needs neither.
+The 3D scene is drawn by plotly.js (:mod:`primkit.viz.web`): each shape's co-segmented surface
+beside its cuboids with their edges, a legend entry per part index that toggles that part on every
+shape, and the camera convention of every primkit picture. The library (from the installed
+``plotly`` package) and the data are inlined, so the page opens without a network; the data's JSON
+is escaped so that no shape name can end its script element. The meshes are decimated for it with
+Open3D's quadric decimation. (Until this page used plotly, a hand-written canvas painter drew the
+scene; pyvista's ``export_html`` was not used because it needs trame and loads its JavaScript at
+view time.)
 
 Each section degrades on its own: a missing piece (a map needs 3 shapes; the deformation needs
 two; a module that fails) is replaced by a one-line note on the page and in ``report.json``, and
@@ -32,6 +34,7 @@ import numpy as np
 from . import deformation, embedding, io
 from .geometry import voxel_boundary_mesh
 from .segmentation import face_labels
+from .viz import web
 from .viz.interop import mesh_from_o3d, mesh_to_o3d
 from .viz.palette import part_colors
 from .viz.camera import CANONICAL_RADIUS
@@ -40,10 +43,10 @@ from .model.abstractor import Abstractor
 from .model.abstraction import abstract_shapes
 from .metrics import score
 
-__all__ = ["ReportShape", "Report", "build_report", "write_report", "scene_data", "VIEWER_JS"]
+__all__ = ["ReportShape", "Report", "build_report", "write_report", "scene_figure"]
 
 THUMB = 160  # thumbnail size in pixels
-SCENE_FACES = 1500  # triangles per shape in the interactive scene
+SCENE_FACES = 3000  # triangles per shape in the interactive scene
 
 
 @dataclass
@@ -110,20 +113,15 @@ def _decimate(vertices, faces, labels, target: int):
     return small.vertices, small.faces, labels[nearest]
 
 
-def scene_data(shapes, part_count: int, faces_per_shape: int = SCENE_FACES) -> dict:
-    """The JSON the page's viewer draws: per shape its decimated mesh (vertices rounded to 1e-4),
-    face labels, and its present cuboids as 8 corners each (:meth:`Cuboids.to_mesh` order)."""
-    out = {"colors": part_colors(part_count).tolist(), "shapes": []}
+def scene_figure(shapes, part_names, part_count: int, faces_per_shape: int = SCENE_FACES) -> dict:
+    """The plotly figure of the page's 3D scene (:func:`primkit.viz.web.scene_figure`): each
+    :class:`ReportShape` decimated to about ``faces_per_shape`` triangles, with its labels and cuboids."""
+    items = []
     for s in shapes:
         v, f, lab = _decimate(s.vertices, s.faces, s.labels, faces_per_shape)
-        cv, _, cpart = s.cuboids.to_mesh()
-        out["shapes"].append({
-            "name": s.name,
-            "v": np.round(v, 4).ravel().tolist(), "f": np.asarray(f, int).ravel().tolist(),
-            "label": np.asarray(lab, int).tolist(),
-            "corners": np.round(cv, 4).ravel().tolist(), "part": cpart[::12].astype(int).tolist(),
-        })
-    return out
+        items.append((s.name, v, f, lab, s.cuboids))
+    names = list(part_names) + [f"part{k}" for k in range(len(part_names), part_count)]
+    return web.scene_figure(items, names, count=part_count)
 
 
 def _thumbnails(shapes, folder: Path, overwrite: bool, progress: bool) -> dict:
@@ -230,7 +228,7 @@ def write_report(output, shapes, results, part_names, *, overwrite: bool = False
     except Exception as exc:  # noqa: BLE001
         notes["deformation"] = f"deformation not drawn: {type(exc).__name__}: {exc}"
     count = results[0].canonical.count if results else 20
-    scene = scene_data(shapes, count)
+    scene = scene_figure(shapes, part_names, count)
     summary = _summary_json(shapes, part_names, similarity, deform, notes, meta or {})
     with io.atomic_output(out / "report.json", overwrite=overwrite) as tmp:
         Path(tmp).write_text(json.dumps(summary, indent=1))
@@ -291,8 +289,9 @@ def _page(shapes, part_names, thumbs, similarity, deform, notes, scene, out: Pat
         rows.append(f"<tr class='mean'><td>mean</td><td>{mean[0]:.1f}</td>" + "".join(f"<td>{_fmt(x)}</td>" for x in mean[1:])
                     + "</tr>")
     present = np.array([s.cuboids.existence for s in shapes]).mean(0)
+    colours = part_colors(len(present))
     usage = "".join(f"<tr><td>{k}</td><td>{esc(part_names[k])}</td><td><span class='sw' style='background:rgb"
-                    f"{tuple(scene['colors'][k])}'></span></td><td>{present[k]:.0%}</td></tr>"
+                    f"{tuple(int(c) for c in colours[k])}'></span></td><td>{present[k]:.0%}</td></tr>"
                     for k in np.flatnonzero(present))
     sim = (f'<img src="{rel(similarity["map"])}" alt="similarity map" class="map">' if similarity is not None
            else f"<p class='note'>{esc(notes.get('similarity', ''))}</p>")
@@ -303,11 +302,14 @@ def _page(shapes, part_names, thumbs, similarity, deform, notes, scene, out: Pat
                f'by index; flipped triangles {q["flipped"]:.2%}.</p>')
     else:
         dfm = f"<p class='note'>{esc(notes.get('deformation', ''))}</p>"
-    data = json.dumps(scene, separators=(",", ":")).replace("</", "<\\/")
+    triangles = sum(len(t["i"]) for t in scene["data"] if t["type"] == "mesh3d")
+    ready = ('document.getElementById("status").textContent = gd.data.length + " traces, " + ' + json.dumps(triangles)
+             + ' + " triangles"; document.body.setAttribute("data-ready", "1"); '
+             f'console.log("primkit report ready: {len(shapes)} shapes");')
     return _TEMPLATE.format(
         title=f"primkit report: {len(shapes)} shapes", meta=esc(json.dumps(meta)), cards="".join(cards),
-        rows="".join(rows), convention=esc(conv), usage=usage, similarity=sim, deformation=dfm, data=data,
-        js=VIEWER_JS, options="".join(f'<option value="{i}">{esc(s.name)}</option>' for i, s in enumerate(shapes)))
+        rows="".join(rows), convention=esc(conv), usage=usage, similarity=sim, deformation=dfm,
+        scene=web.figure_div(scene, "scene"), scene_script=web.figure_script("scene", ready=ready))
 
 
 _TEMPLATE = """<!DOCTYPE html>
@@ -320,18 +322,16 @@ body{{font-family:sans-serif;margin:1.5em;color:#222}} h2{{border-bottom:1px sol
 table{{border-collapse:collapse;font-size:13px}} td,th{{border:1px solid #ccc;padding:2px 8px;text-align:right}}
 td:first-child{{text-align:left}} tr.mean{{font-weight:bold}} .sw{{display:inline-block;width:14px;height:14px}}
 img.map{{max-width:900px;width:100%}} img.wide{{max-width:700px}} .note{{color:#a33}}
-#scene{{border:1px solid #ccc;background:#fff;cursor:grab}}
+#scene{{border:1px solid #ccc;max-width:1200px}}
 </style></head><body data-ready="0">
 <h1>{title}</h1>
 <p>Made by primkit (Tulsiani et al., CVPR 2017): one network explains the whole collection, so
 primitive <i>k</i> is the same part on every shape and has the same colour everywhere. Shapes are
 drawn in the model's canonical frame (upright, front +X), all at one scale. Settings: <code>{meta}</code></p>
 <h2>Interactive 3D scene</h2>
-<p><select id="pick"><option value="-1">all shapes (grid)</option>{options}</select>
-<label><input type="checkbox" id="mesh" checked> mesh (segmentation colours)</label>
-<label><input type="checkbox" id="cubes" checked> cuboids</label> &mdash; drag to turn, wheel to zoom.
-<span id="status"></span></p>
-<canvas id="scene" width="900" height="560"></canvas>
+<p>Each shape's surface in the colours of its parts, beside its cuboids. Drag to turn, scroll to zoom,
+click a part in the legend to hide it on every shape. <span id="status"></span></p>
+{scene}
 <h2>Shapes: mesh, cuboids, co-segmentation</h2>
 <div class="cards">{cards}</div>
 <h2>Similarity map</h2>{similarity}
@@ -341,84 +341,5 @@ drawn in the model's canonical frame (upright, front +X), all at one scale. Sett
 <p>{convention}</p>
 <h3>Parts in use</h3>
 <table><tr><th>index</th><th>name</th><th>colour</th><th>present on</th></tr>{usage}</table>
-<script id="data" type="application/json">{data}</script>
-<script>{js}</script>
-</body></html>
+{scene_script}</body></html>
 """.replace("{w}", str(3 * THUMB + 14))
-
-#: The page's own viewer: orthographic projection, back-to-front triangles on a 2D canvas,
-#: Lambert shading; no library, no network.
-VIEWER_JS = r"""
-(function(){
-"use strict";
-const D = JSON.parse(document.getElementById("data").textContent);
-const cv = document.getElementById("scene"), ctx = cv.getContext("2d");
-const pick = document.getElementById("pick"), meshBox = document.getElementById("mesh"), cubeBox = document.getElementById("cubes");
-const QUADS = [[1,3,7,5],[0,4,6,2],[2,6,7,3],[0,1,5,4],[4,5,7,6],[0,2,3,1]];
-let yaw = -0.75, pitch = 0.45, zoom = 1.0, drag = null;
-function grey(){ return [200,200,200]; }
-function colour(k){ return k >= 0 && k < D.colors.length ? D.colors[k] : grey(); }
-function triangles(sel){
-  const out = [], n = D.shapes.length, cols = Math.ceil(Math.sqrt(n * 1.5));
-  const list = sel < 0 ? D.shapes.map((s, i) => i) : [sel];
-  list.forEach((i, pos) => {
-    const s = D.shapes[i], ox = sel < 0 ? (pos % cols) * 1.3 : 0, oy = sel < 0 ? -Math.floor(pos / cols) * 1.3 : 0;
-    const P = (arr, j) => [arr[3*j] + ox, arr[3*j+1] + oy, arr[3*j+2]];
-    if (meshBox.checked && (sel >= 0 || !cubeBox.checked)) {
-      for (let t = 0; t < s.f.length / 3; t++)
-        out.push({p: [P(s.v, s.f[3*t]), P(s.v, s.f[3*t+1]), P(s.v, s.f[3*t+2])], c: colour(s.label[t]), a: 1});
-    }
-    if (cubeBox.checked) {
-      for (let b = 0; b < s.part.length; b++) {
-        for (const q of QUADS) {
-          const c = q.map(j => P(s.corners, 8*b + j));
-          out.push({p: [c[0], c[1], c[2], c[3]], c: colour(s.part[b]), a: sel >= 0 && meshBox.checked ? 0.45 : 1, edge: true});
-        }
-      }
-    }
-  });
-  return {tris: out, cols: cols, rows: Math.ceil(list.length / cols), grid: sel < 0};
-}
-function draw(){
-  const sel = parseInt(pick.value, 10), scene = triangles(sel), T = scene.tris;
-  const cy = Math.cos(yaw), sy = Math.sin(yaw), cp = Math.cos(pitch), sp = Math.sin(pitch);
-  let cx = 0, cy0 = 0;
-  if (scene.grid) { cx = (Math.min(scene.cols, D.shapes.length) - 1) * 0.65; cy0 = -(scene.rows - 1) * 0.65; }
-  const rot = (p) => { const x = p[0] - cx, y = p[1] - cy0, z = p[2];
-    const x1 = cy * x + sy * z, z1 = -sy * x + cy * z; return [x1, cp * y - sp * z1, sp * y + cp * z1]; };
-  const span = scene.grid ? 1.3 * Math.max(scene.cols, scene.rows) : 1.2;
-  const s = zoom * Math.min(cv.width, cv.height) / span, W = cv.width / 2, H = cv.height / 2;
-  const items = T.map(t => { const q = t.p.map(rot); let z = 0; q.forEach(v => z += v[2]); return {q: q, z: z / q.length, t: t}; });
-  items.sort((a, b) => a.z - b.z);
-  ctx.fillStyle = "#fff"; ctx.fillRect(0, 0, cv.width, cv.height);
-  for (const it of items) {
-    const q = it.q, u = [q[1][0]-q[0][0], q[1][1]-q[0][1], q[1][2]-q[0][2]], v = [q[2][0]-q[0][0], q[2][1]-q[0][1], q[2][2]-q[0][2]];
-    const nx = u[1]*v[2]-u[2]*v[1], ny = u[2]*v[0]-u[0]*v[2], nz = u[0]*v[1]-u[1]*v[0], len = Math.hypot(nx, ny, nz) || 1;
-    const light = 0.35 + 0.65 * Math.abs((0.3 * nx + 0.5 * ny + 0.8 * nz) / len / Math.hypot(0.3, 0.5, 0.8));
-    const c = it.t.c.map(x => Math.round(x * light));
-    ctx.beginPath();
-    q.forEach((p, k) => { const X = W + s * p[0], Y = H - s * p[1]; if (k) ctx.lineTo(X, Y); else ctx.moveTo(X, Y); });
-    ctx.closePath();
-    ctx.globalAlpha = it.t.a; ctx.fillStyle = "rgb(" + c.join(",") + ")"; ctx.fill();
-    if (it.t.edge) { ctx.strokeStyle = "rgba(0,0,0,0.6)"; ctx.lineWidth = 0.7; ctx.stroke(); }
-    else { ctx.strokeStyle = ctx.fillStyle; ctx.lineWidth = 0.5; ctx.stroke(); }
-  }
-  ctx.globalAlpha = 1;
-  if (scene.grid) {
-    ctx.fillStyle = "#000"; ctx.font = "11px sans-serif";
-    D.shapes.forEach((sh, i) => { const p = rot([(i % scene.cols) * 1.3, -Math.floor(i / scene.cols) * 1.3 - 0.6, 0]);
-      ctx.fillText(sh.name.slice(0, 18), W + s * p[0] - 25, H - s * p[1]); });
-  }
-  document.getElementById("status").textContent = T.length + " polygons";
-}
-cv.addEventListener("mousedown", e => { drag = [e.clientX, e.clientY]; });
-window.addEventListener("mouseup", () => { drag = null; });
-window.addEventListener("mousemove", e => { if (!drag) return;
-  yaw += (e.clientX - drag[0]) * 0.01; pitch += (e.clientY - drag[1]) * 0.01; drag = [e.clientX, e.clientY]; draw(); });
-cv.addEventListener("wheel", e => { e.preventDefault(); zoom *= Math.exp(-e.deltaY * 0.001); draw(); }, {passive: false});
-[pick, meshBox, cubeBox].forEach(el => el.addEventListener("change", draw));
-draw();
-document.body.setAttribute("data-ready", "1");
-console.log("primkit report ready: " + D.shapes.length + " shapes");
-})();
-"""
