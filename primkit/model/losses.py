@@ -65,46 +65,57 @@ def _union_distance_sq(points, half_extents, quaternions, translations, present,
         d2 = cuboid_distance_sq_torch(points.detach(), half_extents.detach(), quaternions.detach(),
                                       translations.detach(), parts_first=True)  # (B, m, n)
         masked = d2 + (1.0 - present)[:, :, None] * _ABSENT
-        nearest = masked.min(dim=1).indices  # (B, n); min's indices measured faster than argmin here
-        deltas = _toggle_deltas(d2, masked, present) if toggles else None
+        first, nearest = masked.min(dim=1)  # (B, n); min's indices measured faster than argmin here
+        deltas = _toggle_deltas(d2, masked, present, first, nearest) if toggles else None
     union = _nearest_distance_sq(points, half_extents, quaternions, translations, present, nearest)
     return (union, deltas) if toggles else union
 
 
-def _toggle_deltas(d2, masked, present):
+def _toggle_deltas(d2, masked, present, d1, k1):
     """(B, m) mean union distance with part ``j`` present minus with part ``j`` absent, others held.
 
     ``d2`` (B, m, n) distances to every cuboid, ``masked`` the same with absent parts pushed to
-    ``_ABSENT``. With ``d1`` and ``d1'`` the nearest and second-nearest present distances of a
-    point and ``k1`` its nearest part: removing a present part ``j`` changes the point's distance
-    by ``d1' - d1`` where ``k1 = j`` (else 0); adding an absent part ``j`` by ``min(d_j - d1, 0)``.
+    ``_ABSENT``, ``d1`` and ``k1`` (B, n) the nearest present distance of each point and its part.
+    With ``d1'`` the second-nearest present distance: removing a present part ``j`` changes the
+    point's distance by ``d1' - d1`` where ``k1 = j`` (else 0); adding an absent part ``j`` by
+    ``min(d_j - d1, 0)``. The second-nearest is the minimum once the nearest is set aside (one
+    more minimum over the parts, without its index: measured 4x faster than ``topk(2)``).
     """
     b, m, n = d2.shape
     if m > 1:
-        two = masked.topk(2, dim=1, largest=False)
-        d1, second, k1 = two.values[:, 0], two.values[:, 1], two.indices[:, 0]
+        second = masked.scatter(1, k1[:, None, :], float("inf")).amin(dim=1)
     else:
-        d1, k1 = masked[:, 0], torch.zeros(b, n, dtype=torch.long, device=d2.device)
         second = torch.full_like(d1, _ABSENT)
     removal = torch.zeros(b, m, dtype=d2.dtype, device=d2.device)
     removal.scatter_add_(1, k1, second - d1)
-    addition = (d2 - d1[:, None, :]).clamp_max(0.0).sum(-1)
+    addition = (d2 - d1[:, None, :]).clamp_max_(0.0).sum(-1)
     return torch.where(present > 0.5, -removal, addition) / n
 
 
 def _nearest_distance_sq(points, half_extents, quaternions, translations, present, nearest):
     """(B, n) squared distance of each point to its cuboid ``nearest`` (B, n), plus ``_ABSENT``
-    where that cuboid is absent; differentiable in the cuboids and the points."""
+    where that cuboid is absent; differentiable in the cuboids and the points.
+
+    Each cuboid's ``R`` (9), ``R^T t`` (3), half-extents (3) and absence term (1) are laid out as
+    16 rows of a ``(B, 16, m)`` table and gathered for every point in one call, then the local
+    coordinates ``R^T x - R^T t`` are formed coordinate by coordinate on ``(B, n)`` rows: one
+    gather (and one scatter in the backward pass) instead of three, and no ``(B, n, 3, 3)``
+    matrices (measured 2x faster than gathering the matrices and an einsum).
+    """
     b, n = nearest.shape
-    rot = quaternion_to_matrix_torch(quaternions).reshape(b, -1, 9)  # (B, m, 9)
-
-    def pick(x):  # (B, m, c) -> (B, n, c)
-        return torch.gather(x, 1, nearest[..., None].expand(b, n, x.shape[-1]))
-
-    r = pick(rot).reshape(b, n, 3, 3)
-    local = torch.einsum("bnji,bnj->bni", r, points - pick(translations))  # R^T (x - t)
-    excess = (local.abs() - pick(half_extents)).clamp_min(0.0)
-    return excess.square().sum(-1) + (1.0 - torch.gather(present, 1, nearest)) * _ABSENT
+    m = half_extents.shape[1]
+    rot = quaternion_to_matrix_torch(quaternions)  # (B, m, 3, 3)
+    offset = (rot.transpose(-1, -2) @ translations[..., None])[..., 0]  # R^T t, (B, m, 3)
+    absent = ((1.0 - present) * _ABSENT)[..., None]
+    table = torch.cat([rot.reshape(b, m, 9), offset, half_extents, absent], dim=-1)  # (B, m, 16)
+    # unbind, not 16 slices: each slice's backward would add a (B, 16, n) gradient of zeros
+    rows = torch.gather(table.transpose(1, 2), 2, nearest[:, None, :].expand(b, 16, n)).unbind(1)  # 16 x (B, n)
+    x, y, z = points.transpose(1, 2).unbind(1)  # (B, n) each
+    total = rows[15]
+    for i in range(3):  # local_i = sum_j R[j, i] x_j - (R^T t)_i, R row-major in rows 0..8
+        local = rows[i] * x + rows[3 + i] * y + rows[6 + i] * z - rows[9 + i]
+        total = total + (local.abs() - rows[12 + i]).clamp_min(0.0).square()
+    return total
 
 
 def coverage_loss(points, half_extents, quaternions, translations, present) -> torch.Tensor:

@@ -90,6 +90,8 @@ class ShapeTensors:
     ----------
     occupancy : (S, R, R, R) uint8
     closest : (S, R, R, R, 3) float32
+        Stored coordinate-planar (a ``(S, 3, R, R, R)`` tensor seen through a permutation), the
+        layout :func:`primkit.model.distance_field.lookup_distance_sq` reads without a copy.
     points : (S, n, 3) float32
     point_labels : (S, n) int32
     names : list of str
@@ -100,9 +102,13 @@ class ShapeTensors:
         if not shapes:
             raise ValueError("no shapes to train on")
         n = min(len(s.points) for s in shapes)
+        res = shapes[0].resolution
         self.names = [s.name for s in shapes]
         self.occupancy = torch.from_numpy(np.stack([s.occupancy for s in shapes]).astype(np.uint8))
-        self.closest = torch.from_numpy(np.stack([s.closest for s in shapes]).astype(np.float32))
+        planar = torch.empty((len(shapes), 3, res, res, res), dtype=torch.float32)
+        for i, s in enumerate(shapes):
+            planar[i] = torch.from_numpy(np.moveaxis(np.asarray(s.closest, np.float32), -1, 0))
+        self.closest = planar.permute(0, 2, 3, 4, 1)
         self.points = torch.from_numpy(np.stack([s.points[:n] for s in shapes]).astype(np.float32))
         self.point_labels = torch.from_numpy(np.stack([s.point_labels[:n] for s in shapes]).astype(np.int32))
 
@@ -114,12 +120,18 @@ class ShapeTensors:
         return self.occupancy.shape[1]
 
     def batch(self, index, points_per_shape: int, generator: torch.Generator, device):
-        """Occupancy (B, 1, R, R, R), closest (B, R, R, R, 3) and ``points_per_shape`` random surface points (B, n, 3)."""
-        occ = self.occupancy[index].unsqueeze(1).to(device=device, dtype=torch.float32)
-        closest = self.closest[index].to(device)
+        """Occupancy (B, 1, R, R, R), closest (B, R, R, R, 3) and ``points_per_shape`` random surface points (B, n, 3).
+
+        The closest points come out planar in memory like :attr:`closest`; the points are picked
+        straight from the stored rows (no copy of each shape's whole sample set).
+        """
+        index = torch.as_tensor(index, dtype=torch.int64)
+        occ = self.occupancy.index_select(0, index).unsqueeze(1).to(device=device, dtype=torch.float32)
+        closest = self.closest.permute(0, 4, 1, 2, 3).index_select(0, index).to(device).permute(0, 2, 3, 4, 1)
         total = self.points.shape[1]
         pick = torch.randint(0, total, (len(index), points_per_shape), generator=generator)
-        pts = torch.gather(self.points[index], 1, pick.unsqueeze(-1).expand(-1, -1, 3)).to(device)
+        rows = (index[:, None] * total + pick).reshape(-1)
+        pts = self.points.reshape(-1, 3).index_select(0, rows).reshape(len(index), points_per_shape, 3).to(device)
         return occ, closest, pts
 
 

@@ -74,17 +74,28 @@ def cuboid_distance_sq_torch(
     at 0, inside the cuboid).
 
     Computed coordinate-planar, as ``(B, m, 3, n)`` local coordinates ``R^T x - R^T t`` from one
-    batched matrix product: the per-point sums then run over a middle axis with ``n`` contiguous
-    values, which vectorises (a trailing axis of length 3, as in :func:`world_to_local_torch`'s
-    layout, made this 4x slower on CPU).
+    batched matrix product of ``(B, 3m, 3)`` by ``(B, 3, n)`` (broadcasting the points over the
+    parts instead copies them ``m`` times): the per-point sums then run over a middle axis with
+    ``n`` contiguous values, which vectorises (a trailing axis of length 3, as in
+    :func:`world_to_local_torch`'s layout, made this 4x slower on CPU). Without gradients the
+    element-wise steps run in place (``benchmarks/bench_abstractor.py``: 3.5 ms instead of 13 ms
+    for 32 shapes, 20 parts, 1,000 points on one CPU thread).
     """
+    import torch
+
     if half_extents.shape != translations.shape:
         raise ValueError("`half_extents` must be (B, m, 3), matching `translations`")
     _check_points_and_poses(points, quaternions, translations)
+    b, m = half_extents.shape[:2]
     rot_t = quaternion_to_matrix_torch(quaternions).transpose(-1, -2)  # (B, m, 3, 3), R^T
-    local = rot_t @ points.transpose(1, 2)[:, None] - rot_t @ translations[..., None]  # (B, m, 3, n)
-    excess = (local.abs() - half_extents[..., None]).clamp_min(0.0)
-    d2 = excess.square().sum(dim=2)  # (B, m, n)
+    offset = (rot_t @ translations[..., None]).reshape(b, 3 * m, 1)  # R^T t
+    local = torch.baddbmm(offset, rot_t.reshape(b, 3 * m, 3), points.transpose(1, 2), beta=-1.0)
+    local = local.view(b, m, 3, -1)  # (B, m, 3, n)
+    if torch.is_grad_enabled() and any(x.requires_grad for x in (points, half_extents, quaternions, translations)):
+        excess = (local.abs() - half_extents[..., None]).clamp_min(0.0)
+        d2 = excess.square().sum(dim=2)
+    else:
+        d2 = local.abs_().sub_(half_extents[..., None]).clamp_min_(0.0).square_().sum(dim=2)
     return d2 if parts_first else d2.transpose(1, 2)
 
 

@@ -210,6 +210,23 @@ def test_lookup_is_the_minimum_over_the_eight_surrounding_cells(meshes):
     np.testing.assert_allclose(got, ref, rtol=1e-12, atol=1e-15)
 
 
+def test_lookup_batched_planar_and_nan(meshes):
+    """A batch of grids, float32, stored planar (as training hands them out) or not: the same values,
+    each shape against its own grid; a NaN point gives NaN, not an index error."""
+    grids = [geometry.distance_grid(*meshes[k], 16).closest for k in ("torus", "sphere")]
+    stacked = torch.as_tensor(np.stack(grids))  # (2, R, R, R, 3) float32
+    planar = stacked.permute(0, 4, 1, 2, 3).contiguous().permute(0, 2, 3, 4, 1)
+    assert not planar.is_contiguous()
+    pts = torch.as_tensor(np.random.default_rng(7).uniform(-0.8, 0.8, size=(2, 300, 3)), dtype=torch.float32)
+    got = lookup_distance_sq(stacked, pts)
+    assert torch.equal(got, lookup_distance_sq(planar, pts))
+    for b in range(2):
+        np.testing.assert_allclose(got[b].double().numpy(), _lookup(grids[b], pts[b].double()).numpy(), rtol=1e-5, atol=1e-7)
+    pts[1, 5] = float("nan")
+    out = lookup_distance_sq(stacked, pts)
+    assert torch.isnan(out[1, 5]) and torch.isfinite(out).sum() == out.numel() - 1
+
+
 def test_lookup_gradient_matches_finite_differences(meshes):
     v, f = meshes["sphere"]
     grid = geometry.distance_grid(v, f, 16)
