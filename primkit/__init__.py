@@ -17,7 +17,7 @@ Conventions used everywhere (written once, here):
   torch stays inside the model and training code.
 
 Imports run one way (README, "Layout"; ``lint-imports`` checks it): io -> geometry -> primitives
--> data, synthetic, viz -> model, metrics -> applications -> report, viewers, demo -> cli.
+-> data, synthetic, viz -> model, metrics -> applications -> report, plugins -> viewers, demo -> cli.
 Modules import primkit's own modules at their top. Heavy third-party libraries (torch, VTK and
 pyvista, Open3D, trimesh, libigl, scipy, scikit-learn, matplotlib, Pillow, tqdm) are imported inside
 the functions that use them, so ``import primkit`` and its light modules load none of them; the

@@ -75,3 +75,22 @@ def test_the_wheel_carries_the_viewers_and_the_library(fresh_env):
     got = json.loads(_run([env / "bin" / "python", "-c", code], cwd=work).strip().splitlines()[-1])
     assert Path(got["file"]).is_relative_to(env)
     assert got["slots"] == 20 and got["parts"] >= 3
+
+
+def test_the_wheel_registers_the_pyvista_accessor(fresh_env):
+    """``pv.read(chair).primkit.segment(model="chair")`` with no ``import primkit``: pyvista finds the
+    accessor through the wheel's ``pyvista.accessors`` entry point and imports primkit from the wheel."""
+    from primkit import synthetic
+
+    env, root = fresh_env
+    work = root / "work-accessor"
+    work.mkdir()
+    shape = synthetic.write_collection(work, "chair", 1, seed=6)[0]
+    code = ("import json, sys, pyvista as pv; chair = pv.read(sys.argv[1]); before = 'primkit' in sys.modules; "
+            "parts = chair.primkit.segment(model='chair'); import primkit; "
+            "print(json.dumps({'before': before, 'file': primkit.__file__, 'faces': chair.n_cells, "
+            "'part': parts['part'].tolist(), 'cuboids': chair.primkit.cuboids(model='chair').n_blocks}))")
+    got = json.loads(_run([env / "bin" / "python", "-c", code, shape], cwd=work).strip().splitlines()[-1])
+    assert got["before"] is False and Path(got["file"]).is_relative_to(env)
+    assert len(got["part"]) == got["faces"] and got["cuboids"] >= 3
+    assert set(got["part"]) <= set(range(20)) and len(set(got["part"])) >= 3

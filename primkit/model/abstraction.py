@@ -184,8 +184,9 @@ def _inputs(inputs) -> list:
         return [inputs]
     if isinstance(inputs, tuple) and len(inputs) == 2 and all(_is_array_like(x) for x in inputs):
         return [inputs]  # (vertices, faces)
-    if isinstance(inputs, list) and inputs and all(isinstance(x, (int, float, np.number)) for x in np.ravel(inputs[:1])):
-        return [inputs]  # a nested list of points
+    first = inputs[0] if isinstance(inputs, list) and inputs else None
+    if isinstance(first, (list, tuple)) and first and all(isinstance(x, (int, float, np.number)) for x in first):
+        return [inputs]  # a nested list of points (a list of shapes, [(vertices, faces)] included, is not)
     return list(inputs)
 
 

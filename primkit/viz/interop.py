@@ -12,7 +12,13 @@ primkit                            Open3D                                       
 ``Cuboids`` (solid)                ``TriangleMesh`` (:func:`cuboids_to_o3d`)    ``to_pyvista(c)``
 ``(vertices, faces[, colours])``   ``TriangleMesh`` (:func:`mesh_to_o3d`)       ``to_pyvista((v, f))``
 ``(n, 3)`` points [+ colours]      ``PointCloud`` (:func:`points_to_o3d`)       ``to_pyvista(points)``
+``Cuboids`` one block per part                                                  :func:`to_pyvista_blocks`
 =================================  ===========================================  =====================
+
+and to Open3D's tensor geometry (``open3d.t.geometry``), whose named attributes carry the part
+index through Open3D's own operations: :func:`mesh_to_o3d_tensor` (``triangle["part"]``),
+:func:`points_to_o3d_tensor` (``point["part"]``), :func:`cuboids_to_o3d_tensor` and
+:func:`cuboids_to_o3d_tensor_lineset`; the functions back take either API.
 
 and back: :func:`mesh_from_o3d`, :func:`points_from_o3d`, :func:`from_pyvista`.
 
@@ -27,8 +33,9 @@ Decisions:
   (``3 f`` vertices; :func:`mesh_from_o3d` returns that unshared mesh).
 * **Part index travels with the geometry.** pyvista objects carry ``cell_data["part"]`` (the slot
   of each triangle or edge, as :meth:`Cuboids.to_mesh`) and ``cell_data["rgb"]`` (its colour), so a
-  picked cell tells which primitive it belongs to. Open3D geometry has no per-element integer
-  field; the converters colour by part instead.
+  picked cell tells which primitive it belongs to. Open3D's legacy geometry has no per-element
+  integer field (the converters colour by part instead); its tensor geometry has, by name:
+  ``triangle["part"]``, ``point["part"]``, ``line["part"]`` (int32).
 * **pv.wrap-friendly.** :func:`to_pyvista` returns a ``pyvista.PolyData``, which is a
   ``vtkPolyData``: ``pv.wrap`` returns it unchanged and any VTK filter takes it.
 
@@ -55,7 +62,13 @@ __all__ = [
     "mesh_from_o3d",
     "points_to_o3d",
     "points_from_o3d",
+    "mesh_to_o3d_tensor",
+    "points_to_o3d_tensor",
+    "cuboids_to_o3d_tensor",
+    "cuboids_to_o3d_tensor_lineset",
+    "is_tensor_geometry",
     "to_pyvista",
+    "to_pyvista_blocks",
     "from_pyvista",
     "O3DMesh",
     "draw",
@@ -216,12 +229,20 @@ def _to_uint8(colors: np.ndarray) -> np.ndarray:
 
 
 def mesh_from_o3d(mesh) -> O3DMesh:
-    """An ``open3d.geometry.TriangleMesh`` as arrays (:class:`O3DMesh`), colours as uint8."""
-    v = np.asarray(mesh.vertices, dtype=np.float64).copy()
-    f = np.asarray(mesh.triangles, dtype=np.int64).copy().reshape(-1, 3)
+    """An Open3D triangle mesh (``open3d.geometry.TriangleMesh`` or the tensor
+    ``open3d.t.geometry.TriangleMesh``) as arrays (:class:`O3DMesh`), colours as uint8."""
+    if is_tensor_geometry(mesh):
+        v = mesh.vertex.positions.numpy().astype(np.float64)
+        f = mesh.triangle.indices.numpy().astype(np.int64).reshape(-1, 3) if "indices" in mesh.triangle else \
+            np.zeros((0, 3), np.int64)
+        colors = mesh.vertex.colors.numpy() if "colors" in mesh.vertex else None
+    else:
+        v = np.asarray(mesh.vertices, dtype=np.float64).copy()
+        f = np.asarray(mesh.triangles, dtype=np.int64).copy().reshape(-1, 3)
+        colors = np.asarray(mesh.vertex_colors) if mesh.has_vertex_colors() else None
     vc = fc = None
-    if mesh.has_vertex_colors():
-        vc = _to_uint8(np.asarray(mesh.vertex_colors))
+    if colors is not None:
+        vc = _to_uint8(colors)
         if len(f):
             corner = vc[f]  # (f, 3 corners, 3 channels)
             if np.all(corner == corner[:, :1]):
@@ -251,10 +272,110 @@ def points_to_o3d(points, colors=None, normals=None):
 
 
 def points_from_o3d(pcd) -> tuple[np.ndarray, np.ndarray | None]:
-    """An ``open3d.geometry.PointCloud`` as ``(points (n, 3) float, colors (n, 3) uint8 or None)``."""
+    """An Open3D point cloud (``open3d.geometry.PointCloud`` or ``open3d.t.geometry.PointCloud``) as
+    ``(points (n, 3) float, colors (n, 3) uint8 or None)``."""
+    if is_tensor_geometry(pcd):
+        p = pcd.point.positions.numpy().astype(np.float64)
+        c = _to_uint8(pcd.point.colors.numpy()) if "colors" in pcd.point else None
+        return p, c
     p = np.asarray(pcd.points, dtype=np.float64).copy()
     c = _to_uint8(np.asarray(pcd.colors)) if pcd.has_colors() else None
     return p, c
+
+
+# --------------------------------------------------------------------------------------------
+# Open3D tensor geometry (open3d.t.geometry): attributes by name
+# --------------------------------------------------------------------------------------------
+
+
+def is_tensor_geometry(obj) -> bool:
+    """True for ``open3d.t.geometry`` objects (named attributes: ``vertex``/``triangle``/``point``/``line``)."""
+    module = type(obj).__module__
+    return module.split(".")[0] == "open3d" and ".t." in module + "."
+
+
+def _tensor(values, dtype=None):
+    import open3d as o3d
+
+    return o3d.core.Tensor(np.ascontiguousarray(values if dtype is None else np.asarray(values, dtype)))
+
+
+def _check_attributes(attributes, count: int, what: str) -> dict:
+    out = {}
+    for name, values in (attributes or {}).items():
+        a = np.asarray(values)
+        if a.shape[:1] != (count,):
+            raise ValueError(f"`{what}[{name!r}]` must have one row per {what.split('_')[0]} ({count}), got shape {a.shape}")
+        out[name] = a.astype(np.int32) if a.dtype.kind in "iub" else a.astype(np.float32)
+    return out
+
+
+def mesh_to_o3d_tensor(vertices, faces, *, vertex_attributes=None, triangle_attributes=None):
+    """A triangle mesh as an ``open3d.t.geometry.TriangleMesh`` with named attributes.
+
+    Parameters
+    ----------
+    vertices : (n, 3) float; faces : (f, 3) int
+    vertex_attributes : dict name -> (n, ...) array, optional (``mesh.vertex[name]``)
+    triangle_attributes : dict name -> (f, ...) array, optional (``mesh.triangle[name]``), e.g.
+        ``{"part": labels}``; integer arrays become int32 tensors, others float32.
+
+    Positions are float32 and indices int32 (Open3D's defaults). Attributes travel with the faces
+    through Open3D's own operations (``select_faces_by_mask``, ``select_by_index``).
+    """
+    import open3d as o3d
+
+    v, f = _check_mesh(vertices, faces)
+    mesh = o3d.t.geometry.TriangleMesh()
+    mesh.vertex.positions = _tensor(v, np.float32)
+    mesh.triangle.indices = _tensor(f, np.int32)
+    for name, a in _check_attributes(vertex_attributes, len(v), "vertex_attributes").items():
+        mesh.vertex[name] = _tensor(a)
+    for name, a in _check_attributes(triangle_attributes, len(f), "triangle_attributes").items():
+        mesh.triangle[name] = _tensor(a)
+    return mesh
+
+
+def points_to_o3d_tensor(points, *, attributes=None):
+    """Points as an ``open3d.t.geometry.PointCloud`` with named attributes (``pcd.point[name]``,
+    one row per point; e.g. ``{"part": labels}``, integers as int32, others float32)."""
+    import open3d as o3d
+
+    p = np.asarray(points, dtype=np.float64)
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise ValueError(f"`points` must be (n, 3) float, got shape {p.shape}")
+    pcd = o3d.t.geometry.PointCloud(_tensor(p, np.float32))
+    for name, a in _check_attributes(attributes, len(p), "point_attributes").items():
+        pcd.point[name] = _tensor(a)
+    return pcd
+
+
+def cuboids_to_o3d_tensor(cuboids: Cuboids, colors=None, include_absent: bool = False):
+    """The cuboids as one ``open3d.t.geometry.TriangleMesh``: 8 vertices and 12 triangles per cuboid,
+    ``triangle["part"]`` (int32 slot per triangle), ``vertex["part"]`` and ``vertex["colors"]``
+    (float32 in [0, 1], the part's colour; each cuboid has its own vertices)."""
+    c = _check_cuboids(cuboids)
+    v, f, part = c.to_mesh(include_absent=include_absent)
+    palette = part_colors(c.count) if colors is None else _check_colors(colors, c.count, "colors")
+    vertex_part = np.repeat(part[::12], 8)
+    return mesh_to_o3d_tensor(v, f, vertex_attributes={"part": vertex_part, "colors": palette[vertex_part] / 255.0},
+                              triangle_attributes={"part": part})
+
+
+def cuboids_to_o3d_tensor_lineset(cuboids: Cuboids, colors=None, include_absent: bool = False):
+    """The cuboids' 12 edges each as an ``open3d.t.geometry.LineSet`` with ``line["part"]`` (int32)
+    and ``line["colors"]`` (float32 in [0, 1])."""
+    import open3d as o3d
+
+    c = _check_cuboids(cuboids)
+    points, lines, part = cuboid_edges(c, include_absent)
+    palette = part_colors(c.count) if colors is None else _check_colors(colors, c.count, "colors")
+    ls = o3d.t.geometry.LineSet()
+    ls.point.positions = _tensor(points, np.float32)
+    ls.line.indices = _tensor(lines, np.int32)
+    ls.line["part"] = _tensor(part, np.int32)
+    ls.line["colors"] = _tensor(palette[part] / 255.0, np.float32)
+    return ls
 
 
 # --------------------------------------------------------------------------------------------
@@ -309,11 +430,19 @@ def to_pyvista(obj, *, colors=None, face_colors=None, edges: bool = False, inclu
             p, c = points_from_o3d(obj)
             return to_pyvista(p, colors=c)
         if name == "LineSet":
-            pts = np.asarray(obj.points, dtype=np.float64)
-            lines = np.asarray(obj.lines, dtype=np.int64).reshape(-1, 2)
+            if is_tensor_geometry(obj):
+                pts = obj.point.positions.numpy().astype(np.float64)
+                lines = obj.line.indices.numpy().astype(np.int64).reshape(-1, 2)
+                colors = obj.line.colors.numpy() if "colors" in obj.line else None
+            else:
+                pts = np.asarray(obj.points, dtype=np.float64)
+                lines = np.asarray(obj.lines, dtype=np.int64).reshape(-1, 2)
+                colors = np.asarray(obj.colors) if obj.has_colors() else None
             poly = pv.PolyData(pts, lines=np.hstack([np.full((len(lines), 1), 2), lines]).ravel())
-            if obj.has_colors():
-                poly.cell_data["rgb"] = _to_uint8(np.asarray(obj.colors))
+            if colors is not None:
+                poly.cell_data["rgb"] = _to_uint8(colors)
+            if is_tensor_geometry(obj) and "part" in obj.line:
+                poly.cell_data["part"] = obj.line["part"].numpy().astype(np.int64).ravel()
             return poly
         raise TypeError(f"cannot convert open3d {name} to pyvista")
     if hasattr(obj, "vertices") and hasattr(obj, "faces"):
@@ -338,6 +467,29 @@ def _with_point_rgb(poly, colors):
     return poly
 
 
+def to_pyvista_blocks(cuboids: Cuboids, names=None, *, colors=None, edges: bool = False):
+    """The present cuboids as a ``pyvista.MultiBlock``, one block per part, in slot order.
+
+    Block ``"<k> <name>"`` is :func:`to_pyvista` of cuboid ``k`` alone (solid, or its 12 edges with
+    ``edges=True``, with ``cell_data["part"]`` and ``cell_data["rgb"]``) and carries
+    ``field_data["part"]`` (``[k]``) and ``field_data["part_name"]`` (``[name]``).
+    ``names``: one per slot (default ``part<k>``).
+    """
+    pv = pyvista_module()
+    c = _check_cuboids(cuboids)
+    names = list(names) if names is not None else [f"part{k}" for k in range(c.count)]
+    if len(names) < c.count:
+        raise ValueError(f"`names` must have one name per part slot ({c.count}), got {len(names)}")
+    palette = part_colors(c.count) if colors is None else _check_colors(colors, c.count, "colors")
+    blocks = pv.MultiBlock()
+    for k in c.present:
+        poly = to_pyvista(c.with_existence(np.arange(c.count) == k), colors=palette, edges=edges)
+        poly.field_data["part"] = np.array([int(k)])
+        poly.field_data["part_name"] = np.array([str(names[k])])
+        blocks.append(poly, f"{int(k)} {names[k]}")
+    return blocks
+
+
 def from_pyvista(poly) -> tuple[np.ndarray, np.ndarray]:
     """A pyvista (or any VTK) surface as ``(vertices (n, 3) float, faces (f, 3) int)``.
 
@@ -360,6 +512,8 @@ def from_pyvista(poly) -> tuple[np.ndarray, np.ndarray]:
 
 def _as_o3d(obj):
     """Open3D geometry for one of the things :func:`draw` accepts (a list when it makes several)."""
+    if is_tensor_geometry(obj):
+        return [obj.to_legacy()]  # the legacy Visualizer draws legacy geometry
     if type(obj).__module__.split(".")[0] == "open3d":
         return [obj]
     if isinstance(obj, Cuboids):

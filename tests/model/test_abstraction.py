@@ -32,3 +32,14 @@ def test_inputs_are_read_as_primkit_values():
     assert isinstance(as_shape(np.zeros((8, 8, 8), bool)), io.VoxelGrid)
     with pytest.raises(TypeError, match="cannot abstract a dict"):
         as_shape({})
+
+
+def test_a_list_holding_one_mesh_or_one_cloud_is_a_list_of_shapes():
+    s = synthetic.generate("chair", 1, seed=2)[0]
+    points = s.vertices[::2]
+    one_mesh = abstract_shapes([(s.vertices, s.faces)], model="chair", progress=False)
+    clouds = abstract_shapes([points, points + 0.1], model="chair", progress=False)
+    nested = abstract_shapes(points.tolist(), model="chair", progress=False)  # a nested list of points: one cloud
+    assert len(one_mesh) == 1 and isinstance(one_mesh[0].given, io.Mesh)
+    assert len(clouds) == 2 and all(isinstance(a.given, io.PointCloud) for a in clouds)
+    assert len(nested) == 1 and len(nested[0].given.points) == len(points)

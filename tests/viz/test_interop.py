@@ -113,3 +113,59 @@ def test_draw_writes_a_picture_off_screen(tmp_path):
     assert img.shape == (120, 160, 3)
     # some pixels carry part colours (not all background)
     assert (np.abs(img.astype(int) - img[0, 0].astype(int)).sum(-1) > 30).mean() > 0.01
+
+
+def test_tensor_geometry_carries_part_through_open3d_operations(chairs):
+    """Open3D's tensor API keeps named per-face and per-point attributes through its own selections:
+    the part of each kept face is the part it had."""
+    import open3d as o3d
+
+    s = chairs[0]
+    labels = s.face_labels.astype(np.int64)
+    mesh = interop.mesh_to_o3d_tensor(s.vertices, s.faces, triangle_attributes={"part": labels})
+    assert mesh.triangle["part"].numpy().dtype == np.int32
+    keep = labels == labels[0]
+    kept = mesh.select_faces_by_mask(o3d.core.Tensor(keep))
+    assert np.array_equal(kept.triangle["part"].numpy(), labels[keep])
+    # the kept faces are the same triangles (select_faces_by_mask drops unused vertices and renumbers)
+    corners = kept.vertex.positions.numpy()[kept.triangle.indices.numpy()]
+    assert np.allclose(corners, s.vertices[s.faces[keep]], atol=1e-6)
+    back = interop.mesh_from_o3d(mesh)
+    assert np.allclose(back.vertices, s.vertices, atol=1e-6) and np.array_equal(back.faces, s.faces)
+
+    rng = np.random.default_rng(1)
+    points, part = rng.normal(size=(50, 3)), rng.integers(0, 5, 50)
+    pcd = interop.points_to_o3d_tensor(points, attributes={"part": part})
+    mask = part % 2 == 0
+    assert np.array_equal(pcd.select_by_mask(o3d.core.Tensor(mask)).point["part"].numpy(), part[mask])
+    assert np.allclose(interop.points_from_o3d(pcd)[0], points, atol=1e-6)
+    with pytest.raises(ValueError, match="one row per triangle"):
+        interop.mesh_to_o3d_tensor(s.vertices, s.faces, triangle_attributes={"part": labels[:-1]})
+
+
+def test_tensor_cuboids_have_parts_colours_and_twelve_edges():
+    c = _cuboids()
+    mesh = interop.cuboids_to_o3d_tensor(c)
+    v, f, part = c.to_mesh()
+    assert np.array_equal(mesh.triangle["part"].numpy(), part)
+    assert np.allclose(mesh.vertex.positions.numpy(), v, atol=1e-6)
+    colours = interop._to_uint8(mesh.vertex["colors"].numpy())
+    assert np.array_equal(colours, part_colors(c.count)[np.repeat(c.present, 8)])
+    lines = interop.cuboids_to_o3d_tensor_lineset(c)
+    assert lines.line.indices.numpy().shape == (12 * len(c.present), 2)
+    assert np.array_equal(lines.line["part"].numpy(), np.repeat(c.present, 12))
+    poly = interop.to_pyvista(lines)  # and on to pyvista, part and colour kept
+    assert poly.n_cells == 12 * len(c.present) and np.array_equal(poly.cell_data["part"], np.repeat(c.present, 12))
+
+
+def test_pyvista_blocks_one_per_part_with_index_and_name():
+    c = _cuboids()
+    names = [f"name{k}" for k in range(c.count)]
+    blocks = interop.to_pyvista_blocks(c, names)
+    assert blocks.keys() == [f"{k} name{k}" for k in c.present]
+    for k, block in zip(c.present, blocks):
+        assert block.field_data["part"].tolist() == [k] and block.field_data["part_name"].tolist() == [f"name{k}"]
+        assert block.n_cells == 12 and set(block.cell_data["part"]) == {k}
+        assert np.allclose(block.volume, c.volumes[k])
+    edges = interop.to_pyvista_blocks(c, names, edges=True)
+    assert all(b.n_cells == 12 and b.n_lines == 12 for b in edges)

@@ -1,0 +1,151 @@
+"""primkit as a VTK filter, and as a ParaView Python plugin (the same file).
+
+:class:`PrimkitSegmentation` is a ``VTKPythonAlgorithmBase``: a ``vtkPolyData`` in (a mesh, or a
+point cloud); out on port 0 the same surface with ``part`` cell data (the part index of each face)
+and ``part`` point data (of each vertex or point); out on port 1 the cuboids, one ``vtkPolyData`` of
+12 triangles per present cuboid with ``part`` cell data. Both outputs carry ``part_names`` field
+data. It re-executes when its input or its properties change, like any VTK filter::
+
+    from primkit.plugins.vtk_filter import PrimkitSegmentation
+    f = PrimkitSegmentation(Model="chair", RefineSteps=0)
+    f.SetInputConnection(reader.GetOutputPort())
+    f.Update()
+    parts, cuboids = f.GetOutputDataObject(0), f.GetOutputDataObject(1)
+
+Properties (``Set<Name>``/``Get<Name>``, or keywords of the constructor): ``Model`` (a bundled
+model's name or a model file, default ``"chair"``), ``RefineSteps`` (gradient steps per shape,
+default 0), ``Up`` and ``Front`` (the input's axes, default ``"+y"`` and ``"+x"``).
+
+**In ParaView** (5.10 or later; its Python must see primkit: ``pip install primkit`` into the
+Python ParaView runs, or put primkit's site-packages on ``PYTHONPATH`` before starting ParaView):
+*Tools > Manage Plugins > Load New*, choose this file (``python -c "import
+primkit.plugins.vtk_filter as m; print(m.__file__)"`` prints where it is), then apply the filter
+*primkit segmentation* to a surface. The ParaView decorators (``paraview.util.vtkAlgorithm``) are
+used when ParaView is there and replaced by inert stand-ins otherwise, so plain VTK needs nothing
+of ParaView. The file uses absolute imports because ParaView loads it by path.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from vtkmodules.util.vtkAlgorithm import VTKPythonAlgorithmBase
+
+from primkit.model.abstraction import load_model
+from primkit.plugins.common import label_shapes
+from primkit.plugins.pyvista_accessor import segmented_copy
+from primkit.viz.backend import pyvista_module
+from primkit.viz.interop import from_pyvista, to_pyvista
+
+try:  # inside ParaView: its decorators describe the filter's proxy (name, input, properties)
+    from paraview.util.vtkAlgorithm import smdomain, smhint, smproperty, smproxy
+except ImportError:  # plain VTK
+
+    class _Inert:
+        """Stands in for ParaView's decorator namespaces: every decorator leaves its target unchanged."""
+
+        def __getattr__(self, name):
+            def decorator(*args, **kwargs):
+                return lambda target: target
+
+            return decorator
+
+    smproxy = smproperty = smdomain = smhint = _Inert()
+
+__all__ = ["PrimkitSegmentation"]
+
+AXES = ["+x", "-x", "+y", "-y", "+z", "-z"]
+_AXIS_DOMAIN = "<StringListDomain name='list'>" + "".join(f"<String value='{a}'/>" for a in AXES) + "</StringListDomain>"
+
+
+@smproxy.filter(name="PrimkitSegmentation", label="primkit segmentation")
+@smhint.xml("<ShowInMenu category='primkit'/>")
+@smproperty.input(name="Input", port_index=0)
+@smdomain.datatype(dataTypes=["vtkPolyData"], composite_data_supported=False)
+class PrimkitSegmentation(VTKPythonAlgorithmBase):
+    """Co-segment a surface or point cloud by its cuboids (see the module notes)."""
+
+    def __init__(self, **properties):
+        VTKPythonAlgorithmBase.__init__(self, nInputPorts=1, inputType="vtkPolyData", nOutputPorts=2,
+                                        outputType="vtkPolyData")
+        self._model, self._refine, self._up, self._front = "chair", 0, "+y", "+x"
+        self._loaded = None  # (model name, Abstractor): loaded once per model
+        for name, value in properties.items():
+            setter = getattr(self, f"Set{name}", None)
+            if setter is None:
+                raise TypeError(f"PrimkitSegmentation has no property {name!r} (Model, RefineSteps, Up, Front)")
+            setter(value)
+
+    # ---- properties --------------------------------------------------------------------------
+
+    @smproperty.stringvector(name="Model", default_values="chair")
+    def SetModel(self, model) -> None:
+        if str(model) != self._model:
+            self._model = str(model)
+            self.Modified()
+
+    def GetModel(self) -> str:
+        return self._model
+
+    @smproperty.intvector(name="RefineSteps", default_values=0)
+    @smdomain.intrange(min=0, max=2000)
+    def SetRefineSteps(self, steps) -> None:
+        steps = int(steps)
+        if steps < 0:
+            raise ValueError(f"RefineSteps must be 0 or more, got {steps}")
+        if steps != self._refine:
+            self._refine = steps
+            self.Modified()
+
+    def GetRefineSteps(self) -> int:
+        return self._refine
+
+    @smproperty.stringvector(name="Up", default_values="+y")
+    @smdomain.xml(_AXIS_DOMAIN)
+    def SetUp(self, axis) -> None:
+        self._set_axis("_up", axis)
+
+    def GetUp(self) -> str:
+        return self._up
+
+    @smproperty.stringvector(name="Front", default_values="+x")
+    @smdomain.xml(_AXIS_DOMAIN)
+    def SetFront(self, axis) -> None:
+        self._set_axis("_front", axis)
+
+    def GetFront(self) -> str:
+        return self._front
+
+    def _set_axis(self, attribute: str, axis) -> None:
+        axis = str(axis).strip().lower()
+        if axis not in AXES:
+            raise ValueError(f"an axis is one of {', '.join(AXES)}, got {axis!r}")
+        if axis != getattr(self, attribute):
+            setattr(self, attribute, axis)
+            self.Modified()
+
+    # ---- pipeline ------------------------------------------------------------------------------
+
+    def _abstractor(self):
+        if self._loaded is None or self._loaded[0] != self._model:
+            self._loaded = (self._model, load_model(self._model))
+        return self._loaded[1]
+
+    def RequestData(self, request, inInfo, outInfo):
+        from vtkmodules.vtkCommonCore import vtkOutputWindow
+        from vtkmodules.vtkCommonDataModel import vtkPolyData
+
+        pv = pyvista_module()
+        source = pv.wrap(vtkPolyData.GetData(inInfo[0], 0))
+        try:
+            vertices, faces = from_pyvista(source)
+            shape = (vertices, faces) if len(faces) else vertices
+            labelled = label_shapes([shape], self._abstractor(), up=self._up, front=self._front, refine=self._refine)[0]
+            parts = segmented_copy(source, labelled)
+        except (ValueError, TypeError) as exc:
+            vtkOutputWindow.GetInstance().DisplayErrorText(f"primkit segmentation: {str(exc).splitlines()[0]}\n")
+            return 0
+        cuboids = to_pyvista(labelled.cuboids)
+        cuboids.field_data["part_names"] = np.array(labelled.part_names)
+        vtkPolyData.GetData(outInfo, 0).ShallowCopy(parts)
+        vtkPolyData.GetData(outInfo, 1).ShallowCopy(cuboids)
+        return 1
