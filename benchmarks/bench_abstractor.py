@@ -135,10 +135,11 @@ LOSSES = {"vectorised": ours_losses, "loop": loop_losses}
 class Trainer:
     """One training iteration as primkit.model.training.train runs it (without logging/checkpoints)."""
 
-    def __init__(self, shapes, encoder: str, device: str, loss: str = "vectorised", seed: int = 0):
+    def __init__(self, shapes, encoder: str, device: str, loss: str = "vectorised", seed: int = 0,
+                 existence_gradient: str = "reinforce", placement_weight: float = 0.0):
         import torch
 
-        from primkit.model.losses import MovingBaseline
+        from primkit.model.losses import MovingBaseline, SlotPlacement
         from primkit.model.network import AbstractionNet, NetworkConfig
         from primkit.model.training import ShapeTensors
 
@@ -151,13 +152,16 @@ class Trainer:
         self.optimizer = torch.optim.Adam(self.net.parameters(), lr=1e-3)
         self.generator = torch.Generator().manual_seed(seed)
         self.baseline = MovingBaseline(0.9)
+        self.placement = SlotPlacement(0.99)
+        self.local = existence_gradient == "local"
+        self.placement_weight = placement_weight
         self.loss_fn = LOSSES[loss]
 
     def step(self, stage2: bool) -> dict:
         """One iteration; returns the seconds spent in each phase."""
         import torch
 
-        from primkit.model.losses import reinforce_surrogate
+        from primkit.model.losses import local_existence_surrogate, reinforce_surrogate, shape_losses
 
         dev = self.device
         t0 = time.perf_counter()
@@ -174,9 +178,22 @@ class Trainer:
             present = torch.ones_like(pred.existence)
         sync(dev)
         t2 = time.perf_counter()
-        losses = self.loss_fn(pred, present, pts, closest)
+        local = stage2 and self.local
+        if local:  # as train() with existence_gradient="local"
+            losses = shape_losses(pred, present, pts, closest, samples_per_cuboid=SAMPLES_PER_CUBOID, presence_effects=True)
+        else:
+            losses = self.loss_fn(pred, present, pts, closest)
+        if self.placement_weight:
+            place = self.placement.costs(pred.translations)
+            self.placement.update(pred.translations, present)
+            losses.total = losses.total + self.placement_weight * (place * present).sum(1)
+            if losses.presence_effect is not None:
+                losses.presence_effect = losses.presence_effect + self.placement_weight * place.detach()
         loss = losses.total.mean()
-        if stage2:
+        if local:
+            loss = loss + local_existence_surrogate(pred.existence_logits, losses.presence_effect, 8e-5)
+            self.baseline.update(float(loss.detach()))
+        elif stage2:
             mean_loss = float(loss.detach())
             b = self.baseline.value if self.baseline.value is not None else mean_loss
             loss = loss + reinforce_surrogate(pred.existence_logits, present, losses.total, b, 8e-5)
@@ -256,17 +273,20 @@ def bench_training(shapes, device: str, iterations: int, warmup: int) -> None:
     import torch
 
     threads = torch.get_num_threads()
+    local = {"existence_gradient": "local", "placement_weight": 0.01}
     variants = [
-        ("paper encoder, shape_losses", "paper", "vectorised", threads),
-        ("released encoder, shape_losses", "released", "vectorised", threads),
-        ("paper encoder, per-cuboid loop", "paper", "loop", threads),
+        ("paper encoder, shape_losses", "paper", "vectorised", threads, {}),
+        ("paper encoder, local existence gradient + placement", "paper", "vectorised", threads, local),
+        ("released encoder, shape_losses", "released", "vectorised", threads, {}),
+        ("paper encoder, per-cuboid loop", "paper", "loop", threads, {}),
     ]
     if device == "cpu" and threads > 1:
         # on a small shared machine, OpenMP threads competing with other processes can cost more than they give
-        variants.append(("paper encoder, shape_losses, 1 thread", "paper", "vectorised", 1))
+        variants.append(("paper encoder, shape_losses, 1 thread", "paper", "vectorised", 1, {}))
+        variants.append(("paper encoder, local + placement, 1 thread", "paper", "vectorised", 1, local))
     rows, projections = [], []
-    for label, encoder, loss, n_threads in variants:
-        trainer = Trainer(shapes, encoder, device, loss)
+    for label, encoder, loss, n_threads, options in variants:
+        trainer = Trainer(shapes, encoder, device, loss, **options)
         per_stage = {}
         for stage2 in (False, True):
             torch.set_num_threads(n_threads)
@@ -350,6 +370,57 @@ def bench_training_memory(shapes, device: str, iterations: int) -> None:
         headers,
         rows,
         "'before training': after imports, data ({} prepared shapes as tensors), network and optimizer.".format(len(shapes)),
+    )
+
+
+def bench_shared_machine(shapes, iterations: int, warmup: int) -> None:
+    """Training steps with one core kept busy by another process (a Python busy loop): torch's
+    default thread count against primkit's thread policy (:class:`primkit.parallel.ThreadGovernor`),
+    each against the same count on the machine as it is without that process."""
+    import subprocess
+
+    import torch
+
+    from primkit import parallel
+
+    default = torch.get_num_threads()
+    trainer = Trainer(shapes, "paper", "cpu", existence_gradient="local", placement_weight=0.01)
+
+    def steps(n_threads):
+        torch.set_num_threads(n_threads)
+        try:
+            return med(time_steps(trainer, True, iterations, warmup)["step"])
+        finally:
+            torch.set_num_threads(default)
+
+    def policy():
+        governor = parallel.ThreadGovernor(interval=1.0)
+        governor.close()
+        return governor.threads
+
+    chosen_quiet = policy()
+    quiet = {n: steps(n) for n in sorted({default, 1, chosen_quiet})}
+    quiet_load = load_line()
+    spinner = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+    try:
+        time.sleep(1.0)
+        chosen_busy = policy()
+        busy = {n: steps(n) for n in sorted({default, 1, chosen_busy})}
+        busy_load = load_line()
+    finally:
+        spinner.kill()
+        spinner.wait()
+    ms = lambda t: f"{1000.0 * t:.1f}"  # noqa: E731
+    rows = [[f"torch's default ({default})", ms(quiet[default]), ms(busy[default]), f"{busy[default] / quiet[default]:.2f}x"],
+            [f"primkit's policy (chose {chosen_quiet}, then {chosen_busy})", ms(quiet[chosen_quiet]), ms(busy[chosen_busy]),
+             f"{busy[chosen_busy] / quiet[chosen_quiet]:.2f}x"],
+            ["1 thread", ms(quiet[1]), ms(busy[1]), f"{busy[1] / quiet[1]:.2f}x"]]
+    table(
+        f"5. training step (paper encoder, local existence gradient + placement, stage 2) with one core kept busy "
+        f"by another process ({parallel.available_cores()} cores available)",
+        ["threads", "without the busy process ms", "with it ms", "slowdown"],
+        rows,
+        f"median of {iterations} steps; without the busy process: {quiet_load}; with it: {busy_load}.",
     )
 
 
@@ -443,6 +514,9 @@ def main(argv=None) -> int:
     parser.add_argument("--device", choices=("auto", "cpu", "cuda", "all"), default="auto",
                         help="auto: cpu, and cuda too when available")
     parser.add_argument("--shapes", type=int, default=16, help="prepared procedural chairs to draw batches from")
+    parser.add_argument("--shared", action=argparse.BooleanOptionalAction, default=True,
+                        help="also time training with one core kept busy by another process (default on)")
+    parser.add_argument("--only", choices=("training", "shared", "inference"), default=None, help="run one section")
     args = parser.parse_args(argv)
     quick = args.quick
     iterations = args.iterations or (5 if quick else 30)
@@ -474,9 +548,13 @@ def main(argv=None) -> int:
     print(f"# data: {len(shapes)} procedural chairs prepared in {t_prep:.1f} s")
 
     for device in devices:
-        bench_training(shapes, device, iterations, warmup)
-        bench_training_memory(shapes, device, max(4, iterations // 3))
-        bench_inference(shapes, device, count=16 if quick else 64, files=4 if quick else 8, repeats=repeats)
+        if args.only in (None, "training"):
+            bench_training(shapes, device, iterations, warmup)
+            bench_training_memory(shapes, device, max(4, iterations // 3))
+        if device == "cpu" and args.shared and args.only in (None, "shared"):
+            bench_shared_machine(shapes, iterations, warmup)
+        if args.only in (None, "inference"):
+            bench_inference(shapes, device, count=16 if quick else 64, files=4 if quick else 8, repeats=repeats)
     print(f"\n# {load_line()} at end; benchmark took {time.perf_counter() - t_start:.0f} s")
     return 0
 

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import geometry, io
+from . import geometry, io, parallel
 
 __all__ = [
     "PrepareSettings",
@@ -454,17 +454,35 @@ class PreparedCollection:
             yield self[i]
 
 
+def _one_thread_worker() -> None:
+    """Worker-process initialiser: native thread pools (OpenMP, BLAS, torch) on one thread."""
+    os.environ["OMP_NUM_THREADS"] = "1"
+    os.environ["PRIMKIT_THREADS_AUTO"] = "1"
+    try:
+        from threadpoolctl import threadpool_limits
+
+        threadpool_limits(limits=1)
+    except ImportError:  # pragma: no cover
+        pass
+    torch = sys.modules.get("torch")
+    if torch is not None:
+        torch.set_num_threads(1)
+
+
 def parallel_map(func, jobs, *, workers: int | None = None, progress: bool = True, desc: str = "", unit: str = "shape"):
     """``func`` over ``jobs`` in worker processes, results in job order, with a progress bar.
 
-    ``workers``: processes (all cores by default); 1, or a single job, runs in this process.
-    ``func`` must be a module-level function and should return its errors rather than raise.
-    Processes are forked on Linux (fast, and safe here: workers run NumPy/Open3D/libigl code only).
+    ``workers``: processes (by default the cores free, :func:`primkit.parallel.free_cores`: a core
+    another process keeps busy is not counted); 1, or a single job, runs in this process. Each
+    worker runs its native libraries (OpenMP, BLAS) on one thread, so that the processes do not
+    compete for the cores. ``func`` must be a module-level function and should return its errors
+    rather than raise. Processes are forked on Linux (fast, and safe here: workers run
+    NumPy/Open3D/libigl code only).
     """
     from tqdm.auto import tqdm
 
     jobs = list(jobs)
-    workers = workers or os.cpu_count() or 1
+    workers = workers or (parallel.free_cores() if len(jobs) > 1 else 1)
     bar = tqdm(total=len(jobs), desc=desc, unit=unit, disable=not progress, file=sys.stderr)
     try:
         if workers == 1 or len(jobs) <= 1:
@@ -476,7 +494,8 @@ def parallel_map(func, jobs, *, workers: int | None = None, progress: bool = Tru
 
             ctx = mp.get_context("fork") if sys.platform.startswith("linux") else None
             chunk = max(1, min(64, len(jobs) // (workers * 8) or 1))
-            with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=ctx) as pool:
+            with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=ctx,
+                                     initializer=_one_thread_worker) as pool:
                 for res in pool.map(func, jobs, chunksize=chunk):
                     yield res
                     bar.update()

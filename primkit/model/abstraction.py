@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import data, io
+from .. import data, io, parallel
 from ..viz import interop
 from .abstractor import AbstractionResult, Abstractor
 
@@ -269,7 +269,9 @@ def abstract_shapes(
         order = [(kind, usable.get(str(files[k])) if kind == "file" else k) for kind, k in order]
         order = [(kind, k) for kind, k in order if k is not None]
     shapes = []
-    with tqdm(total=len(order), desc="abstracting", unit="shape", disable=not progress or len(order) <= batch_size) as bar:
+    # torch on the cores free (an explicit setting wins), the caller's thread count back afterwards
+    with parallel.torch_threads(parallel.choose_threads(interval=0.05)), \
+            tqdm(total=len(order), desc="abstracting", unit="shape", disable=not progress or len(order) <= batch_size) as bar:
         for start in range(0, len(order), batch_size):
             chunk = order[start : start + batch_size]
             prepared = [coll[k] if kind == "file" else memory[k][1] for kind, k in chunk]

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from .. import io
+from .. import io, parallel
 from . import modelfile
 from .losses import (LossWeights, MovingBaseline, SlotPlacement, local_existence_surrogate, reinforce_surrogate,
                      shape_losses)
@@ -290,6 +290,7 @@ def train(
     progress: bool = True,
     description: dict | None = None,
     overwrite: bool = False,
+    threads: int | None = None,
 ) -> TrainResult:
     """Train an abstractor on ``shapes``; write the model to ``output`` (``.safetensors``).
 
@@ -307,6 +308,13 @@ def train(
         ``"cuda"`` when available, else ``"cpu"``.
     description : dict, optional
         What the data is and its terms, stored in the model file (``training.data``).
+    threads : int, optional
+        torch threads on CPU. By default they follow the cores free (:class:`primkit.parallel.ThreadGovernor`:
+        chosen at the start and again every few seconds, so that another process taking a core does
+        not stall every step); ``PRIMKIT_THREADS``, ``OMP_NUM_THREADS`` or a torch thread count set
+        by the caller count as explicit and are kept. The caller's count comes back afterwards.
+        Runs are bit-identical for the same thread counts: pin them (``threads=1``) to reproduce a run
+        on a shared machine.
     """
     device = device or ("cuda" if torch.cuda.is_available() else "cpu")
     rank, world = _setup_distributed(torch.device(device).type)
@@ -358,6 +366,7 @@ def train(
     from tqdm.auto import tqdm
 
     bar = tqdm(total=total, initial=start, desc="training", unit="it", disable=not progress or rank != 0, file=sys.stderr)
+    governor = parallel.ThreadGovernor(threads, enabled=torch.device(device).type == "cpu")
     t0 = time.perf_counter()
     interrupted = False
     running: dict = {}
@@ -374,6 +383,7 @@ def train(
         previous_handler = signal.signal(signal.SIGINT, _request_stop)
     try:
         for it in range(start, total):
+            governor.update()
             stage2 = it >= stage1
             if stage2 and (net.shape_scale, net.existence_scale) != (config.stage2_shape_scale, config.stage2_existence_scale):
                 # the switch keeps the network's function (a resumed stage-2 run already has these scales)
@@ -447,6 +457,7 @@ def train(
         print("\ninterrupted twice: stopped without saving this iteration (the last checkpoint stands)", file=sys.stderr)
     finally:
         bar.close()
+        governor.close()
         if previous_handler is not None:
             signal.signal(signal.SIGINT, previous_handler)
     seconds = time.perf_counter() - t0
@@ -465,6 +476,7 @@ def train(
                 "seconds": round(seconds, 1),
                 "device": str(device),
                 "processes": world,
+                "threads": governor.changes,
                 "torch": torch.__version__,
                 "final": history[-1] if history else None,
             },

@@ -156,6 +156,8 @@ def test_end_to_end_training_reduces_the_loss(prepared_chairs, tmp_path):
 
 
 def test_same_seed_same_model_and_resume_after_interrupt(prepared_chairs, tmp_path, monkeypatch):
+    # bit-identical for the same thread count: pinned, as the load of a shared machine would change it
+    monkeypatch.setenv("PRIMKIT_THREADS", "1")
     shapes = training.ShapeTensors(prepared_chairs[:4])
     cfg = small_config(stage1_iterations=12, stage2_iterations=12, checkpoint_every=6, log_every=6)
     a = training.train(shapes, tmp_path / "a.safetensors", cfg, progress=False)
@@ -224,8 +226,10 @@ def test_training_leaves_the_global_torch_state_alone(prepared_chairs, tmp_path)
     caller's generator state and torch's default (no flushing) are back when it returns."""
     torch.manual_seed(1234)
     before = torch.get_rng_state()
-    training.train(training.ShapeTensors(prepared_chairs[:2]), None, small_config(stage1_iterations=2, stage2_iterations=2),
-                   progress=False)
+    threads = torch.get_num_threads()
+    result = training.train(training.ShapeTensors(prepared_chairs[:2]), None, small_config(stage1_iterations=2, stage2_iterations=2),
+                            progress=False, threads=1)
     assert torch.equal(torch.get_rng_state(), before)
+    assert torch.get_num_threads() == threads  # the thread count the caller had
     tiny = torch.tensor([1e-40], dtype=torch.float32)
     assert (tiny * 1.0).item() != 0.0  # denormals are kept again

@@ -1,0 +1,103 @@
+"""The thread policy: the cores available, what other processes use of them (a real busy process),
+the explicit settings that always win, and the governor that follows the cores free."""
+
+import subprocess
+import sys
+import time
+
+import pytest
+import torch
+
+from primkit import parallel
+
+
+@pytest.fixture
+def clean_env(monkeypatch):
+    for var in ("PRIMKIT_THREADS", "OMP_NUM_THREADS", "PRIMKIT_THREADS_AUTO"):
+        monkeypatch.delenv(var, raising=False)
+    before = torch.get_num_threads()
+    torch.set_num_threads(len(parallel._affinity()))  # torch's default: no explicit setting
+    yield monkeypatch
+    torch.set_num_threads(before)
+
+
+class FakeMonitor:
+    def __init__(self, others):
+        self.values = list(others)
+
+    def others(self, min_interval=0.0):
+        return self.values.pop(0) if len(self.values) > 1 else self.values[0]
+
+
+def test_available_cores_is_the_affinity_capped_by_the_quota(monkeypatch):
+    assert 1 <= parallel.available_cores() <= len(parallel._affinity())
+    monkeypatch.setattr(parallel, "_affinity", lambda: {0, 1, 2, 3})
+    monkeypatch.setattr(parallel, "_cgroup_quota", lambda: 1.5)
+    assert parallel.available_cores() == 2  # 1.5 CPUs of quota: 2 threads, rounded
+    monkeypatch.setattr(parallel, "_cgroup_quota", lambda: None)
+    assert parallel.available_cores() == 4
+
+
+def test_explicit_settings_win(clean_env):
+    assert parallel.explicit_threads() is None
+    assert parallel.explicit_threads(3) == 3
+    clean_env.setenv("OMP_NUM_THREADS", "2")
+    assert parallel.explicit_threads() == 2
+    clean_env.setenv("PRIMKIT_THREADS_AUTO", "1")  # primkit set OMP_NUM_THREADS itself: not the user's
+    assert parallel.explicit_threads() is None
+    clean_env.setenv("PRIMKIT_THREADS", "5")
+    assert parallel.explicit_threads() == 5 and parallel.choose_threads(monitor=FakeMonitor([1.9])) == 5
+    clean_env.delenv("PRIMKIT_THREADS")
+    clean_env.delenv("PRIMKIT_THREADS_AUTO")
+    clean_env.delenv("OMP_NUM_THREADS")
+    torch.set_num_threads(7)  # a script's own torch setting
+    assert parallel.explicit_threads() == 7
+    with pytest.raises(ValueError, match="PRIMKIT_THREADS"):
+        clean_env.setenv("PRIMKIT_THREADS", "many")
+        parallel.explicit_threads()
+
+
+def test_threads_follow_the_cores_free(clean_env):
+    clean_env.setattr(parallel, "available_cores", lambda: 2)
+    assert parallel.choose_threads(monitor=FakeMonitor([0.0])) == 2
+    assert parallel.choose_threads(monitor=FakeMonitor([0.3])) == 2  # a core 30% busy elsewhere still counts
+    assert parallel.choose_threads(monitor=FakeMonitor([0.9])) == 1
+    assert parallel.choose_threads(monitor=FakeMonitor([2.0])) == 1  # never fewer than one
+
+
+def test_cpu_monitor_sees_a_real_busy_process_and_not_itself():
+    mon = parallel.CpuMonitor()
+    spinner = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+    try:
+        time.sleep(0.3)
+        mon.others(0.0)  # start the interval with the spinner running
+        busy = mon.others(1.0)
+    finally:
+        spinner.kill()
+        spinner.wait()
+    # the spinner alone keeps up to one core busy; what else runs on a shared machine only adds
+    assert busy >= 0.5
+    # this process's own work is not counted: spinning here reads no more than the machine's rest
+    mon.others(0.0)
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < 0.5:
+        pass
+    mine = mon.others(0.0)
+    assert mine <= parallel.available_cores() - 0.5
+
+
+def test_governor_steps_down_and_up_and_gives_the_count_back(clean_env):
+    clean_env.setattr(parallel, "available_cores", lambda: 2)
+    torch.set_num_threads(2)
+    clean_env.setattr(parallel, "CpuMonitor", lambda: FakeMonitor([0.0, 1.0, 0.1]))
+    gov = parallel.ThreadGovernor(interval=0.0)
+    assert gov.threads == 2 and torch.get_num_threads() == 2
+    assert gov.update() == 1 and torch.get_num_threads() == 1  # another process took a core
+    assert gov.update() == 2  # and left
+    assert [t for _, t in gov.changes] == [2, 1, 2]
+    torch.set_num_threads(1)
+    gov.close()
+    assert torch.get_num_threads() == 2  # the count found at creation
+    fixed = parallel.ThreadGovernor(1, interval=0.0)
+    assert fixed.threads == 1 and fixed.update() == 1 and fixed.changes == [(0.0, 1)]
+    fixed.close()
