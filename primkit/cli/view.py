@@ -4,6 +4,7 @@
     primkit view collection FOLDER --model chair [--mode segmentation]
     primkit view embedding FOLDER --model chair
     primkit view deformation SOURCE TARGET --model chair
+    primkit view open3d SHAPE --model chair             # Open3D's own window (a mesh or a point cloud)
 
 ``--png PATH`` draws the viewer's first frame off screen into a PNG instead of opening a window
 (no display needed); with ``--window`` as well, the picture is taken from a real window (under X,
@@ -14,6 +15,7 @@ scripts in the checkout's ``apps/`` run the same commands.
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 from ._common import (
     abstraction_options,
@@ -144,8 +146,34 @@ def _view_deformation(args, off, size) -> int:
     return 0
 
 
+def _view_open3d(args, off, size) -> int:
+    from ..io import Mesh, PointCloud, read_shape
+    from ..viewers.open3d_viewer import open3d_viewer
+
+    shape = read_shape(args.shape)
+    if isinstance(shape, Mesh):
+        given = (shape.vertices, shape.faces)
+    elif isinstance(shape, PointCloud):
+        given = shape.points
+    else:
+        err(f"{args.shape}: a voxel grid; the Open3D viewer shows meshes and point clouds")
+        return 2
+    if args.png is not None and not os.environ.get("DISPLAY"):
+        err("view open3d --png draws in Open3D's window and needs a display: run it under X or xvfb-run -a")
+        return 2
+    options = {k: v for k, v in abstraction_options(args).items() if k not in ("cache", "workers")}
+    viewer = open3d_viewer(given, args.model, name=Path(args.shape).stem, refine_step=args.refine_step,
+                           export_folder=args.export, **options)
+    if args.png is not None:
+        viewer.picture(args.png, width=size[0], height=size[1], overwrite=True)
+        print(f"wrote {args.png}")
+    else:
+        viewer.show(width=size[0], height=size[1])
+    return 0
+
+
 _VIEWERS = {"abstraction": _view_abstraction, "collection": _view_collection, "embedding": _view_embedding,
-            "deformation": _view_deformation}
+            "deformation": _view_deformation, "open3d": _view_open3d}
 
 
 def _run(args) -> int:
@@ -188,5 +216,11 @@ def register(subparsers) -> None:
     q.add_argument("source")
     q.add_argument("target")
     q.add_argument("--part", default=None, help="part edited by the widgets (name or index; default: the largest)")
+    _options(q)
+    q = sub.add_parser("open3d", help="one mesh or point cloud in Open3D's window: toggle parts, refine, export")
+    q.add_argument("shape")
+    q.add_argument("--export", default="primkit-export", help="folder the export button writes into (default "
+                   "primkit-export; nothing is overwritten)")
+    q.add_argument("--refine-step", type=int, default=100, help="gradient steps the refine button adds (default 100)")
     _options(q)
     p.set_defaults(func=_run)

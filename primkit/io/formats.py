@@ -289,16 +289,20 @@ def write_labels(path, labels, *, overwrite=False) -> Path:
     return path
 
 
-def write_points(path, points, *, normals=None, overwrite=False) -> Path:
+def write_points(path, points, *, normals=None, labels=None, colors=None, overwrite=False) -> Path:
     """Write a point cloud.
 
     Parameters
     ----------
     path : str or Path
-      ``.ply`` (binary, float64 ``x y z`` and ``nx ny nz``), ``.xyz`` (text, 3 or 6 columns)
-      or ``.npy`` ((n, 3) or (n, 6)).
+      ``.ply`` (binary: float64 ``x y z``, ``nx ny nz``, then uchar ``red green blue`` and int
+      ``part`` when given), ``.xyz`` (text, 3 or 6 columns) or ``.npy`` ((n, 3) or (n, 6)).
     points : (n, 3) float
     normals : (n, 3) float or None
+    labels : (n,) int or None
+      A part index per point, the PLY property ``part`` (PLY only).
+    colors : (n, 3) uint8 or None
+      A colour per point (PLY only).
 
     Returns
     -------
@@ -307,6 +311,17 @@ def write_points(path, points, *, normals=None, overwrite=False) -> Path:
     path = Path(path)
     suffix = _write_suffix(path, _POINT_WRITE_SUFFIXES, "points")
     cloud = PointCloud(points, normals)
+    n = len(cloud.points)
+    if labels is not None:
+        labels = np.asarray(labels)
+        if labels.shape != (n,) or not (n == 0 or np.issubdtype(labels.dtype, np.integer)):
+            raise ValueError(f"`labels` must be ({n},) int, got shape {labels.shape} dtype {labels.dtype}")
+    if colors is not None:
+        colors = np.asarray(colors)
+        if colors.shape != (n, 3) or colors.dtype.kind == "f":
+            raise ValueError(f"`colors` must be ({n}, 3) uint8, got shape {colors.shape} dtype {colors.dtype}")
+    if (labels is not None or colors is not None) and suffix != ".ply":
+        raise ValueError(f"{path}: labels and colours of points are written to .ply, not '{suffix}'")
     columns = cloud.points if cloud.normals is None else np.hstack([cloud.points, cloud.normals])
     with atomic_output(path, overwrite=overwrite) as temporary:
         if suffix == ".npy":
@@ -317,13 +332,24 @@ def write_points(path, points, *, normals=None, overwrite=False) -> Path:
             np.savetxt(buffer, columns, fmt="%.17g")
             temporary.write_text(buffer.getvalue(), encoding="ascii")
         else:
-            names = ["x", "y", "z"] + ([] if cloud.normals is None else ["nx", "ny", "nz"])
+            fields = [(name, "<f8") for name in ["x", "y", "z"] + ([] if cloud.normals is None else ["nx", "ny", "nz"])]
+            fields += [(c, "u1") for c in ("red", "green", "blue")] if colors is not None else []
+            fields += [("part", "<i4")] if labels is not None else []
+            record = np.zeros(n, dtype=fields)
+            for i, (name, _) in enumerate(fields[: columns.shape[1]]):
+                record[name] = columns[:, i]
+            if colors is not None:
+                for i, c in enumerate(("red", "green", "blue")):
+                    record[c] = colors[:, i]
+            if labels is not None:
+                record["part"] = labels
+            kind = {"<f8": "double", "u1": "uchar", "<i4": "int"}
             header = "".join(
-                ["ply\nformat binary_little_endian 1.0\n", f"element vertex {len(columns)}\n"]
-                + [f"property double {name}\n" for name in names]
+                ["ply\nformat binary_little_endian 1.0\n", f"element vertex {n}\n"]
+                + [f"property {kind[t]} {name}\n" for name, t in fields]
                 + ["end_header\n"]
             )
-            temporary.write_bytes(header.encode("ascii") + columns.astype("<f8").tobytes())
+            temporary.write_bytes(header.encode("ascii") + record.tobytes())
     return path
 
 

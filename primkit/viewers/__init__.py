@@ -1,4 +1,4 @@
-"""primkit's interactive viewers (pyvista windows), launched by ``primkit view ...``.
+"""primkit's interactive viewers (pyvista windows, and one in Open3D's), launched by ``primkit view ...``.
 
 Each viewer is a function that builds a ``pyvista.Plotter`` and returns it with its controls as a
 small object (``plotter`` plus one method per widget callback), so tests drive the controls
@@ -12,4 +12,6 @@ the checkout's ``apps/`` scripts run those commands.
   segmentation.
 * :mod:`primkit.viewers.embedding_explorer` - the t-SNE map; clicking a shape shows it and its neighbours.
 * :mod:`primkit.viewers.deformation_viewer` - source, target and result with a blend slider; part edits live.
+* :mod:`primkit.viewers.open3d_viewer` - one mesh or point cloud in Open3D's own window: a button per part,
+  refine, export (its actions are methods taking the window, so tests call them the same way).
 """

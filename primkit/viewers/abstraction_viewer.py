@@ -34,6 +34,7 @@ class AbstractionViewer:
     names: list
     mesh_actor: object
     part_actors: dict
+    edge_actors: dict = field(default_factory=dict)  # part -> its 12 edges
     checkboxes: dict = field(default_factory=dict)
     mesh_checkbox: object = None
     slider: object = None
@@ -42,8 +43,10 @@ class AbstractionViewer:
     selected: int | None = None
 
     def toggle_part(self, k: int, visible: bool) -> None:
-        """Show or hide part ``k``; a hidden part cannot be picked and loses its outline."""
+        """Show or hide part ``k`` (its faces and edges); a hidden part cannot be picked and loses its outline."""
         self.part_actors[k].SetVisibility(bool(visible))
+        if k in self.edge_actors:
+            self.edge_actors[k].SetVisibility(bool(visible))
         if not visible and self.selected == k:
             self.select(None)
 
@@ -97,12 +100,13 @@ def abstraction_viewer(vertices, faces, cuboids, names=None, *, title: str = "",
     # no depth peeling: with Mesa (llvmpipe, EGL or Xvfb) it hid every translucent cuboid
     mesh_actor = p.add_mesh(to_pyvista((vertices, faces)), color="lightgrey", smooth_shading=False, pickable=False)
     colors = part_colors(cuboids.count)
-    part_actors = {}
+    part_actors, edge_actors = {}, {}
     for k in cuboids.present:
         one = cuboids.with_existence(np.arange(cuboids.count) == k)
         part_actors[int(k)] = p.add_mesh(to_pyvista(one), color=colors[k] / 255.0, opacity=opacity,
                                          smooth_shading=False, name=f"part{k}")
-    viewer = AbstractionViewer(p, cuboids, names, mesh_actor, part_actors)
+        edge_actors[int(k)] = common.add_cuboid_edges(p, one)
+    viewer = AbstractionViewer(p, cuboids, names, mesh_actor, part_actors, edge_actors)
     height = window_size[1]
     for i, k in enumerate(part_actors):
         y = height - 40 - i * GAP

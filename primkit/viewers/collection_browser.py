@@ -45,6 +45,7 @@ class CollectionBrowser:
     selected: int | None = None
     part_names: list = field(default_factory=list)
     cuboids: list = field(default_factory=list)
+    edge_actors: list = field(default_factory=list)  # the cuboids' edges, shown with the cuboids
 
     def set_mode(self, mode: str) -> None:
         """Show every shape as ``mode`` (one of :data:`MODES`); the buttons follow."""
@@ -54,6 +55,8 @@ class CollectionBrowser:
         for m, actors in self.actors.items():
             for a in actors:
                 a.SetVisibility(m == mode)
+        for a in self.edge_actors:
+            a.SetVisibility(mode == "cuboids")
         for m, w in self.buttons.items():
             w.GetRepresentation().SetState(int(m == mode))
 
@@ -105,12 +108,16 @@ def collection_browser(shapes, part_names=None, *, columns: int | None = None, m
     p = common.new_plotter(off_screen, window_size, f"primkit - {title or 'collection'}")
     colors = part_colors(count)
     actors = {m: [] for m in MODES}
+    edge_actors = []
     for s, off in zip(shapes, offsets):
         v = s.canonical_vertices() + off
         cub = s.result.canonical.transformed(np.block([[np.eye(3), off[:, None]], [np.zeros((1, 3)), 1.0]]))
         actors["mesh"].append(p.add_mesh(to_pyvista((v, s.faces)), color="lightgrey", smooth_shading=False))
         poly = to_pyvista(cub, colors=colors)
         actors["cuboids"].append(p.add_mesh(poly, scalars="rgb", rgb=True, smooth_shading=False))
+        edges = common.add_cuboid_edges(p, cub)
+        if edges is not None:
+            edge_actors.append(edges)
         labels = common.face_labels(v, s.faces, cub)
         palette = np.vstack([colors, [[200, 200, 200]]]).astype(np.uint8)
         seg = to_pyvista((v, s.faces), face_colors=palette[labels])
@@ -119,7 +126,7 @@ def collection_browser(shapes, part_names=None, *, columns: int | None = None, m
     p.add_point_labels(offsets - 0.62 * up, [s.name[:20] for s in shapes], font_size=10, shape_opacity=0.0,
                        show_points=False, always_visible=True, text_color="black", pickable=False)
     browser = CollectionBrowser(p, [s.name for s in shapes], actors, offsets, part_names=part_names,
-                                cuboids=[s.result.canonical for s in shapes])
+                                cuboids=[s.result.canonical for s in shapes], edge_actors=edge_actors)
     for i, m in enumerate(MODES):
         browser.buttons[m] = p.add_checkbox_button_widget(
             lambda state, m=m: browser.set_mode(m) if state else browser.set_mode(browser.mode),

@@ -1,4 +1,4 @@
-"""Pieces shared by the viewers: segmentation labels, text and picking."""
+"""Pieces shared by the viewers: segmentation labels, cuboid edges, text and picking."""
 
 from __future__ import annotations
 
@@ -6,8 +6,9 @@ import numpy as np
 
 from ..segmentation import face_labels as segmentation_face_labels
 from ..viz.backend import pyvista_module
+from ..viz.interop import to_pyvista
 
-__all__ = ["face_labels", "describe_part", "text_of", "pick_actor", "on_click",
+__all__ = ["face_labels", "add_cuboid_edges", "describe_part", "text_of", "pick_actor", "on_click",
            "display_position", "new_plotter"]
 
 
@@ -16,6 +17,15 @@ def face_labels(vertices, faces, cuboids) -> np.ndarray:
     if not cuboids.existence.any():
         return np.full(len(faces), -1, np.int64)
     return segmentation_face_labels(vertices, faces, cuboids)
+
+
+def add_cuboid_edges(plotter, cuboids, *, opacity: float = 1.0, line_width: float = 1.5):
+    """The 12 edges of each present cuboid in black (never their triangles' diagonals), not
+    pickable; returns the actor, or None when no cuboid is present."""
+    if not cuboids.existence.any():
+        return None
+    return plotter.add_mesh(to_pyvista(cuboids, edges=True), color="black", line_width=line_width, opacity=opacity,
+                            pickable=False, reset_camera=False)
 
 
 def describe_part(cuboids, k: int, names) -> str:

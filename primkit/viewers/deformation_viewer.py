@@ -129,6 +129,8 @@ def deformation_viewer(source, target, part_names=None, *, part: int | None = No
         source_actors[int(k)] = p.add_mesh(to_pyvista(one), color=colors[k] / 255.0, opacity=0.35, smooth_shading=False)
     p.add_mesh(to_pyvista(tc.transformed(move(offsets[1])), colors=colors), scalars="rgb", rgb=True, opacity=0.35,
                smooth_shading=False, pickable=False)
+    common.add_cuboid_edges(p, sc.transformed(move(offsets[0])), opacity=0.5, line_width=1.0)
+    common.add_cuboid_edges(p, tc.transformed(move(offsets[1])), opacity=0.5, line_width=1.0)
     result = to_pyvista((binding.vertices + offsets[2], source.faces))
     palette = colors[binding.labels]
     result.point_data["rgb"] = palette

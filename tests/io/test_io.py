@@ -646,3 +646,20 @@ def test_refuse_existing_names_the_first_existing_path(tmp_path):
         with pytest.raises(FileExistsError, match=r"made\.txt: exists \(use --force to overwrite\)"):
             refuse_existing(paths)
     assert made.read_text() == "mine"
+
+
+def test_points_with_labels_and_colours_read_back_by_another_ply_reader(tmp_path):
+    import trimesh
+
+    rng = np.random.default_rng(4)
+    points, labels = rng.normal(size=(40, 3)), rng.integers(-1, 20, 40)
+    colors = rng.integers(0, 256, (40, 3)).astype(np.uint8)
+    path = write_points(tmp_path / "parts.ply", points, labels=labels, colors=colors)
+    raw = trimesh.load(path).metadata["_ply_raw"]["vertex"]["data"]  # trimesh's own PLY parser
+    assert np.array_equal(np.stack([raw["x"], raw["y"], raw["z"]], 1), points)
+    assert np.array_equal(raw["part"], labels) and np.array_equal(np.stack([raw["red"], raw["green"], raw["blue"]], 1), colors)
+    np.testing.assert_array_equal(read_points(path).points, points)  # still a point cloud primkit reads
+    with pytest.raises(ValueError, match=r"written to \.ply"):
+        write_points(tmp_path / "parts.xyz", points, labels=labels)
+    with pytest.raises(ValueError, match=r"\(40,\) int"):
+        write_points(tmp_path / "other.ply", points, labels=labels[:-1])

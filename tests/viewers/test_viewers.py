@@ -53,8 +53,11 @@ def test_abstraction_viewer_controls(shapes):
     present = list(s.cuboids.present)
     assert sorted(viewer.part_actors) == present and sorted(viewer.checkboxes) == present
     k = present[0]
+    assert sorted(viewer.edge_actors) == present
+    for j in present:  # each cuboid shows its 12 edges, not its triangles' diagonals
+        assert viewer.edge_actors[j].GetMapper().GetInput().GetNumberOfLines() == 12
     _click_widget(viewer.checkboxes[k], False)
-    assert not viewer.part_actors[k].GetVisibility()
+    assert not viewer.part_actors[k].GetVisibility() and not viewer.edge_actors[k].GetVisibility()
     assert all(viewer.part_actors[j].GetVisibility() for j in present[1:])
     _click_widget(viewer.checkboxes[k], True)
     assert viewer.part_actors[k].GetVisibility()
@@ -95,6 +98,8 @@ def test_collection_browser_modes_and_picking(shapes):
         assert browser.mode == mode
         for m, actors in browser.actors.items():
             assert all(bool(a.GetVisibility()) == (m == mode) for a in actors)
+        assert len(browser.edge_actors) == len(shape_list)
+        assert all(bool(a.GetVisibility()) == (mode == "cuboids") for a in browser.edge_actors)
         assert [bool(w.GetRepresentation().GetState()) for w in browser.buttons.values()] == [m == mode for m in cb.MODES]
     # unchecking the current mode's button keeps the mode (radio buttons)
     _click_widget(browser.buttons["segmentation"], False)
