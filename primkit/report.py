@@ -179,16 +179,18 @@ def _deformation(shapes, similarity, folder: Path, overwrite: bool) -> dict:
             "paired": list(map(int, d.transfer.paired)), "quality": d.quality(a.faces)}
 
 
-def build_report(paths, model, output, *, refine: int = 0, align=None, overwrite: bool = False, settings=None,
-                 model_label: str | None = None,
+def build_report(paths, model, output, *, refine: int = 0, align=None, up=None, front=None, overwrite: bool = False,
+                 settings=None, model_label: str | None = None,
                  cache_dir=None, workers=None, progress: bool = True) -> tuple[Report, list]:
     """Abstract, segment, embed and deform the shapes of ``paths`` with ``model`` and write the report.
 
-    ``settings``: :class:`primkit.data.PrepareSettings` (the inputs' axes); default the model's.
+    ``settings``: :class:`primkit.data.PrepareSettings`; default the model's. ``up``, ``front``,
+    ``align``: the inputs' axes when known, and how orientations are found, as
+    :func:`primkit.model.abstraction.abstract_shapes`.
     Returns ``(report, errors)``; ``errors`` has one line per unusable input (the rest goes on).
     """
-    out = abstract_shapes(paths, model, settings=settings, align=align, refine=refine, cache=cache_dir, workers=workers,
-                          progress=progress)
+    out = abstract_shapes(paths, model, settings=settings, align=align, up=up, front=front, refine=refine,
+                          cache=cache_dir, workers=workers, progress=progress)
     if not out.shapes:
         raise ValueError("no usable shapes for the report")
     shapes = []
@@ -197,7 +199,7 @@ def build_report(paths, model, output, *, refine: int = 0, align=None, overwrite
         shapes.append(ReportShape(a.name, str(a.source), v, f, cub, _face_labels(v, f, cub),
                                   score(a.canonical, a.canonical_shape())))
     meta = {"model": model_label or (str(model) if not isinstance(model, Abstractor) else "given"), "refine": refine,
-            "align": align or "none"}
+            "align": align or "default"}
     report = write_report(output, shapes, out.results, out.model.part_names, overwrite=overwrite, progress=progress,
                           meta=meta)
     return report, [str(e) for e in out.errors]

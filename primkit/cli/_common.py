@@ -93,15 +93,18 @@ def add_force(p) -> None:
 
 
 def add_axes(p) -> None:
-    p.add_argument("--up", default=None, help="the inputs' up axis, e.g. +z (default +y: ShapeNet, COSEG)")
-    p.add_argument("--front", default=None, help="the inputs' front axis, e.g. +z for the COSEG chairs (default +x)")
+    p.add_argument("--up", default=None, help="the inputs' up axis, e.g. +z (default: +y unless a shape clearly lies on "
+                   "a side; ShapeNet and COSEG are +y)")
+    p.add_argument("--front", default=None, help="the inputs' front axis, e.g. +x for ShapeNet, +z for COSEG (default: "
+                   "found by the model among the turns about the up axis)")
 
 
 def add_align(p) -> None:
-    p.add_argument("--align", choices=["none", "front", "auto", "any"], default="none",
-                   help="how each shape's orientation is found: front (the 4 turns about the up axis), auto (those, "
-                        "and another up axis for a shape clearly lying down), any (all 24 axis-aligned turns; the "
-                        "model's best), none (as given; the default)")
+    p.add_argument("--align", choices=["none", "front", "auto", "any"], default=None,
+                   help="how each shape's orientation is found: auto (+Y up unless the shape clearly lies on a side, "
+                        "the front found among the 4 turns about the up axis), front (only the front), any (all 24 "
+                        "axis-aligned turns, the model's best), none (as given or declared). Default: auto, or front "
+                        "when --up is given, or none when --up and --front are; the choice is recorded in the output")
 
 
 def add_refine(p) -> None:

@@ -21,7 +21,7 @@ def _run(args) -> int:
     model = load_model(args.model)
     report, errors = build_report(files, model, args.output, refine=args.refine,
                                   settings=settings_from_args(args, model.settings), model_label=args.model,
-                                  align=args.align, overwrite=args.force,
+                                  align=args.align, up=args.up, front=args.front, overwrite=args.force,
                                   cache_dir=args.cache, workers=args.workers)
     for note in report.notes.values():
         print(f"primkit: note: {note}")

@@ -30,6 +30,7 @@ import numpy as np
 
 from .. import data, io, parallel
 from ..viz import interop
+from . import orientation
 from .abstractor import AbstractionResult, Abstractor
 
 __all__ = ["Abstraction", "Abstractions", "as_shape", "abstract_shapes", "abstract", "load_model"]
@@ -213,11 +214,17 @@ def abstract_shapes(
     ----------
     inputs : one input or a list of them (see the module notes); folders expand to their files.
     model : a bundled model's name, a model file's path, or an :class:`Abstractor`.
-    up, front : the inputs' up and front axes (``"+y"``, ``"-z"``, ...); default ``settings``'
-        (the model's: +Y up, +X front).
-    align, refine, existence_threshold, prune_threshold
-        As :meth:`Abstractor.predict` (``align="auto"`` tries the 24 axis-aligned orientations,
-        ``refine=N`` runs N gradient steps per shape).
+    up, front : the inputs' up and front axes (``"+y"``, ``"-z"``, ...), when known. Undeclared
+        (None or ``"auto"``), the shapes are taken as +Y up and their front is searched.
+    align : how each shape's orientation is found (:data:`primkit.model.orientation.ALIGN_MODES`).
+        By default it follows what was declared (:func:`primkit.model.orientation.resolve_align`):
+        nothing declared -> ``"auto"`` (+Y up unless a shape is clearly lying down, the front
+        searched among the 4 turns about the up axis, so the COSEG chairs' +Z front and
+        ShapeNet's +X front both work without flags, and a symmetric stool is never laid on its
+        side); ``up`` declared -> ``"front"``; both declared -> ``"none"``. What was chosen is
+        recorded in each result's ``alignment``.
+    refine, existence_threshold, prune_threshold
+        As :meth:`Abstractor.predict` (``refine=N`` runs N gradient steps per shape).
     settings : data.PrepareSettings, optional
         How to prepare (resolution, samples, axes); default the model's.
     names : one name per in-memory shape (default ``shape<i>``, ``i`` its position in ``inputs``).
@@ -233,11 +240,14 @@ def abstract_shapes(
     from tqdm.auto import tqdm  # tqdm: imported when the progress bar is drawn
 
     abstractor = load_model(model)
-    axes = {k: v for k, v in (("up", up), ("front", front)) if v is not None}
+    mode = orientation.resolve_align(align, up, front)
+    axes = {k: v for k, v in (("up", up), ("front", front)) if v not in (None, "auto")}
+    if "up" in axes and "front" not in axes:
+        axes["front"] = orientation.default_front(axes["up"])
     settings = replace(settings or abstractor.settings, **axes)
     if settings.resolution != abstractor.resolution:
         raise ValueError(f"settings.resolution is {settings.resolution} but the model reads {abstractor.resolution}^3")
-    options = {"align": None if align == "none" else align, "refine": refine,
+    options = {"align": None if mode == "none" else mode, "refine": refine,
                "existence_threshold": existence_threshold, "prune_threshold": prune_threshold}
     items = _inputs(inputs)
     files, memory, errors = [], [], []

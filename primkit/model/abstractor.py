@@ -29,7 +29,7 @@ and :meth:`AbstractionResult.save` writes a JSON file (schema-versioned, see
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -42,7 +42,11 @@ from .fitting import fit_losses
 from .fitting import refine as refine_cuboids
 from .network import load_network
 
-__all__ = ["Abstractor", "AbstractionResult"]
+__all__ = ["Abstractor", "AbstractionResult", "ORIENTATION_POINTS", "ORIENTATION_SAMPLES"]
+
+#: Surface points of a shape and samples per cuboid with which orientations are scored.
+ORIENTATION_POINTS = 4000
+ORIENTATION_SAMPLES = 300
 
 
 @dataclass(frozen=True)
@@ -76,6 +80,8 @@ class AbstractionResult:
         d["canonical_frame"] = self.frame.to_dict()
         if self.alignment is not None:
             d["alignment"] = self.alignment
+        else:  # as declared (or the defaults): say which axes were taken as up and front
+            d["alignment"] = {"mode": "none", **orientation.describe_rotation(self.frame.rotation)}
         if self.refinement is not None:
             d["refinement"] = self.refinement
         return d
@@ -173,37 +179,95 @@ class Abstractor:
         turned, reports = self.orient([shape], mode, existence_threshold)
         return turned[0], reports[0]
 
+    def _candidate_losses(self, shapes, candidates, existence_threshold: float, chunk: int, *,
+                          points: int = ORIENTATION_POINTS, samples_per_cuboid: int = ORIENTATION_SAMPLES):
+        """(s, k) fit losses of every shape turned by every candidate rotation.
+
+        Only the occupancy grid is turned (the network's input); the predicted cuboids are turned
+        back into the shape's own canonical frame and scored there, which is exact (axis
+        rotations map cells onto cells) and spares turning the distance grids and samples. Every
+        candidate of a shape is scored on the same ``points`` surface samples.
+        """
+        out = np.empty((len(shapes), len(candidates)))
+        rotations = orientation.AXIS_ROTATIONS[candidates]
+        rng = np.random.default_rng(0)
+        for start in range(0, len(shapes), chunk):
+            block = shapes[start : start + chunk]
+            grids = np.stack([orientation.rotate_grid(s.occupancy, a) for s in block for a in rotations])
+            raw = self.predict_canonical(grids)
+            cubs = [self._cuboids(raw, i, existence_threshold).transformed(rotations[i % len(candidates)].T)
+                    for i in range(len(grids))]
+            scored = []
+            for s in block:
+                pick = rng.choice(len(s.points), min(points, len(s.points)), replace=False)
+                scored.extend([replace(s, points=s.points[pick])] * len(candidates))
+            out[start : start + len(block)] = fit_losses(cubs, scored, points=0, samples_per_cuboid=samples_per_cuboid,
+                                                         )["total"].reshape(len(block), len(candidates))
+        return out
+
     def orient(self, shapes, mode: str = "auto", existence_threshold: float = 0.5, *, up_margin: float | None = None,
-               chunk: int = 16):
+               chunk: int = 16, vote_shapes: int = 24):
         """Shapes turned into the orientation ``mode`` finds (:data:`primkit.model.orientation.ALIGN_MODES`).
 
         Each candidate orientation is predicted and scored with the fit losses
-        (:func:`primkit.model.fitting.fit_losses`); shapes go through in chunks of ``chunk``, all their
-        candidates in one batch. Returns ``(turned shapes, reports)``; a report gives the
-        ``mode``, the chosen ``rotation`` of the canonical frame, the input axes taken as ``up``
-        and ``front``, and the losses of the identity and of the chosen orientation.
+        (:func:`primkit.model.fitting.fit_losses`). ``"front"`` and ``"any"`` score their 4 or 24
+        candidates on every shape. ``"auto"`` decides the up axis once for the collection, since a
+        collection comes in one convention: up to ``vote_shapes`` shapes (spread over the
+        collection) are scored in all 24 orientations and each picks its own up axis by
+        :func:`primkit.model.orientation.choose_orientation` (+Y unless another axis cuts the loss
+        by the margin); when two thirds of them agree, that up axis is the collection's and every
+        shape only has its front searched about it (4 candidates), so a symmetric stool among
+        chairs keeps the collection's up; otherwise each shape decides alone (24 candidates).
+
+        Returns ``(turned shapes, reports)``; a report gives the ``mode``, the chosen ``rotation``
+        of the canonical frame, the input axes taken as ``up`` and ``front``, the loss of the
+        chosen orientation and of the shape as given, and how the up axis was decided.
         """
+        shapes = list(shapes)
         margin = orientation.UP_MARGIN if up_margin is None else float(up_margin)
-        candidates = orientation.candidate_rotations(mode)
+        rotations = orientation.AXIS_ROTATIONS
+        up_decided = ["given"] * len(shapes)
+        if mode == "auto":
+            sample = np.unique(np.linspace(0, len(shapes) - 1, min(vote_shapes, len(shapes))).round().astype(int))
+            everything = np.arange(len(rotations))
+            sample_losses = self._candidate_losses([shapes[i] for i in sample], everything, existence_threshold, chunk)
+            picks = [orientation.choose_orientation(row, everything, "auto", margin) for row in sample_losses]
+            ups = [tuple(rotations[k][1]) for k in picks]
+            common = max(set(ups), key=ups.count)
+            agree = ups.count(common)
+            if agree * 3 >= 2 * len(ups) and len(shapes) > 1:
+                candidates = np.flatnonzero(np.all(np.isclose(rotations[:, 1], common), axis=1))
+                losses = self._candidate_losses(shapes, candidates, existence_threshold, chunk)
+                choice = [int(candidates[np.argmin(row)]) for row in losses]
+                rows = {int(c): i for i, c in enumerate(candidates)}
+                loss = [float(losses[i, rows[c]]) for i, c in enumerate(choice)]
+                as_given = [float(losses[i, rows[0]]) if 0 in rows else float("nan") for i in range(len(shapes))]
+                up_decided = [f"collection: {agree} of {len(ups)} sampled shapes"] * len(shapes)
+            else:
+                losses = self._candidate_losses(shapes, everything, existence_threshold, chunk)
+                choice = [orientation.choose_orientation(row, everything, "auto", margin) for row in losses]
+                loss = [float(losses[i, c]) for i, c in enumerate(choice)]
+                as_given = [float(row[0]) for row in losses]
+                up_decided = ["shape"] * len(shapes)
+        else:
+            candidates = orientation.candidate_rotations(mode)
+            losses = self._candidate_losses(shapes, candidates, existence_threshold, chunk)
+            choice = [orientation.choose_orientation(row, candidates, mode, margin) for row in losses]
+            rows = {int(c): i for i, c in enumerate(candidates)}
+            loss = [float(losses[i, rows[c]]) for i, c in enumerate(choice)]
+            as_given = [float(row[0]) for row in losses]
         turned_out, reports = [], []
-        for start in range(0, len(shapes), chunk):
-            block = shapes[start : start + chunk]
-            turned = [orientation.rotate_prepared(s, orientation.AXIS_ROTATIONS[c]) for s in block for c in candidates]
-            raw = self.predict_canonical(np.stack([t.occupancy for t in turned]))
-            cubs = [self._cuboids(raw, i, existence_threshold) for i in range(len(turned))]
-            losses = fit_losses(cubs, turned)["total"].reshape(len(block), len(candidates))
-            for i, s in enumerate(block):
-                best = orientation.choose_orientation(losses[i], candidates, mode, margin)
-                k = int(np.flatnonzero(candidates == best)[0])
-                chosen = turned[i * len(candidates) + k]
-                turned_out.append(chosen)
-                reports.append({
-                    "mode": mode,
-                    "rotation": orientation.AXIS_ROTATIONS[best].tolist(),
-                    **orientation.describe_rotation(chosen.frame.rotation),
-                    "loss": float(losses[i, k]),
-                    "loss_as_given": float(losses[i, 0]),
-                })
+        for i, s in enumerate(shapes):
+            chosen = orientation.rotate_prepared(s, rotations[choice[i]])
+            turned_out.append(chosen)
+            reports.append({
+                "mode": mode,
+                "rotation": rotations[choice[i]].tolist(),
+                **orientation.describe_rotation(chosen.frame.rotation),
+                "up_decided_by": up_decided[i],
+                "loss": loss[i],
+                "loss_as_given": as_given[i],
+            })
         return turned_out, reports
 
     def predict(

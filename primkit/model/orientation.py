@@ -20,8 +20,8 @@ import numpy as np
 
 from .. import geometry
 
-__all__ = ["AXIS_ROTATIONS", "UPRIGHT", "ALIGN_MODES", "candidate_rotations", "choose_orientation",
-           "resolve_align", "rotate_prepared", "axis_name", "describe_rotation"]
+__all__ = ["AXIS_ROTATIONS", "UPRIGHT", "ALIGN_MODES", "UP_MARGIN", "candidate_rotations", "choose_orientation",
+           "default_front", "resolve_align", "rotate_grid", "rotate_prepared", "axis_name", "describe_rotation"]
 
 
 def _axis_rotations() -> np.ndarray:
@@ -72,6 +72,12 @@ def resolve_align(align=None, up=None, front=None) -> str:
     if declared_up and declared_front:
         return "none"
     return "front" if declared_up else "auto"
+
+
+def default_front(up: str) -> str:
+    """A front axis to go with a declared ``up`` when none is declared (``+x``, or ``+z`` when the
+    up axis is X): the front is then searched by ``align="front"``."""
+    return "+z" if up.strip().lower().lstrip("+-") == "x" else "+x"
 
 
 def candidate_rotations(mode: str) -> np.ndarray:
@@ -127,6 +133,14 @@ def _source_cells(res: int, rotation: np.ndarray) -> tuple:
     idx = np.indices((res,) * 3).reshape(3, -1).T  # new cells
     old = np.rint((idx - (res - 1) / 2.0) @ rotation + (res - 1) / 2.0).astype(np.int64)  # rotation.T @ c per row
     return old[:, 0], old[:, 1], old[:, 2]
+
+
+def rotate_grid(grid: np.ndarray, rotation) -> np.ndarray:
+    """A cubic ``(R, R, R, ...)`` grid turned by an axis rotation of the canonical frame (cell values
+    move with their cell centres, exactly): what :func:`rotate_prepared` does to the occupancy."""
+    a = np.asarray(rotation, float)
+    grid = np.asarray(grid)
+    return grid[_source_cells(grid.shape[0], a)].reshape(grid.shape)
 
 
 def rotate_prepared(shape, rotation):
