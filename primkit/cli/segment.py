@@ -6,6 +6,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
+
 from ._common import add_abstraction_options, add_force, add_output, add_png, collect, err, report_errors
 
 __all__ = ["register"]
@@ -56,60 +58,115 @@ def _print_evaluation(report, shapes) -> None:
             print("  mapping (index -> label): " + ", ".join(f"{k}->{v}" for k, v in used.items()))
 
 
+def _print_voxel_evaluation(report) -> None:
+    print(f"\nvoxel ground truth: {', '.join(report['labels'])}; {report['shapes_evaluated']} shapes, every occupied "
+          f"voxel to its nearest present cuboid; IoU {report['iou_rule']}")
+    for protocol, entry in report["protocols"].items():
+        ious = ", ".join(f"{k} {v:.3f}" for k, v in entry["iou"].items())
+        print(f"\n{protocol}: {entry['description']}.\n  per-label IoU: {ious}; mean over "
+              f"{', '.join(report['mean_over'])} {entry['mean_iou']:.3f}; voxel accuracy {entry['accuracy']:.3f}")
+        detection = []
+        for label, d in entry["detection"].items():
+            if d["shapes_without"] and d["shapes_with"]:
+                detection.append(f"{label} F1 {d['f1']:.3f} (precision {d['precision']:.2f}, recall {d['recall']:.2f}; "
+                                 f"absent from {d['shapes_without']} shapes, predicted absent on "
+                                 f"{d['absent_kept_absent']:.0%} of them)")
+        if detection:
+            print("  detection (a label is present when one voxel carries it): " + "; ".join(detection))
+        used = {k: v for k, v in entry["mapping"].items() if v is not None}
+        print("  mapping (index -> label): " + ", ".join(f"{k}->{v}" for k, v in used.items()))
+
+
 def _picture(segs, path, limit: int = 16) -> None:
+    from ..segmentation import VoxelSegmentation
     from ..viz.palette import part_colors
     from ..viz.render import render_pairs
 
     items = []
     for s in segs[:limit]:
         colors = part_colors(s.cuboids.count)
-        items.append((s.name, (s.vertices, s.faces), (s.vertices, s.faces, colors[s.face_labels])))
+        if isinstance(s, VoxelSegmentation):
+            v, f, labels = s.boundary_mesh()
+        else:
+            v, f, labels = s.vertices, s.faces, s.face_labels
+        items.append((s.name, (v, f), (v, f, colors[labels])))
     render_pairs(items, path)
 
 
-def _cmd_segment(args) -> int:
-    from ..segmentation import Segmenter, evaluate, read_ground_truth, write_summary
+def _voxel_archives(sources):
+    """The ``--gt`` sources that are voxel label archives (an ``.npz``, or a folder holding
+    ``voxlabels.npz``): ``[VoxelLabelArchive]``."""
+    from ..segmentation import VoxelLabelArchive, parse_label_names
 
+    archives = []
+    for folder, names in sources:
+        path = Path(folder)
+        if path.suffix == ".npz" or (path / "voxlabels.npz").is_file():
+            archives.append(VoxelLabelArchive(path, parse_label_names(names) if names else None))
+    return archives
+
+
+def _voxel_truth(seg, archives):
+    """The ground truth of a voxel segmentation in the archives (by shape name), or None."""
+    for archive in archives:
+        if seg.name in archive:
+            return archive.get(seg.name, seg.labels.shape)
+    return None
+
+
+def _cmd_segment(args) -> int:
     from ..io import atomic_output, refuse_existing
+    from ..segmentation import Segmenter, VoxelSegmentation, evaluate, evaluate_voxels, read_ground_truth, write_summary
 
     out = Path(args.output)
     sources = _ground_truth_files(args)
-    refuse_existing([args.png] + ([out / "evaluation.json"] if sources else []), args.force)
+    archives = _voxel_archives(sources)
+    evaluations = {"meshes": out / "evaluation.json", "voxels": out / "evaluation-voxels.json"}
+    refuse_existing([args.png] + (list(evaluations.values()) if sources else []), args.force)
     segmenter = Segmenter(args.model, up=args.up, front=args.front, align=args.align, refine=args.refine)
     segs, errors = segmenter.segment_files(collect(args.inputs), cache_dir=args.cache, workers=args.workers)
     failed = list(errors)
     written = []
     for s in segs:
         try:
-            s.save(out, semantic=args.semantic, overwrite=args.force)
+            paths = s.save(out, semantic=args.semantic, overwrite=args.force)
         except FileExistsError as exc:
             failed.append(str(exc))
             continue
         written.append(s)
-        present = len(set(s.face_labels.tolist()))
-        print(f"{s.name}: {len(s.faces)} faces in {present} parts -> {out / (s.name + '.seg')}")
+        if isinstance(s, VoxelSegmentation):
+            present = len(np.unique(s.labels[s.labels >= 0]))
+            print(f"{s.name}: {int((s.labels >= 0).sum())} voxels in {present} parts -> {paths['labels']}")
+        else:
+            present = len(set(s.face_labels.tolist()))
+            print(f"{s.name}: {len(s.faces)} faces in {present} parts -> {paths['labels']}")
     if not segs:
         report_errors(failed)
         err("no shape could be segmented")
         return 2
+    grids = [s for s in segs if isinstance(s, VoxelSegmentation)]
+    meshes = [s for s in segs if not isinstance(s, VoxelSegmentation)]
+    summaries = [p for p, kind in ((out / "summary.csv", meshes), (out / "summary-voxels.csv", grids)) if kind]
     try:
-        write_summary(segs, out / "summary.csv", overwrite=args.force)
+        for path, kind in zip(summaries, [k for k in (meshes, grids) if k]):
+            write_summary(kind, path, overwrite=args.force)
         if args.semantic:
             from ..model.parts import label_codes
 
             names, _ = label_codes(segmenter.part_names)
-            (out / "labels.csv").write_text("code,name\n" + "".join(f"{i + 1},{n}\n" for i, n in enumerate(names)))
+            with atomic_output(out / "labels.csv", overwrite=args.force) as tmp:
+                Path(tmp).write_text("code,name\n" + "".join(f"{i + 1},{n}\n" for i, n in enumerate(names)))
         for s in written:
-            s.cuboids.save_json(out / f"{s.name}.cuboids.json", overwrite=True)
+            s.cuboids.save_json(out / f"{s.name}.cuboids.json", overwrite=args.force)
         if args.png:
             _picture(segs, args.png)
     except FileExistsError as exc:
         failed.append(str(exc))
-    print(f"summary: {out / 'summary.csv'}" + (f"; picture: {args.png}" if args.png else ""))
+    print("summary: " + ", ".join(map(str, summaries)) + (f"; picture: {args.png}" if args.png else ""))
 
-    if sources:
+    if sources and meshes:
         pairs, names = [], []
-        for s in segs:
+        for s in meshes:
             found = _find_truth(s, sources)
             if found is None:
                 failed.append(f"{s.source}: no ground-truth .seg named {Path(s.source).stem}.seg in the --gt folders")
@@ -121,9 +178,26 @@ def _cmd_segment(args) -> int:
         if pairs:
             report = evaluate([p[0] for p in pairs], [p[1] for p in pairs], part_names=segmenter.part_names)
             _print_evaluation(report, [p[0].name for p in pairs])
-            with atomic_output(out / "evaluation.json", overwrite=args.force) as tmp:
+            with atomic_output(evaluations["meshes"], overwrite=args.force) as tmp:
                 Path(tmp).write_text(json.dumps(report, indent=1))
-            print(f"\nevaluation written to {out / 'evaluation.json'}")
+            print(f"\nevaluation written to {evaluations['meshes']}")
+    if sources and grids:
+        pairs = []
+        for s in grids:
+            truth = _voxel_truth(s, archives)
+            if truth is None:
+                failed.append(f"{s.source}: no voxel labels for {s.name} in the --gt archives")
+            else:
+                pairs.append((s, truth))
+        if pairs:
+            mean_over = [t.strip() for t in args.mean_over.split(",")] if args.mean_over else None
+            report = evaluate_voxels([p[0].labels for p in pairs], [p[1] for p in pairs], segmenter.abstractor.parts,
+                                     part_names=segmenter.part_names, names=[p[0].name for p in pairs],
+                                     mean_over=mean_over)
+            _print_voxel_evaluation(report)
+            with atomic_output(evaluations["voxels"], overwrite=args.force) as tmp:
+                Path(tmp).write_text(json.dumps(report, indent=1))
+            print(f"\nvoxel evaluation written to {evaluations['voxels']}")
     return report_errors(failed)
 
 
@@ -133,17 +207,33 @@ def _cmd_name_parts(args) -> int:
     from ..io import refuse_existing
     from ..model.modelfile import update_metadata
     from ..model.parts import names_from_labels
-    from ..segmentation import Segmenter, read_ground_truth
+    from ..segmentation import Segmenter, VoxelSegmentation, read_ground_truth
 
     out = Path(args.output)
     refuse_existing(out, args.force)
+    sources = [(args.labels, args.names)] if args.labels else []
+    archives = _voxel_archives(sources)
     segmenter = Segmenter(args.model, up=args.up, front=args.front, align=args.align, refine=args.refine)
     segs, errors = segmenter.segment_files(collect(args.inputs), cache_dir=args.cache, workers=args.workers)
     failed = list(errors)
-    sources = [(args.labels, args.names)] if args.labels else []
     names, assignments, labels, weights, used = [], [], [], [], []
     for s in segs:
-        found = _find_truth(s, sources) if sources else None
+        if isinstance(s, VoxelSegmentation):
+            truth = _voxel_truth(s, archives)
+            if truth is None:
+                failed.append(f"{s.source}: no voxel labels for {s.name} (give --labels a voxel label archive)")
+                continue
+            short = [str(n).split("/")[0] for n in truth.names]
+            for n in short:
+                if n not in names:
+                    names.append(n)
+            occupied = s.labels >= 0
+            assignments.append(s.labels[occupied])
+            labels.append(np.array([names.index(short[c]) if c >= 0 else -1 for c in range(len(short))] + [-1])[truth.labels[occupied]])
+            weights.append(None)  # one voxel, one vote
+            used.append(s.name)
+            continue
+        found = _find_truth(s, sources) if sources and not archives else None
         if found is None:
             beside = Path(s.source).with_suffix(".seg")
             found = (beside, args.names) if beside.is_file() else None
@@ -164,16 +254,19 @@ def _cmd_name_parts(args) -> int:
         err("no labelled shape to learn names from")
         return 2
     part_names, table = names_from_labels(assignments, labels, weights, names, segmenter.abstractor.parts)
+    unit = "voxels" if all(w is None for w in weights) else "area"
     total = table.sum(axis=1)
     for k, name in enumerate(part_names):
         if total[k] > 0:
             share = table[k].max() / total[k]
-            print(f"part {k:2d}: {name:12s} ({share:.0%} of its area on {len(used)} labelled shapes)")
+            print(f"part {k:2d}: {name:12s} ({share:.0%} of its {unit} on {len(used)} labelled shapes)")
         else:
             print(f"part {k:2d}: {name:12s} (never used on the labelled shapes)")
     naming = {"labels": names, "shapes": len(used), "inputs": [str(p) for p in args.inputs],
-              "rule": "each index takes the ground-truth label holding most of its surface area",
-              "area_by_label": np.round(table, 6).tolist()}
+              "rule": f"each index takes the ground-truth label holding most of its {'voxels' if unit == 'voxels' else 'surface area'}",
+              "area_by_label" if unit == "area" else "voxels_by_label": np.round(table, 6).tolist()}
+    if archives:
+        naming["labels_from"] = [str(a.path) for a in archives]
     update_metadata(_model_path(args.model), out,
                     {"part_names": part_names, "part_naming": naming}, overwrite=args.force)
     print(f"wrote {out} with part names")
@@ -188,23 +281,30 @@ def _model_path(model):
 
 def register(sub) -> None:
     p = sub.add_parser("segment", help="co-segment a collection: each face to its primitive, the same part index on every shape")
-    p.add_argument("inputs", nargs="+", help="mesh files or folders")
+    p.add_argument("inputs", nargs="+", help="mesh or voxel (.binvox) files, or folders")
     add_output(p, "output folder")
     add_abstraction_options(p)
     add_png(p)
     p.add_argument("--semantic", action="store_true", help="write the model's part names' codes (labels.csv) instead of indices")
-    p.add_argument("--gt", action="append", metavar="FOLDER", help="folder of ground-truth .seg files (same stems); repeatable")
+    p.add_argument("--gt", action="append", metavar="PATH",
+                   help="ground truth: a folder of .seg files for meshes (same stems), or for voxel grids a per-voxel "
+                   "label archive (an .npz keyed by shape name, or a folder holding voxlabels.npz, e.g. "
+                   "../shared/data/partnet_chair_boxes); repeatable")
     p.add_argument("--gt-names", action="append", metavar="NAMES",
-                   help="what the ground-truth values mean: 'back,seat,legs' names values 1,2,3 ('1=back,2=seat' also); "
-                   "'legs/base' accepts either model name; once, or once per --gt")
+                   help="what the ground-truth values mean: 'back,seat,legs' names values 1,2,3 ('0=back,1=seat' also); "
+                   "'legs/base' accepts either model name; once, or once per --gt (voxel archives default to PartNet's "
+                   "0=back,1=seat,2=legs/leg/base,3=arms/arm)")
+    p.add_argument("--mean-over", default=None, metavar="LABELS",
+                   help="voxel evaluation: the labels averaged into the mean IoU, e.g. back,seat,legs (default: all)")
     add_force(p)
     p.set_defaults(func=_cmd_segment)
 
     p = sub.add_parser("name-parts", help="name a model's part indices from labelled shapes; writes a copy of the model")
-    p.add_argument("inputs", nargs="+", help="labelled mesh files or folders")
+    p.add_argument("inputs", nargs="+", help="labelled mesh or voxel (.binvox) files, or folders")
     add_output(p, "model file to write (the input model is never modified)")
     add_abstraction_options(p)
-    p.add_argument("--labels", default=None, help="folder of .seg files (default: the .seg beside each mesh)")
+    p.add_argument("--labels", default=None, help="folder of .seg files (default: the .seg beside each mesh), or for voxel "
+                   "grids a per-voxel label archive (.npz, or a folder holding voxlabels.npz)")
     p.add_argument("--names", default=None,
                    help="what the label values mean ('back,seat,legs' for values 1,2,3); default: the .json beside "
                    "procedural shapes (primkit generate), else the values")

@@ -52,7 +52,7 @@ layer: it imports nothing else of primkit.
 
 from . import files, formats, values
 from .files import atomic_output, refuse_existing
-from .formats import LABEL_SUFFIXES, MESH_SUFFIXES, POINT_SUFFIXES, VOXEL_SUFFIXES, is_shape_file, read_labels, read_mesh, read_points, read_shape, read_voxels, write_labels, write_like, write_mesh, write_points
+from .formats import LABEL_SUFFIXES, MESH_SUFFIXES, POINT_SUFFIXES, VOXEL_SUFFIXES, is_shape_file, read_labels, read_mesh, read_points, read_shape, read_voxels, write_labels, write_like, write_mesh, write_points, write_voxels
 from .values import Mesh, PointCloud, ShapeFileError, VoxelGrid
 
 __all__ = values.__all__ + formats.__all__ + files.__all__

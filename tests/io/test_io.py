@@ -8,6 +8,7 @@ import pytest
 import trimesh
 
 from primkit.io import LABEL_SUFFIXES, MESH_SUFFIXES, POINT_SUFFIXES, VOXEL_SUFFIXES, Mesh, PointCloud, ShapeFileError, VoxelGrid, atomic_output, is_shape_file, read_labels, read_mesh, read_points, read_shape, read_voxels, refuse_existing, write_labels, write_mesh, write_points
+from primkit import io
 
 SHARED = Path(__file__).resolve().parents[3] / "shared" / "data"
 
@@ -663,3 +664,28 @@ def test_points_with_labels_and_colours_read_back_by_another_ply_reader(tmp_path
         write_points(tmp_path / "parts.xyz", points, labels=labels)
     with pytest.raises(ValueError, match=r"\(40,\) int"):
         write_points(tmp_path / "other.ply", points, labels=labels[:-1])
+
+
+def test_binvox_writer_round_trips_and_splits_long_runs(tmp_path):
+    rng = np.random.default_rng(4)
+    occ = rng.random((24, 24, 24)) < 0.3
+    occ[:, :12] = True                      # runs far longer than 255
+    occ[0, 0, 0] = False
+    grid = io.VoxelGrid(occ, translate=np.array([-0.3, 0.25, 1.5]), scale=0.75)
+    path = io.write_voxels(tmp_path / "g.binvox", grid)
+    back = io.read_voxels(path)
+    assert np.array_equal(back.occupancy, occ)
+    assert np.allclose(back.translate, grid.translate) and back.scale == grid.scale
+    counts = np.frombuffer(path.read_bytes().split(b"data\n", 1)[1], np.uint8).reshape(-1, 2)[:, 1]
+    assert counts.min() >= 1 and counts.sum() == 24**3
+    with pytest.raises(FileExistsError):
+        io.write_voxels(path, grid)
+    with pytest.raises(ValueError):
+        io.write_voxels(tmp_path / "g.ply", grid)
+
+
+@pytest.mark.shared
+def test_binvox_writer_reproduces_a_shapenet_file_byte_for_byte(shared_data, tmp_path):
+    src = sorted((shared_data / "shapenetvox32" / "03001627").iterdir())[5] / "model.binvox"
+    out = io.write_voxels(tmp_path / "copy.binvox", io.read_voxels(src))
+    assert out.read_bytes() == src.read_bytes()

@@ -2,7 +2,7 @@
 
 A voxel input (binvox) has no faces to label, so its co-segmentation labels voxels: every
 occupied voxel goes to its nearest present cuboid (:func:`label_voxels`, the rule of
-:mod:`primkit.segmentation` applied at the voxel centres). Ground truth comes as one part label per
+:mod:`primkit.segmentation.meshes` applied at the voxel centres; :class:`VoxelSegmentation`). Ground truth comes as one part label per
 occupied voxel, for example PartNet's part boxes turned into voxel labels for the ShapeNetVox32
 chairs (``../shared/data/partnet_chair_boxes/voxlabels.npz``: ``-1`` empty, ``0`` back, ``1``
 seat, ``2`` leg/base, ``3`` arm, indexed like :func:`primkit.io.read_voxels`' occupancy).
@@ -26,15 +26,20 @@ an index whose name is no ground-truth label counts as wrong).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from . import io, primitives, segmentation
+from .. import geometry, io, primitives
+from ..model import parts
+from ..viz.palette import part_colors
+from . import meshes
 
 __all__ = [
     "PARTNET_LABEL_NAMES",
+    "VoxelSegmentation",
+    "segment_voxels",
     "VoxelGroundTruth",
     "VoxelLabelArchive",
     "voxel_centres",
@@ -43,9 +48,10 @@ __all__ = [
     "VOXEL_PROTOCOLS",
 ]
 
-#: What the values of PartNet's chair voxel labels mean (``partnet_chair_boxes``); ``"leg/legs/base"``
-#: matches a model part named ``leg``, ``legs`` or ``base``.
-PARTNET_LABEL_NAMES = {0: "back", 1: "seat", 2: "leg/legs/base", 3: "arm/arms"}
+#: What the values of PartNet's chair voxel labels mean (``partnet_chair_boxes``): back, seat, leg
+#: (the whole base: legs, star bases, pedestals) and arm; ``"legs/leg/base"`` matches a model part
+#: named ``legs``, ``leg`` or ``base`` (the first alias is the name ``name-parts`` gives).
+PARTNET_LABEL_NAMES = {0: "back", 1: "seat", 2: "legs/leg/base", 3: "arms/arm"}
 
 VOXEL_PROTOCOLS = {
     "collection-majority": "each primitive index mapped to the label holding most of its voxels over the evaluated "
@@ -134,8 +140,79 @@ def label_voxels(grid: io.VoxelGrid, cuboids: primitives.Cuboids) -> np.ndarray:
     centres, index = voxel_centres(grid)
     out = np.full(np.asarray(grid.occupancy).shape, -1, np.int64)
     if len(index):
-        out[tuple(index.T)] = segmentation.point_labels(centres, cuboids)
+        out[tuple(index.T)] = meshes.point_labels(centres, cuboids)
     return out
+
+
+@dataclass(frozen=True, eq=False)
+class VoxelSegmentation:
+    """The co-segmentation of one voxel grid by its abstraction.
+
+    Attributes
+    ----------
+    name, source : str
+    grid : io.VoxelGrid
+        The input grid (model coordinates).
+    labels : (R, R, R) int
+        Primitive index of each occupied voxel, -1 for empty voxels (indexed like ``grid.occupancy``).
+    cuboids : primitives.Cuboids
+        The abstraction, in the grid's model coordinates.
+    part_names : list of str
+    """
+
+    name: str
+    source: str
+    grid: io.VoxelGrid
+    labels: np.ndarray
+    cuboids: primitives.Cuboids
+    part_names: list = field(default_factory=list)
+
+    def part_sizes(self) -> np.ndarray:
+        """Voxels assigned to each index: ``(m,) int``."""
+        occupied = self.labels[self.labels >= 0]
+        return np.bincount(occupied, minlength=self.cuboids.count)
+
+    def boundary_mesh(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The voxels' surface split by part, in model coordinates, for pictures and ``.ply``
+        output: ``(vertices (n, 3) float, faces (f, 3) int, face_labels (f,) int)`` (faces between
+        two parts' voxels are kept, so each part is a closed block)."""
+        vs, fs, ls, offset = [], [], [], 0
+        size = self.grid.scale / self.grid.resolution
+        for k in np.unique(self.labels[self.labels >= 0]):
+            v, f = geometry.voxel_boundary_mesh(self.labels == k, voxel_size=size, origin=self.grid.translate)
+            vs.append(v)
+            fs.append(f + offset)
+            ls.append(np.full(len(f), k, np.int64))
+            offset += len(v)
+        if not vs:
+            return np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros(0, np.int64)
+        return np.vstack(vs), np.vstack(fs), np.concatenate(ls)
+
+    def save(self, folder, *, semantic: bool = False, overwrite: bool = False) -> dict:
+        """Write ``<name>.voxlabels.npy`` (``(R, R, R) int16``: the part index of each occupied voxel,
+        or with ``semantic`` the 1-based code of its name; -1 empty) and ``<name>.parts.ply`` (the
+        voxels' surface coloured by part). Returns ``{"labels": path, "mesh": path}``."""
+        folder = Path(folder)
+        folder.mkdir(parents=True, exist_ok=True)
+        paths = {"labels": folder / f"{self.name}.voxlabels.npy", "mesh": folder / f"{self.name}.parts.ply"}
+        io.refuse_existing(paths.values(), overwrite)
+        labels = self.labels
+        if semantic:
+            _, codes = parts.label_codes(self.part_names)
+            labels = np.where(labels >= 0, codes[np.clip(labels, 0, None)], -1)
+        with io.atomic_output(paths["labels"], overwrite=overwrite) as tmp:
+            with open(tmp, "wb") as fh:
+                np.save(fh, labels.astype(np.int16))
+        v, f, lab = self.boundary_mesh()
+        io.write_mesh(paths["mesh"], v, f, face_colors=part_colors(self.cuboids.count)[lab], overwrite=overwrite)
+        return paths
+
+
+def segment_voxels(grid: io.VoxelGrid, cuboids: primitives.Cuboids, *, name: str = "shape", source: str = "",
+                   part_names=None) -> VoxelSegmentation:
+    """Co-segment one voxel grid by its abstraction (cuboids in the grid's model coordinates)."""
+    names = list(part_names) if part_names is not None else parts.default_names(cuboids.count)
+    return VoxelSegmentation(name, source, grid, label_voxels(grid, cuboids), cuboids, names)
 
 
 def _per_shape_iou(predicted, truth, label_count):
@@ -211,9 +288,9 @@ def evaluate_voxels(assignments, truths, part_count: int, *, part_names=None, na
         flat_a.append(a[occupied])
         flat_t.append(lab[occupied])
     weights = [np.ones(len(t)) for t in flat_t]
-    mappings = {"collection-majority": segmentation.majority_mapping(flat_a, flat_t, weights, part_count, count)}
+    mappings = {"collection-majority": meshes.majority_mapping(flat_a, flat_t, weights, part_count, count)}
     if part_names is not None:
-        named = segmentation.name_mapping(part_names, label_names)
+        named = meshes.name_mapping(part_names, label_names)
         if (named >= 0).any():
             mappings["model-names"] = named
     if mean_over is None:

@@ -1,4 +1,4 @@
-"""Unsupervised co-segmentation: each surface element goes to its nearest primitive.
+"""Co-segmentation of meshes and points: each surface element goes to its nearest primitive.
 
 Because one network explains a whole category, primitive ``k`` is the same part on every shape,
 and projecting a mesh onto its abstraction parses the whole collection consistently with no labels
@@ -31,18 +31,15 @@ area and per-label IoU under stated label-mapping protocols:
 
 from __future__ import annotations
 
-import csv
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from . import io, primitives
-from .model import parts
-from .viz.palette import part_colors
-from .model.abstraction import abstract, abstract_shapes, load_model
-from .data import parallel_map
+from .. import io, primitives
+from ..model import parts
+from ..viz.palette import part_colors
 
 __all__ = [
     "point_labels",
@@ -50,10 +47,9 @@ __all__ = [
     "face_labels",
     "Segmentation",
     "segment_mesh",
-    "Segmenter",
-    "segment",
     "GroundTruth",
     "read_ground_truth",
+    "parse_label_names",
     "majority_mapping",
     "name_mapping",
     "accuracy",
@@ -194,90 +190,6 @@ def segment_mesh(vertices, faces, cuboids: primitives.Cuboids, *, name: str = "s
                         vertex_labels(vertices, cuboids), cuboids, names)
 
 
-def _segment_file(job):
-    """Worker: read one mesh and project it onto its cuboids. Returns (Segmentation, None) or (None, error)."""
-    path, cuboids, name, names = job
-    try:
-        mesh = io.read_mesh(path)
-        return segment_mesh(mesh.vertices, mesh.faces, cuboids, name=name, source=str(path), part_names=names), None
-    except (io.ShapeFileError, ValueError) as exc:
-        return None, str(exc).splitlines()[0]
-
-
-class Segmenter:
-    """Co-segment collections of meshes with a trained abstractor.
-
-    Parameters
-    ----------
-    model : str, Path or Abstractor
-        A model file or a bundled model's name (``"chair"``).
-    up, front : str
-        The inputs' up and front axes (default ``"+y"`` and ``"+x"``: ShapeNet and primkit's procedural
-        shapes; Shape COSEG chairs face ``"+z"``).
-    align, refine, existence_threshold, prune_threshold
-        Passed to :meth:`primkit.model.abstractor.Abstractor.predict`.
-
-    Examples
-    --------
-    >>> seg = Segmenter("chair")                                   # doctest: +SKIP
-    >>> results, errors = seg.segment_files(["chairs/"])            # doctest: +SKIP
-    >>> results[0].face_labels                                      # doctest: +SKIP
-    """
-
-    def __init__(self, model, *, up: str | None = None, front: str | None = None, align=None, refine: int = 0,
-                 existence_threshold: float = 0.5, prune_threshold: float | None = 0.6):
-        self.abstractor = load_model(model)
-        self.up, self.front = up, front
-        self.predict_options = {"align": align, "refine": refine, "existence_threshold": existence_threshold,
-                                "prune_threshold": prune_threshold}
-
-    @property
-    def part_names(self) -> list:
-        return self.abstractor.part_names
-
-    def abstract_files(self, paths, *, cache_dir=None, workers=None, progress=True):
-        """Abstractions of shape files: ``(results, errors)`` (:func:`primkit.model.abstraction.abstract_shapes`)."""
-        out = abstract_shapes(paths, self.abstractor, up=self.up, front=self.front, cache=cache_dir, workers=workers,
-                              progress=progress, **self.predict_options)
-        return out.results, out.errors
-
-    def segment_files(self, paths, *, cache_dir=None, workers=None, progress=True):
-        """Abstract and co-segment mesh files.
-
-        Returns ``(segmentations, errors)``: one :class:`Segmentation` per usable file, in input
-        order, and one line per file that could not be used (the batch goes on).
-        """
-        results, errors = self.abstract_files(paths, cache_dir=cache_dir, workers=workers, progress=progress)
-        return self.segment_results(results, workers=workers, progress=progress, errors=errors)
-
-    def segment_results(self, results, *, workers=None, progress=True, errors=()):
-        """Co-segment the source meshes of abstraction results (in parallel processes)."""
-        jobs = [(r.source, r.cuboids, r.name, self.part_names) for r in results]
-        segs, errors = [], list(errors)
-        for seg, error in parallel_map(_segment_file, jobs, workers=workers, progress=progress, desc="segmenting"):
-            if error is not None:
-                errors.append(error)
-            else:
-                segs.append(seg)
-        return segs, errors
-
-
-def segment(shape, model="chair", **options) -> Segmentation:
-    """Co-segment one mesh: a path, an :class:`primkit.io.Mesh`, ``(vertices, faces)``, or a trimesh,
-    pyvista or Open3D mesh (:func:`primkit.model.abstraction.abstract`; ``options`` are its own:
-    ``up``, ``front``, ``align``, ``refine``, ...). Raises ShapeFileError for a point cloud or a voxel
-    grid, which have no faces to label (use :func:`point_labels` with the abstraction's cuboids).
-
-    >>> seg = primkit.segment("chair.off", model="chair")          # doctest: +SKIP
-    >>> seg.face_labels                                           # doctest: +SKIP
-    """
-    abstractor = load_model(model)
-    a = abstract(shape, abstractor, **options)
-    mesh = a.mesh
-    return segment_mesh(mesh.vertices, mesh.faces, a.cuboids, name=a.name, source=a.source,
-                        part_names=abstractor.part_names)
-
-
 # ---------------------------------------------------------------------------------------------
 # Ground truth and evaluation
 # ---------------------------------------------------------------------------------------------
@@ -296,8 +208,8 @@ class GroundTruth:
     names: list
 
 
-def _parse_label_names(text):
-    """``"back,seat,legs"`` names label values 1, 2, 3; ``"0=seat,1=back"`` names values explicitly."""
+def parse_label_names(text) -> dict:
+    """What label values mean, from a command line's text: ``"back,seat,legs"`` names label values 1, 2, 3; ``"0=seat,1=back"`` names values explicitly."""
     items = [t.strip() for t in text.split(",") if t.strip()]
     if all("=" in t for t in items):
         return {int(k): v.strip() for k, v in (t.split("=", 1) for t in items)}
@@ -324,7 +236,7 @@ def read_ground_truth(label_path, face_count: int, label_names=None, names=None)
     label_path = Path(label_path)
     raw = io.read_labels(label_path, face_count)
     if isinstance(label_names, str):
-        label_names = _parse_label_names(label_names)
+        label_names = parse_label_names(label_names)
     if label_names is None:
         meta = label_path.with_suffix(".json")
         if meta.is_file():
@@ -459,22 +371,3 @@ def evaluate(segmentations, truths, *, part_names=None) -> dict:
             entry["mapping"] = {str(k): (names[c] if c >= 0 else None) for k, c in enumerate(maps[0])}
         report["protocols"][protocol] = entry
     return report
-
-
-def write_summary(segmentations, path, *, overwrite: bool = False) -> Path:
-    """One CSV row per shape: faces, parts present (indices holding faces), and the surface area
-    of each part index (``area_<k>_<name>`` columns, the same columns for the whole collection)."""
-    if not segmentations:
-        raise ValueError("no segmentations to summarise")
-    names = segmentations[0].part_names
-    count = segmentations[0].cuboids.count
-    header = ["shape", "faces", "parts_present", "area_total"] + [f"area_{k}_{names[k]}" for k in range(count)]
-    with io.atomic_output(path, overwrite=overwrite) as tmp:
-        with open(tmp, "w", newline="") as fh:
-            writer = csv.writer(fh)
-            writer.writerow(header)
-            for s in segmentations:
-                areas = s.part_areas()
-                present = " ".join(str(k) for k in np.flatnonzero(areas > 0))
-                writer.writerow([s.name, len(s.faces), present, f"{areas.sum():.6g}"] + [f"{a:.6g}" for a in areas])
-    return Path(path)

@@ -7,7 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from primkit import io, primitives, voxel_labels
+from primkit import io, primitives
+from primkit.segmentation import voxels as voxel_labels
 
 
 def _grid(res=8, seed=0):
@@ -66,24 +67,24 @@ def test_per_shape_iou_counts_a_label_absent_from_both_as_one_and_averages_over_
 
 
 def test_detection_counts_false_arms_and_model_names_are_applied_unchanged():
-    partnet = list(voxel_labels.PARTNET_LABEL_NAMES.values())  # aliases: "leg/legs/base", "arm/arms"
+    partnet = list(voxel_labels.PARTNET_LABEL_NAMES.values())  # aliases: "legs/leg/base", "arms/arm"
     t = [_truth([0, 1, 2, 2], partnet), _truth([0, 1, 2, 3], partnet), _truth([0, 1, 1, 3], partnet)]
     a = [np.array([0, 1, 2, 3]), np.array([0, 1, 2, 3]), np.array([0, 1, 1, 2])]
     # names: index 2 called "arms" (wrong on purpose), 3 "legs"
     rep = voxel_labels.evaluate_voxels(a, t, 4, part_names=["back", "seat", "arms", "legs"],
-                                       mean_over=["back", "seat", "leg"])
+                                       mean_over=["back", "seat", "legs"])
     named = rep["protocols"]["model-names"]
-    assert named["mapping"] == {"0": "back", "1": "seat", "2": "arm", "3": "leg"}
+    assert named["mapping"] == {"0": "back", "1": "seat", "2": "arms", "3": "legs"}
     # shape 0: predicted arm on voxel 2 (truth leg), leg on voxel 3 (truth leg) -> leg IoU 1/2,
     # arm IoU 0 (predicted, not true)
-    assert named["shapes"]["shape0"]["iou"]["arm"] == 0.0
-    assert named["shapes"]["shape0"]["iou"]["leg"] == 0.5
-    det = named["detection"]["arm"]  # arm predicted on shapes 0, 1, 2 (index 2 present); true on 1, 2
+    assert named["shapes"]["shape0"]["iou"]["arms"] == 0.0
+    assert named["shapes"]["shape0"]["iou"]["legs"] == 0.5
+    det = named["detection"]["arms"]  # arm predicted on shapes 0, 1, 2 (index 2 present); true on 1, 2
     assert (det["true_positive"], det["false_positive"], det["false_negative"]) == (2, 1, 0)
     assert det["f1"] == pytest.approx(2 * 2 / (2 * 2 + 1))
     assert det["absent_kept_absent"] == 0.0
-    assert rep["mean_over"] == ["back", "seat", "leg"]
-    assert named["mean_iou"] == pytest.approx(np.mean([named["iou"][k] for k in ("back", "seat", "leg")]))
+    assert rep["mean_over"] == ["back", "seat", "legs"]
+    assert named["mean_iou"] == pytest.approx(np.mean([named["iou"][k] for k in ("back", "seat", "legs")]))
 
 
 def test_evaluation_refuses_mismatched_inputs():
@@ -102,7 +103,7 @@ def test_archive_reads_labels_as_codes_and_checks_the_grid(tmp_path):
     arch = voxel_labels.VoxelLabelArchive(tmp_path)
     assert "abc" in arch and "xyz" not in arch and len(arch) == 1
     gt = arch.get("abc", (4, 4, 4))
-    assert gt.names == ["back", "seat", "leg/legs/base", "arm/arms"]
+    assert gt.names == ["back", "seat", "legs/leg/base", "arms/arm"]
     assert gt.labels[0, 0, 0] == 0 and gt.labels[3, 0, 0] == 3 and (gt.labels == -1).sum() == 60
     with pytest.raises(io.ShapeFileError, match="grid is"):
         arch.get("abc", (8, 8, 8))
@@ -111,3 +112,76 @@ def test_archive_reads_labels_as_codes_and_checks_the_grid(tmp_path):
         voxel_labels.VoxelLabelArchive(tmp_path / "bad.npz")
     with pytest.raises(FileNotFoundError):
         voxel_labels.VoxelLabelArchive(tmp_path / "none.npz")
+
+
+def _voxel_chairs(tmp_path, count=3):
+    """Procedural chairs as binvox files, and a label archive: each voxel takes the part of the
+    chair's nearest surface sample (0 back, 1 seat, 2 legs, 3 arms, as PartNet numbers them)."""
+    from scipy.spatial import cKDTree
+
+    from primkit import data, synthetic
+
+    groups = {"back": 0, "seat": 1, "legs": 2, "base": 2, "arms": 3}
+    labels, paths = {}, []
+    (tmp_path / "grids").mkdir()
+    for i, s in enumerate(synthetic.generate("chair", count, seed=5)):
+        prepared = data.prepare(io.Mesh(s.vertices, s.faces), face_labels=s.face_labels)
+        grid = io.VoxelGrid(prepared.occupancy, translate=np.full(3, -0.5), scale=1.0)
+        paths.append(io.write_voxels(tmp_path / "grids" / f"chair{i}.binvox", grid))
+        centres, index = voxel_labels.voxel_centres(grid)
+        part_of_face = np.array([groups[synthetic.PART_GROUPS["chair"].get(n, n)]
+                                 for n in synthetic.PART_NAMES["chair"]])
+        nearest = cKDTree(prepared.points).query(centres)[1]
+        raw = np.full(grid.occupancy.shape, -1, np.int8)
+        raw[tuple(index.T)] = part_of_face[prepared.point_labels[nearest]]
+        labels[f"chair{i}"] = raw
+    np.savez_compressed(tmp_path / "voxlabels.npz", **labels)
+    return paths
+
+
+def test_segment_command_labels_voxel_grids_and_scores_them_against_voxel_labels(tmp_path):
+    import json
+
+    from primkit.cli import main
+    from primkit.model.abstraction import load_model
+
+    paths = _voxel_chairs(tmp_path)
+    out = tmp_path / "seg"
+    code = main(["segment", str(tmp_path / "grids"), "--model", "chair", "-o", str(out), "--gt", str(tmp_path),
+                 "--mean-over", "back,seat,legs", "--workers", "1"])
+    assert code == 0
+    report = json.loads((out / "evaluation-voxels.json").read_text())
+    assert report["labels"] == ["back", "seat", "legs", "arms"] and report["shapes_evaluated"] == 3
+    # the same numbers through the library, from the written cuboids and labels
+    model = load_model("chair")
+    assigns, truths = [], []
+    arch = voxel_labels.VoxelLabelArchive(tmp_path)
+    for p in paths:
+        grid = io.read_voxels(p)
+        cub = primitives.Cuboids.load_json(out / f"{p.stem}.cuboids.json")
+        written = np.load(out / f"{p.stem}.voxlabels.npy")
+        assert np.array_equal(written, voxel_labels.label_voxels(grid, cub))
+        assigns.append(written)
+        truths.append(arch.get(p.stem, grid.occupancy.shape))
+    again = voxel_labels.evaluate_voxels(assigns, truths, model.parts, part_names=model.part_names,
+                                         names=[p.stem for p in paths], mean_over=["back", "seat", "legs"])
+    for protocol, entry in again["protocols"].items():
+        assert report["protocols"][protocol]["iou"] == pytest.approx(entry["iou"])
+    assert (out / "summary-voxels.csv").read_text().splitlines()[0].startswith("shape,voxels,parts_present,voxels_total")
+    # nothing is replaced without --force
+    assert main(["segment", str(tmp_path / "grids"), "--model", "chair", "-o", str(out), "--gt", str(tmp_path)]) == 2
+
+
+def test_name_parts_learns_names_from_voxel_labels(tmp_path):
+    from primkit.cli import main
+    from primkit.model.modelfile import read_metadata
+
+    _voxel_chairs(tmp_path)
+    named = tmp_path / "named.safetensors"
+    assert main(["name-parts", str(tmp_path / "grids"), "--model", "chair", "--labels", str(tmp_path / "voxlabels.npz"),
+                 "-o", str(named), "--workers", "1"]) == 0
+    meta = read_metadata(named)
+    used = [n for n in meta["part_names"] if not n.startswith("part")]
+    assert used and set(used) <= {"back", "seat", "legs", "arms"}
+    assert "seat" in used and "back" in used
+    assert meta["part_naming"]["shapes"] == 3 and "voxels_by_label" in meta["part_naming"]

@@ -1,0 +1,143 @@
+"""Co-segmenting collections: abstract shape files with a model, then label each file's elements
+(a mesh's faces, a voxel grid's voxels) by their nearest primitive, in parallel processes."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+
+from .. import io
+from ..data import parallel_map
+from ..model.abstraction import abstract, abstract_shapes, load_model
+from .meshes import Segmentation, segment_mesh
+from .voxels import VoxelSegmentation, segment_voxels
+
+__all__ = ["Segmenter", "segment", "write_summary"]
+
+
+def _segment_file(job):
+    """Worker: read one shape file and project it onto its cuboids: (segmentation, None) or (None, error).
+
+    Meshes get a :class:`Segmentation` (faces), voxel grids a :class:`VoxelSegmentation` (voxels).
+    """
+    path, cuboids, name, names = job
+    try:
+        shape = io.read_shape(path)
+        if isinstance(shape, io.VoxelGrid):
+            return segment_voxels(shape, cuboids, name=name, source=str(path), part_names=names), None
+        if not isinstance(shape, io.Mesh):
+            raise io.ShapeFileError(path, f"a {type(shape).__name__} has no faces or voxels to label")
+        return segment_mesh(shape.vertices, shape.faces, cuboids, name=name, source=str(path), part_names=names), None
+    except (io.ShapeFileError, ValueError) as exc:
+        return None, str(exc).splitlines()[0]
+
+
+class Segmenter:
+    """Co-segment collections of meshes and voxel grids with a trained abstractor.
+
+    Parameters
+    ----------
+    model : str, Path or Abstractor
+        A model file or a bundled model's name (``"chair"``).
+    up, front, align
+        The inputs' axes when known, and how orientations are found
+        (:func:`primkit.model.abstraction.abstract_shapes`: by default +Y up unless the collection
+        clearly lies on a side, and the front searched).
+    refine, existence_threshold, prune_threshold
+        Passed to :meth:`primkit.model.abstractor.Abstractor.predict`.
+
+    Examples
+    --------
+    >>> seg = Segmenter("chair")                                   # doctest: +SKIP
+    >>> results, errors = seg.segment_files(["chairs/"])            # doctest: +SKIP
+    >>> results[0].face_labels                                      # doctest: +SKIP
+    """
+
+    def __init__(self, model, *, up: str | None = None, front: str | None = None, align=None, refine: int = 0,
+                 existence_threshold: float = 0.5, prune_threshold: float | None = 0.6):
+        self.abstractor = load_model(model)
+        self.up, self.front = up, front
+        self.predict_options = {"align": align, "refine": refine, "existence_threshold": existence_threshold,
+                                "prune_threshold": prune_threshold}
+
+    @property
+    def part_names(self) -> list:
+        return self.abstractor.part_names
+
+    def abstract_files(self, paths, *, cache_dir=None, workers=None, progress=True):
+        """Abstractions of shape files: ``(results, errors)`` (:func:`primkit.model.abstraction.abstract_shapes`)."""
+        out = abstract_shapes(paths, self.abstractor, up=self.up, front=self.front, cache=cache_dir, workers=workers,
+                              progress=progress, **self.predict_options)
+        return out.results, out.errors
+
+    def segment_files(self, paths, *, cache_dir=None, workers=None, progress=True):
+        """Abstract and co-segment shape files.
+
+        Returns ``(segmentations, errors)``: one :class:`Segmentation` (meshes) or
+        :class:`VoxelSegmentation` (voxel grids) per usable file, in input order, and one line per
+        file that could not be used (the batch goes on).
+        """
+        results, errors = self.abstract_files(paths, cache_dir=cache_dir, workers=workers, progress=progress)
+        return self.segment_results(results, workers=workers, progress=progress, errors=errors)
+
+    def segment_results(self, results, *, workers=None, progress=True, errors=()):
+        """Co-segment the source files of abstraction results (in parallel processes)."""
+        jobs = [(r.source, r.cuboids, r.name, self.part_names) for r in results]
+        segs, errors = [], list(errors)
+        for seg, error in parallel_map(_segment_file, jobs, workers=workers, progress=progress, desc="segmenting"):
+            if error is not None:
+                errors.append(error)
+            else:
+                segs.append(seg)
+        return segs, errors
+
+
+def segment(shape, model="chair", **options) -> Segmentation | VoxelSegmentation:
+    """Co-segment one mesh or voxel grid: a path, an :class:`primkit.io.Mesh` or
+    :class:`~primkit.io.VoxelGrid`, ``(vertices, faces)``, or a trimesh, pyvista or Open3D mesh
+    (:func:`primkit.model.abstraction.abstract`; ``options`` are its own: ``up``, ``front``,
+    ``align``, ``refine``, ...). Raises ShapeFileError for a point cloud, which has no faces to
+    label (use :func:`primkit.segmentation.point_labels` with the abstraction's cuboids).
+
+    >>> seg = primkit.segment("chair.off", model="chair")          # doctest: +SKIP
+    >>> seg.face_labels                                           # doctest: +SKIP
+    """
+    abstractor = load_model(model)
+    a = abstract(shape, abstractor, **options)
+    if isinstance(a.given, io.VoxelGrid) or (a.given is None and a.prepared.kind == "voxels"):
+        grid = a.given if a.given is not None else io.read_voxels(a.source)
+        return segment_voxels(grid, a.cuboids, name=a.name, source=a.source, part_names=abstractor.part_names)
+    mesh = a.mesh
+    return segment_mesh(mesh.vertices, mesh.faces, a.cuboids, name=a.name, source=a.source,
+                        part_names=abstractor.part_names)
+
+
+def write_summary(segmentations, path, *, overwrite: bool = False) -> Path:
+    """One CSV row per shape: its elements, the parts present (indices holding any), and how much
+    of the shape each part index holds, with the same columns for the whole collection.
+
+    Meshes (:class:`Segmentation`): ``faces``, then surface areas (``area_total``,
+    ``area_<k>_<name>``). Voxel grids (:class:`VoxelSegmentation`): ``voxels``, then voxel counts
+    (``voxels_<k>_<name>``). One kind per file.
+    """
+    if not segmentations:
+        raise ValueError("no segmentations to summarise")
+    voxels = isinstance(segmentations[0], VoxelSegmentation)
+    if any(isinstance(s, VoxelSegmentation) != voxels for s in segmentations):
+        raise ValueError("write meshes and voxel grids into separate summaries")
+    names = segmentations[0].part_names
+    count = segmentations[0].cuboids.count
+    kind, unit = ("voxels", "voxels") if voxels else ("faces", "area")
+    header = ["shape", kind, "parts_present", f"{unit}_total"] + [f"{unit}_{k}_{names[k]}" for k in range(count)]
+    with io.atomic_output(path, overwrite=overwrite) as tmp:
+        with open(tmp, "w", newline="") as fh:
+            writer = csv.writer(fh)
+            writer.writerow(header)
+            for s in segmentations:
+                amounts = s.part_sizes() if voxels else s.part_areas()
+                elements = int(np.count_nonzero(s.labels >= 0)) if voxels else len(s.faces)
+                present = " ".join(str(k) for k in np.flatnonzero(amounts > 0))
+                writer.writerow([s.name, elements, present, f"{amounts.sum():.6g}"] + [f"{a:.6g}" for a in amounts])
+    return Path(path)
