@@ -4,7 +4,8 @@ Every reader returns one small value type (:class:`Mesh`, :class:`PointCloud`,
 :class:`VoxelGrid`) or a plain array, and every failure is a :class:`ShapeFileError` whose
 text is one line, ``"<path>: <reason>"``. Writers never replace an existing file unless asked
 (``overwrite=True``) and write through :func:`atomic_output`, so a crash never leaves half a
-file behind. Input files are never modified.
+file behind. Input files are never modified: commands check every output before any work
+(:func:`check_outputs`), and an output that is an input is refused even with ``--force``.
 
 Why trimesh is the format library
 ---------------------------------
@@ -51,8 +52,8 @@ layer: it imports nothing else of primkit.
 """
 
 from . import files, formats, values
-from .files import atomic_output, refuse_existing
-from .formats import LABEL_SUFFIXES, MESH_SUFFIXES, POINT_SUFFIXES, VOXEL_SUFFIXES, is_shape_file, read_labels, read_mesh, read_points, read_shape, read_voxels, write_labels, write_like, write_mesh, write_points, write_voxels
+from .files import OutputError, atomic_output, check_outputs, check_suffix, is_temporary, refuse_existing
+from .formats import LABEL_SUFFIXES, MESH_SUFFIXES, MESH_WRITE_SUFFIXES, POINT_SUFFIXES, VOXEL_SUFFIXES, is_shape_file, read_labels, read_mesh, read_points, read_shape, read_voxels, write_labels, write_like, write_mesh, write_points, write_voxels
 from .values import Mesh, PointCloud, ShapeFileError, VoxelGrid
 
 __all__ = values.__all__ + formats.__all__ + files.__all__

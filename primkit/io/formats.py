@@ -16,6 +16,7 @@ __all__ = [
     "POINT_SUFFIXES",
     "VOXEL_SUFFIXES",
     "LABEL_SUFFIXES",
+    "MESH_WRITE_SUFFIXES",
     "is_shape_file",
     "read_mesh",
     "read_points",
@@ -44,6 +45,8 @@ LABEL_SUFFIXES = (".seg",)
 
 # suffixes write_mesh / write_points can produce
 _MESH_WRITE_SUFFIXES = (".ply", ".obj", ".glb", ".off", ".stl")
+#: the suffixes :func:`write_mesh` writes
+MESH_WRITE_SUFFIXES = _MESH_WRITE_SUFFIXES
 
 
 _POINT_WRITE_SUFFIXES = (".ply", ".xyz", ".npy")
