@@ -32,6 +32,8 @@ __all__ = [
     "prepare_file",
     "find_shape_files",
     "shape_name",
+    "shape_names",
+    "input_files",
     "split_files",
     "default_cache_dir",
     "PreparedCollection",
@@ -39,7 +41,8 @@ __all__ = [
 ]
 
 #: bump when the arrays produced by :func:`prepare` change meaning; part of every cache key
-PREPARATION_VERSION = 1
+#: (2: an inside-out mesh keeps its interior)
+PREPARATION_VERSION = 2
 
 
 @dataclass(frozen=True)
@@ -342,13 +345,42 @@ def prepare_file(path, settings: PrepareSettings = PrepareSettings()) -> Prepare
 
 
 def find_shape_files(folder) -> list[Path]:
-    """Shape files under ``folder`` (recursively, sorted), by suffix (see :func:`primkit.io.is_shape_file`)."""
+    """Shape files under ``folder`` (recursively, sorted), by suffix (see :func:`primkit.io.is_shape_file`).
+
+    Symbolically linked folders are searched too (each folder once, so a link back up is not a
+    loop); the hidden temporaries a killed write leaves (:func:`primkit.io.is_temporary`) are not
+    shapes. A file given by name is returned as it is. An empty list means no shape file."""
     folder = Path(folder)
     if folder.is_file():
         return [folder]
     if not folder.is_dir():
         raise FileNotFoundError(f"{folder}: no such file or folder")
-    return sorted(p for p in folder.rglob("*") if p.is_file() and io.is_shape_file(p))
+    found, searched = [], set()
+    for root, dirs, files in os.walk(folder, followlinks=True):
+        st = os.stat(root)
+        if (st.st_dev, st.st_ino) in searched:  # reached again through a link
+            dirs[:] = []
+            continue
+        searched.add((st.st_dev, st.st_ino))
+        for name in files:
+            p = Path(root) / name
+            # a dangling link is kept: its error line names it
+            if io.is_shape_file(p) and not io.is_temporary(p) and (p.is_file() or p.is_symlink()):
+                found.append(p)
+    return sorted(found)
+
+
+def input_files(path) -> list[Path]:
+    """The files read for the shape file ``path``: itself, the ``.seg`` labels that go with it
+    (:func:`prepare_file`) and the ``.json`` attributes beside procedural shapes (``primkit
+    generate``). Outputs are checked against these, so that no run writes over what it reads."""
+    path = Path(path)
+    out = [path]
+    seg = _labels_path(path)
+    if seg is not None:
+        out += [seg, seg.with_suffix(".json")]
+    out.append(path.with_suffix(".json"))
+    return [p for p in dict.fromkeys(out) if os.path.lexists(p)]
 
 
 #: file stems that say nothing about the shape (ShapeNet's ``<synset>/<id>/model.binvox``); the
@@ -363,6 +395,47 @@ def shape_name(path) -> str:
     if path.stem.lower() in _GENERIC_STEMS and path.parent.name:
         return path.parent.name
     return path.stem
+
+
+def shape_names(paths) -> list[str]:
+    """One name per path, unique within ``paths``: :func:`shape_name`, except where several paths
+    share it; those take the folders that tell them apart (``a/x.ply``, ``b/x.ply`` -> ``a-x``,
+    ``b-x``), or their suffix when the folder is the same (``x.ply``, ``x.obj`` -> ``x-ply``,
+    ``x-obj``), and a number when nothing else differs (the same file twice: ``x``, ``x-2``).
+
+    Outputs are named after shapes, so two inputs never write the same output file; the names
+    depend only on the paths, so a run and its re-run name everything alike."""
+    paths = [Path(p) for p in paths]
+    names = [shape_name(p) for p in paths]
+    groups: dict = {}
+    for i, name in enumerate(names):
+        groups.setdefault(name, []).append(i)
+    out = list(names)
+    for name, members in groups.items():
+        if len(members) < 2:
+            continue
+        # the folder above the one a generic stem (model.binvox) is named after
+        anchors = [Path(os.path.abspath(paths[i])).parent for i in members]
+        anchors = [a.parent if paths[i].stem.lower() in _GENERIC_STEMS else a for a, i in zip(anchors, members)]
+        common = os.path.commonpath(anchors)
+        for a, i in zip(anchors, members):
+            out[i] = "-".join(Path(a).relative_to(common).parts + (name,))
+        same: dict = {}
+        for i in members:
+            same.setdefault(out[i], []).append(i)
+        for equal in same.values():
+            if len({paths[i].suffix.lower() for i in equal}) > 1:
+                for i in equal:
+                    out[i] = f"{out[i]}-{paths[i].suffix[1:].lower()}"
+    used, planned = set(), set(out)
+    for i, name in enumerate(out):  # still equal (the same file twice), or equal to another shape's name
+        if name in used:
+            k = 2
+            while f"{name}-{k}" in used or f"{name}-{k}" in planned:
+                k += 1
+            out[i] = f"{name}-{k}"
+        used.add(out[i])
+    return out
 
 
 def split_files(files, hold_out_every: int) -> tuple[list, list]:
@@ -432,12 +505,16 @@ class PreparedCollection:
     errors : list of str
         One line per file that could not be used.
     settings : PrepareSettings
+    names : list of str, optional
+        The shapes' names, aligned with ``paths``: :func:`shape_names` over every file given (so
+        that two files called ``x`` get different names); :func:`shape_name` of each path when None.
     """
 
     paths: list
     cache_files: list
     errors: list
     settings: PrepareSettings
+    names: list | None = None
 
     def __len__(self) -> int:
         return len(self.cache_files)
@@ -447,7 +524,8 @@ class PreparedCollection:
         # and source always come from this collection's path
         shape = PreparedShape.load(self.cache_files[i])
         path = self.paths[i]
-        return PreparedShape(**{**shape.__dict__, "name": shape_name(path), "source": str(path)})
+        name = self.names[i] if self.names is not None else shape_name(path)
+        return PreparedShape(**{**shape.__dict__, "name": name, "source": str(path)})
 
     def __iter__(self):
         for i in range(len(self)):
@@ -534,12 +612,13 @@ def prepare_collection(
     jobs = [(str(p), settings, str(cache)) for p in files]
     results = {res[0]: res for res in parallel_map(_prepare_cached, jobs, workers=workers, progress=progress,
                                                    desc="preparing", unit="shape")}
-    paths, cache_files, errors = [], [], []
-    for job in jobs:
+    paths, cache_files, errors, names = [], [], [], []
+    for job, name in zip(jobs, shape_names(files)):
         path, target, error = results[job[0]]
         if error is not None:
             errors.append(error)
         else:
             paths.append(Path(path))
             cache_files.append(Path(target))
-    return PreparedCollection(paths, cache_files, errors, settings)
+            names.append(name)
+    return PreparedCollection(paths, cache_files, errors, settings, names)

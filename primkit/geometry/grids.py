@@ -60,7 +60,8 @@ def occupancy_grid(
     include_surface: bool = False,
     surface: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Solid occupancy of the canonical grid: generalised winding number > 0.5 at each cell centre.
+    """Solid occupancy of the canonical grid: generalised winding number above 0.5 in magnitude at
+    each cell centre (an inside-out mesh, or part of one, winds -1 around its interior: it is kept).
 
     The winding number (libigl's fast approximation) is robust where ray parity is not: on open
     meshes (a chair with a hole), self-intersections and duplicated faces. We also tried evaluating
@@ -87,7 +88,7 @@ def occupancy_grid(
     vertices = np.asarray(vertices, np.float64)
     faces = np.asarray(faces, np.int64)
     centres = grid_centres(resolution).reshape(-1, 3)
-    occupancy = (igl.fast_winding_number(vertices, faces, centres) > 0.5).reshape((resolution,) * 3)
+    occupancy = (np.abs(igl.fast_winding_number(vertices, faces, centres)) > 0.5).reshape((resolution,) * 3)
     if include_surface:
         occupancy |= surface if surface is not None else surface_voxels(vertices, faces, resolution)
     return occupancy

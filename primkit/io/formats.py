@@ -430,14 +430,18 @@ def _obj_geometry_only(text: str) -> str:
     several texture coordinates, both of which reorder the mesh; without them it keeps order.
     """
     lines = []
-    for line in text.splitlines():
+    for number, line in enumerate(text.splitlines(), 1):
         words = line.split(None, 1)
         if len(words) < 2:
             continue
         if words[0] == "v":
             lines.append("v " + words[1])
         elif words[0] == "f":
-            lines.append("f " + " ".join(token.split("/")[0] for token in words[1].split()))
+            corners = [token.split("/")[0] for token in words[1].split()]
+            # OBJ counts vertices from 1 (negative: from the end); trimesh would read 0 as the last vertex
+            if any(c.strip("+-").isdigit() and int(c) == 0 for c in corners):
+                raise ValueError(f"line {number}: face index 0 (OBJ numbers vertices from 1)")
+            lines.append("f " + " ".join(corners))
     return "\n".join(lines) + "\n"
 
 

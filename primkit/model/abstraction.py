@@ -259,6 +259,8 @@ def abstract_shapes(
             except FileNotFoundError as exc:
                 errors.append(str(exc))
                 continue
+            if not found:
+                errors.append(f"{item}: no shape files in this folder")
             for p in found:
                 order.append(("file", len(files)))
                 files.append(p)
