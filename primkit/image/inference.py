@@ -12,15 +12,33 @@ import torch
 from .. import primitives
 from ..io import atomic_output
 from ..model.bundled import resolve_model
-from ..model.modelfile import load_model, ModelFileError, save_model
+from ..model.modelfile import ModelFileError, check_tensors, load_model, read_header, save_model
 from ..viz.palette import part_colors
 from .camera import Camera, project, ViewSettings
-from .network import ImageNet, ImageNetConfig, images_to_float
+from .network import ImageNet, ImageNetConfig, images_to_float, state_shapes
 
-__all__ = ["KIND", "read_image", "ImageAbstraction", "ImageAbstractor", "draw_over_image"]
+__all__ = ["KIND", "read_image", "read_image_network", "ImageAbstraction", "ImageAbstractor", "draw_over_image"]
 
 
 KIND = "image-abstractor"
+
+
+def read_image_network(path) -> tuple[ImageNetConfig, dict]:
+    """The network config and metadata of an image model file, validated against its header before
+    any weight is read (as :func:`primkit.model.network.read_network` for volume models)."""
+    meta, tensors = read_header(path)
+    if meta.get("kind") != KIND:
+        raise ModelFileError(path, f"not an image model (kind {meta.get('kind', 'volume')!r}); use it with shape files")
+    try:
+        config = ImageNetConfig.from_dict(meta["network"])
+    except (TypeError, ValueError) as exc:
+        raise ModelFileError(path, f"bad image network description in the metadata: {exc}") from None
+    names = meta.get("part_names")
+    if names is not None and not (isinstance(names, list) and len(names) == config.parts
+                                  and all(isinstance(n, str) for n in names)):
+        raise ModelFileError(path, f"part_names must be a list of {config.parts} strings (one per part slot)")
+    check_tensors(path, state_shapes(config), tensors, what="image network")
+    return config, meta
 
 
 def read_image(path, size: int) -> np.ndarray:
@@ -83,11 +101,11 @@ class ImageAbstractor:
 
     @classmethod
     def load(cls, path) -> "ImageAbstractor":
+        """A bundled image model's name or a model file, validated (:func:`read_image_network`) before allocation."""
         path = resolve_model(path)
+        config, _ = read_image_network(path)
         weights, meta = load_model(path)
-        if meta.get("kind") != KIND:
-            raise ModelFileError(path, f"not an image model (kind {meta.get('kind', 'volume')!r}); use it with shape files")
-        net = ImageNet(ImageNetConfig.from_dict(meta["network"]))
+        net = ImageNet(config)
         net.load_state_dict(weights)
         return cls(net, meta)
 
@@ -141,14 +159,17 @@ class ImageAbstractor:
 
     def predict_files(self, paths, **kwargs):
         """Read and abstract image files; returns ``(results, errors)`` (one line per unreadable file)."""
+        from ..data import shape_names
+
         images, names, sources, errors = [], [], [], []
-        for p in paths:
+        paths = list(paths)
+        for p, name in zip(paths, shape_names(paths)):  # two files called x.png get two names
             try:
                 images.append(read_image(p, self.size))
             except ValueError as exc:
                 errors.append(str(exc))
                 continue
-            names.append(Path(p).stem)
+            names.append(name)
             sources.append(str(p))
         if not images:
             return [], errors

@@ -4,13 +4,13 @@ architecture is drawn in :mod:`primkit.image`)."""
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 
 import torch
 import torch.nn.functional as F
 from torch import nn
 
-__all__ = ["ImageNetConfig", "ImageNet", "images_to_float"]
+__all__ = ["ImageNetConfig", "ImageNet", "images_to_float", "state_shapes"]
 
 
 @dataclass(frozen=True)
@@ -24,8 +24,24 @@ class ImageNetConfig:
     max_half_extent: float = 0.5
 
     def __post_init__(self):
+        # bounded so that a model file's metadata cannot ask for an absurd network (far above use: 64 px, 256 units)
+        def integer(value, low, high):
+            return isinstance(value, int) and not isinstance(value, bool) and low <= value <= high
+
+        if not (isinstance(self.channels, tuple) and 1 <= len(self.channels) <= 8
+                and all(integer(c, 1, 2048) for c in self.channels)):
+            raise ValueError(f"`channels` must be 1 to 8 ints from 1 to 2048, got {self.channels!r}")
+        if not integer(self.size, 2, 1024):
+            raise ValueError(f"`size` must be an int from 2 to 1024, got {self.size!r}")
         if self.size % (2 ** len(self.channels)):
             raise ValueError(f"`size` ({self.size}) must be divisible by 2^{len(self.channels)}")
+        if not integer(self.fc_width, 1, 8192):
+            raise ValueError(f"`fc_width` must be an int from 1 to 8192, got {self.fc_width!r}")
+        if not integer(self.parts, 1, 1024):
+            raise ValueError(f"`parts` must be an int from 1 to 1024, got {self.parts!r}")
+        if not (isinstance(self.max_half_extent, (int, float)) and not isinstance(self.max_half_extent, bool)
+                and math.isfinite(self.max_half_extent) and self.max_half_extent > 0.05):
+            raise ValueError(f"`max_half_extent` must be a finite number > 0.05, got {self.max_half_extent!r}")
 
     def to_dict(self) -> dict:
         """JSON-ready: the channels as a list."""
@@ -33,7 +49,15 @@ class ImageNetConfig:
 
     @classmethod
     def from_dict(cls, d: dict) -> "ImageNetConfig":
-        return cls(**{**d, "channels": tuple(d["channels"])})
+        if not isinstance(d, dict):
+            raise ValueError(f"image network config must be a dict, got {type(d).__name__}")
+        unknown = sorted(set(d) - {f.name for f in fields(cls)})
+        if unknown:
+            raise ValueError(f"unknown image network config keys {unknown}")
+        channels = d.get("channels", cls.channels)
+        if not isinstance(channels, (list, tuple)):
+            raise ValueError(f"`channels` must be a list of ints, got {channels!r}")
+        return cls(**{**d, "channels": tuple(channels)})
 
 
 class ImageNet(nn.Module):
@@ -78,6 +102,13 @@ class ImageNet(nn.Module):
             "existence_logits": logits,
             "viewpoint": self.viewpoint_head(h),
         }
+
+
+def state_shapes(config: ImageNetConfig) -> dict:
+    """``name -> (shape, dtype)`` of ``ImageNet(config)``'s state dict, built on the ``meta`` device (nothing allocated)."""
+    with torch.device("meta"):
+        net = ImageNet(config)
+    return {k: (tuple(v.shape), v.dtype) for k, v in net.state_dict().items()}
 
 
 def images_to_float(images_uint8: torch.Tensor) -> torch.Tensor:

@@ -29,7 +29,17 @@ Expected from the caller (not enforced here):
 ``metrics`` : dict, evaluation results with the protocol named (e.g. Chamfer convention).
 ``part_names`` : list of ``m`` strings (one per part slot, ``""`` for unnamed) or ``None``.
 
-All values must be JSON: dicts with string keys, lists / tuples, str, int, finite float, bool, None.
+All values must be JSON: dicts with string keys, lists / tuples, str, int, finite float, bool, None,
+nested at most ``MAX_DEPTH`` levels.
+
+Validation before allocation
+----------------------------
+Nothing in a file is trusted before it is checked: :func:`read_header` reads the metadata and the
+tensors' names, shapes and dtypes from the safetensors header without reading any weight, and the
+network modules (:func:`primkit.model.network.read_network`, the image model's likewise) check
+their architecture's fields (bounded) and the tensors the architecture implies against that header
+(:func:`check_tensors`) before a network is built, so that a hostile ``fc_width`` costs nothing.
+Every failure is one :class:`ModelFileError` line naming the file.
 """
 
 from __future__ import annotations
@@ -49,8 +59,11 @@ __all__ = [
     "FORMAT_VERSION",
     "METADATA_KEY",
     "REQUIRED_KEYS",
+    "MAX_DEPTH",
     "ModelFileError",
+    "check_tensors",
     "load_model",
+    "read_header",
     "read_metadata",
     "save_model",
     "update_metadata",
@@ -64,6 +77,8 @@ FORMAT = "primkit-model"
 METADATA_KEY = "primkit"
 #: Metadata keys a model file must have, beyond ``format`` and ``format_version``.
 REQUIRED_KEYS = ("network",)
+#: Deepest nesting of dicts and lists the metadata may have (primkit's own files use 5).
+MAX_DEPTH = 32
 
 
 class ModelFileError(ValueError):
@@ -114,6 +129,8 @@ def save_model(
     ``os.replace``, so a crash never leaves a half-written model at ``path``.
     """
     path = Path(path)
+    if path.suffix.lower() != ".safetensors":
+        raise ValueError(f"{path}: a model file is written as .safetensors, not '{path.suffix or '(no suffix)'}'")
     if not isinstance(metadata, dict):
         raise TypeError(f"`metadata` must be a dict, got {type(metadata).__name__}")
     for key in metadata:
@@ -175,6 +192,10 @@ def _parse_metadata(path, header: dict | None) -> dict:
         metadata = json.loads(header[METADATA_KEY])
     except json.JSONDecodeError as err:
         raise ModelFileError(path, f"primkit metadata is not valid JSON ({err})") from None
+    except RecursionError:
+        raise ModelFileError(path, f"primkit metadata is nested deeper than {MAX_DEPTH} levels") from None
+    if _depth(metadata) > MAX_DEPTH:
+        raise ModelFileError(path, f"primkit metadata is nested deeper than {MAX_DEPTH} levels")
     if not isinstance(metadata, dict) or metadata.get("format") != FORMAT:
         raise ModelFileError(path, f"not a primkit model file (format is not {FORMAT!r})")
     version = metadata.get("format_version")
@@ -190,6 +211,73 @@ def _parse_metadata(path, header: dict | None) -> dict:
     if missing:
         raise ModelFileError(path, f"metadata lacks the required keys {missing}")
     return metadata
+
+
+def _depth(value) -> int:
+    """Nesting depth of dicts and lists in a JSON value (iterative: a hostile depth cannot overflow the stack)."""
+    deepest, stack = 0, [(value, 1)]
+    while stack:
+        item, depth = stack.pop()
+        if isinstance(item, (dict, list)):
+            deepest = max(deepest, depth)
+            if deepest > MAX_DEPTH:
+                return deepest
+            stack.extend((v, depth + 1) for v in (item.values() if isinstance(item, dict) else item))
+    return deepest
+
+
+def read_header(path) -> tuple[dict, dict]:
+    """The metadata and the tensors of the model file ``path``, from its header alone (no weight is read).
+
+    Returns ``(metadata, tensors)``: ``tensors`` maps each name to ``(shape, dtype)``, ``shape`` a
+    tuple of ints and ``dtype`` safetensors' name (``"F32"``, ``"F64"``, ``"I64"``, ...).
+    """
+    handle = _open(path)
+    with handle as f:
+        metadata = _parse_metadata(path, f.metadata())
+        try:
+            tensors = {}
+            for name in f.keys():
+                view = f.get_slice(name)
+                tensors[name] = (tuple(int(n) for n in view.get_shape()), str(view.get_dtype()))
+        except Exception as err:  # safetensors' own error types
+            raise ModelFileError(path, f"cannot read the tensor header ({err})") from None
+    return metadata, tensors
+
+
+#: safetensors' dtype names of the floating dtypes (a network's float tensors may be stored in any)
+_FLOAT_DTYPES = {"F16", "BF16", "F32", "F64"}
+_DTYPE_NAMES = {torch.float16: "F16", torch.bfloat16: "BF16", torch.float32: "F32", torch.float64: "F64",
+                torch.int64: "I64", torch.int32: "I32", torch.uint8: "U8", torch.bool: "BOOL"}
+
+
+def check_tensors(path, expected: dict, found: dict, what: str = "network") -> None:
+    """Raise ModelFileError naming ``path`` unless the tensors ``found`` in its header
+    (:func:`read_header`) are those ``expected``: the same names, the same shapes, and dtypes
+    that load into them (any floating dtype for a floating tensor).
+
+    expected : ``name -> (shape, torch.dtype)`` (a state dict's, e.g. of a network built on the
+        ``meta`` device, which allocates nothing).
+    what : how the message calls the architecture (``"network"``, ``"image network"``).
+    """
+    missing = sorted(set(expected) - set(found))
+    extra = sorted(set(found) - set(expected))
+
+    def listed(names):
+        return ", ".join(names[:3]) + (f" and {len(names) - 3} more" if len(names) > 3 else "")
+
+    if missing:
+        raise ModelFileError(path, f"lacks the tensors {listed(missing)} of its {what}")
+    if extra:
+        raise ModelFileError(path, f"has tensors its {what} does not have: {listed(extra)}")
+    for name, (shape, dtype) in expected.items():
+        got_shape, got_dtype = found[name]
+        if tuple(got_shape) != tuple(shape):
+            raise ModelFileError(path, f"tensor {name} is {list(got_shape)}, but the {what} the metadata describes "
+                                       f"needs {list(shape)}")
+        want = _DTYPE_NAMES.get(dtype, str(dtype))
+        if got_dtype != want and not (want in _FLOAT_DTYPES and got_dtype in _FLOAT_DTYPES):
+            raise ModelFileError(path, f"tensor {name} is {got_dtype}, expected {want}")
 
 
 def read_metadata(path) -> dict:
@@ -220,8 +308,11 @@ def load_model(path, map_location="cpu") -> tuple[dict[str, Tensor], dict]:
 
 def update_metadata(path, output, changes: dict, *, overwrite: bool = False) -> Path:
     """Copy the model file ``path`` to ``output`` with ``changes`` merged into its metadata
-    (the weights are copied unchanged; ``path`` itself is never modified unless it is ``output``
-    and ``overwrite`` is given). Returns ``output``."""
+    (the weights are copied unchanged; ``path`` itself is never modified: an ``output`` that is
+    ``path`` is refused, ``overwrite`` or not). Returns ``output``."""
+    from ..io import check_outputs
+
+    check_outputs([output], inputs=[path], overwrite=overwrite)
     weights, metadata = load_model(path)
     metadata = {**metadata, **changes}
     metadata.pop("created", None)

@@ -75,14 +75,19 @@ import torch
 from torch import Tensor, nn
 from torch.nn import functional as F
 
-from .modelfile import load_model
+from .modelfile import ModelFileError, check_tensors, load_model, read_header
 
 __all__ = [
     "INITIAL_EXISTENCE",
     "INITIAL_HALF_EXTENT",
+    "MAX_PARTS",
+    "MAX_GRID",
+    "MAX_FC_WIDTH",
     "AbstractionNet",
     "NetworkConfig",
     "PrimitivePrediction",
+    "state_shapes",
+    "read_network",
     "load_network",
 ]
 
@@ -97,6 +102,12 @@ QUATERNION_WEIGHT_STD = 0.002
 LEAKY_SLOPE = 0.2
 
 _ENCODERS = ("released", "paper")
+
+#: Bounds of the architecture's fields: far above any use (the paper: 20 parts, 32^3, 100 units),
+#: far below what would exhaust memory (a 256^3 grid of batch 32 is 2 GB of input alone).
+MAX_PARTS = 1024
+MAX_GRID = 256
+MAX_FC_WIDTH = 8192
 
 
 @dataclass(frozen=True)
@@ -118,22 +129,23 @@ class NetworkConfig:
     max_half_extent: float = 0.5
 
     def __post_init__(self) -> None:
-        if not isinstance(self.parts, int) or isinstance(self.parts, bool) or self.parts < 1:
-            raise ValueError(f"`parts` must be a positive int, got {self.parts!r}")
+        if not isinstance(self.parts, int) or isinstance(self.parts, bool) or not 1 <= self.parts <= MAX_PARTS:
+            raise ValueError(f"`parts` must be an int from 1 to {MAX_PARTS}, got {self.parts!r}")
         grid = self.grid
         if (
             not isinstance(grid, int)
             or isinstance(grid, bool)
-            or grid < 4
+            or not 4 <= grid <= MAX_GRID
             or grid & (grid - 1) != 0
         ):
-            raise ValueError(f"`grid` must be a power of two >= 4 (e.g. 32 or 64), got {grid!r}")
-        if self.encoder not in _ENCODERS:
+            raise ValueError(f"`grid` must be a power of two from 4 to {MAX_GRID} (e.g. 32 or 64), got {grid!r}")
+        if not isinstance(self.encoder, str) or self.encoder not in _ENCODERS:
             raise ValueError(f"`encoder` must be one of {_ENCODERS}, got {self.encoder!r}")
-        if not isinstance(self.fc_width, int) or isinstance(self.fc_width, bool) or self.fc_width < 1:
-            raise ValueError(f"`fc_width` must be a positive int, got {self.fc_width!r}")
-        if not (isinstance(self.max_half_extent, (int, float)) and self.max_half_extent > 0):
-            raise ValueError(f"`max_half_extent` must be > 0, got {self.max_half_extent!r}")
+        if not isinstance(self.fc_width, int) or isinstance(self.fc_width, bool) or not 1 <= self.fc_width <= MAX_FC_WIDTH:
+            raise ValueError(f"`fc_width` must be an int from 1 to {MAX_FC_WIDTH}, got {self.fc_width!r}")
+        if not (isinstance(self.max_half_extent, (int, float)) and not isinstance(self.max_half_extent, bool)
+                and math.isfinite(self.max_half_extent) and self.max_half_extent > 0):
+            raise ValueError(f"`max_half_extent` must be a finite number > 0, got {self.max_half_extent!r}")
         if INITIAL_HALF_EXTENT >= self.max_half_extent:
             raise ValueError(
                 f"`max_half_extent` must exceed the initial half-extent {INITIAL_HALF_EXTENT}, "
@@ -372,10 +384,45 @@ class AbstractionNet(nn.Module):
         )
 
 
+def state_shapes(config: NetworkConfig) -> dict:
+    """``name -> (shape, dtype)`` of the state dict of ``AbstractionNet(config)``, from a network
+    built on torch's ``meta`` device (no memory is allocated, whatever the config)."""
+    with torch.device("meta"):
+        net = AbstractionNet(config)
+    return {k: (tuple(v.shape), v.dtype) for k, v in net.state_dict().items()}
+
+
+def read_network(path) -> tuple[NetworkConfig, dict]:
+    """The network config and metadata of a model file (or a training checkpoint), validated
+    against its header before any weight is read or any network built.
+
+    Checks: the ``network`` fields (types and bounds, :class:`NetworkConfig`), ``grid`` and
+    ``part_names`` when present, and the tensors the architecture implies against those in the
+    header (names, shapes, dtypes; a checkpoint's ``model.*`` tensors). Raises
+    :class:`~primkit.model.modelfile.ModelFileError`, one line naming the file.
+    """
+    meta, tensors = read_header(path)
+    try:
+        config = NetworkConfig.from_dict(meta["network"])
+    except (TypeError, ValueError) as exc:
+        raise ModelFileError(path, f"bad network description in the metadata: {exc}") from None
+    if "grid" in meta and meta["grid"] != config.grid:
+        raise ModelFileError(path, f"metadata grid {meta['grid']!r} differs from the network's {config.grid}")
+    names = meta.get("part_names")
+    if names is not None and not (isinstance(names, list) and len(names) == config.parts
+                                  and all(isinstance(n, str) for n in names)):
+        raise ModelFileError(path, f"part_names must be a list of {config.parts} strings (one per part slot)")
+    model = {k[len("model."):]: v for k, v in tensors.items() if k.startswith("model.")}
+    check_tensors(path, state_shapes(config), model or tensors)  # a checkpoint's optimizer and rng tensors aside
+    return config, meta
+
+
 def load_network(path, map_location="cpu") -> tuple[AbstractionNet, dict]:
-    """Network and metadata from a model file (or a checkpoint) written by :func:`primkit.model.training.train`."""
+    """Network and metadata from a model file (or a checkpoint) written by :func:`primkit.model.training.train`,
+    validated (:func:`read_network`) before anything is allocated."""
+    config, _ = read_network(path)
     weights, meta = load_model(path, map_location=map_location)
-    net = AbstractionNet(NetworkConfig.from_dict(meta["network"]))
+    net = AbstractionNet(config)
     state = {k[len("model."):]: v for k, v in weights.items() if k.startswith("model.")} or weights
     net.load_state_dict(state)
     net.eval()
