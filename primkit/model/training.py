@@ -37,7 +37,8 @@ from .losses import (LossWeights, MovingBaseline, SlotPlacement, local_existence
                      shape_losses)
 from .network import AbstractionNet, NetworkConfig
 
-__all__ = ["TrainConfig", "ShapeTensors", "PreparedDataset", "TrainResult", "train", "isolated_torch_state"]
+__all__ = ["TrainConfig", "ShapeTensors", "PreparedDataset", "TrainResult", "train", "isolated_torch_state",
+           "training_outputs", "check_training_outputs", "check_checkpoint"]
 
 
 @dataclass(frozen=True)
@@ -169,6 +170,32 @@ class TrainResult:
     seconds: float = 0.0
 
 
+def training_outputs(output) -> dict:
+    """The files :func:`train` writes for the model file ``output``: ``model``, ``checkpoint``
+    (``<output>.checkpoint.safetensors``), ``history`` (``<stem>.history.json``) and ``plot``
+    (``<stem>.training.png``)."""
+    output = Path(output)
+    stem = str(output.with_suffix(""))
+    return {"model": output, "checkpoint": output.with_name(output.name + ".checkpoint.safetensors"),
+            "history": Path(stem + ".history.json"), "plot": Path(stem + ".training.png")}
+
+
+def check_training_outputs(output, *, overwrite: bool = False, resume=None, inputs=()) -> dict:
+    """Check before any work that a training run can write all it will write
+    (:func:`training_outputs`, :func:`primkit.io.check_outputs`): the model's suffix is
+    ``.safetensors``, the folder can be written, nothing is an input (``resume`` and ``inputs``), and
+    nothing exists without ``overwrite``, except the checkpoint being resumed. Returns the outputs."""
+    paths = training_outputs(io.check_suffix(output, ".safetensors", "a model file"))
+    ckpt = paths["checkpoint"]
+    resumed = resume is not None and os.path.realpath(resume) == os.path.realpath(ckpt)
+    if os.path.lexists(ckpt) and not (overwrite or resumed):
+        raise FileExistsError(f"{ckpt}: exists, the checkpoint of an unfinished run (go on with --resume {ckpt}, "
+                              "or use --force to start afresh)")
+    read = list(inputs) + ([resume] if resume is not None and not resumed else [])
+    io.check_outputs(paths.values(), inputs=read, overwrite=overwrite, resumed=[ckpt] if resumed else [])
+    return paths
+
+
 def _dist():
     import torch.distributed as dist
 
@@ -212,7 +239,19 @@ def _restore_optimizer(optimizer, tensors: dict, scalars: dict) -> None:
     optimizer.load_state_dict(state)
 
 
-def _save_checkpoint(path, net, optimizer, generator, baseline, iteration, history, config, extra) -> None:
+def _save_checkpoint(path, net, optimizer, generator, baseline, iteration, history, config, extra) -> bool:
+    """Write the checkpoint; on an OSError (a full disk, the folder gone) say so on stderr and return
+    False: the run goes on, and the previous checkpoint, if any, stands (writes are atomic)."""
+    try:
+        _write_checkpoint(path, net, optimizer, generator, baseline, iteration, history, config, extra)
+    except OSError as exc:
+        print(f"\nprimkit: warning: could not write the checkpoint {path} at iteration {iteration} "
+              f"({exc.strerror or exc}); training goes on", file=sys.stderr)
+        return False
+    return True
+
+
+def _write_checkpoint(path, net, optimizer, generator, baseline, iteration, history, config, extra) -> None:
     weights = {f"model.{k}": v for k, v in net.state_dict().items()}
     opt_tensors, opt_scalars = _optimizer_tensors(optimizer)
     weights.update(opt_tensors)
@@ -230,6 +269,57 @@ def _save_checkpoint(path, net, optimizer, generator, baseline, iteration, histo
         },
     }
     modelfile.save_model(path, weights, meta, overwrite=True)
+
+
+def check_checkpoint(path, network: NetworkConfig) -> dict:
+    """The ``checkpoint`` metadata of the training checkpoint ``path``, after checking from its
+    header alone (nothing allocated) that it is a valid checkpoint of ``network``: a run cannot go on
+    with other ``--parts`` or ``--encoder``, which is refused in one line
+    (:class:`~primkit.model.modelfile.ModelFileError`)."""
+    from .network import read_network
+
+    saved, meta = read_network(path)
+    ck = meta.get("checkpoint")
+    if not isinstance(ck, dict) or not {"iteration", "optimizer", "baseline", "history"} <= set(ck):
+        raise modelfile.ModelFileError(path, "not a training checkpoint (a model file? --resume takes "
+                                             "<model>.checkpoint.safetensors)")
+    if saved != network:
+        flags = {"parts": "--parts", "encoder": "--encoder"}
+        theirs, mine = saved.to_dict(), network.to_dict()
+        differ = [f"{k} {v}" + (f" ({flags[k]} {v})" if k in flags else "") for k, v in theirs.items() if v != mine[k]]
+        asked = ", ".join(f"{k} {v}" for k, v in mine.items() if v != theirs[k])
+        raise modelfile.ModelFileError(path, f"the checkpoint's network has {', '.join(differ)}; this run asks for "
+                                             f"{asked}: resume with the settings it was trained with, or start "
+                                             "afresh without --resume")
+    return ck
+
+
+def _read_checkpoint(path, network: NetworkConfig, config: TrainConfig) -> tuple[dict, dict]:
+    """The weights and ``checkpoint`` metadata of a checkpoint of ``network`` (:func:`check_checkpoint`);
+    training settings that differ from the checkpoint's are named on stderr (this run's are used)."""
+    ck = check_checkpoint(path, network)
+    before = ck.get("config") if isinstance(ck.get("config"), dict) else {}
+    changed = [f"{k} {before[k]} -> {v}" for k, v in config.to_dict().items() if k in before and before[k] != v]
+    if changed:
+        print(f"primkit: note: resuming {path} with settings that differ from its own: {', '.join(changed)}",
+              file=sys.stderr)
+    weights, _ = modelfile.load_model(path, map_location="cpu")
+    return weights, ck
+
+
+def _save_trained(output: Path, state: dict, meta: dict) -> None:
+    """Save the trained model; if its folder cannot be written any more (removed, full, made
+    read-only during the run), save it to the system's temporary folder instead and say where in
+    the error, so that the training is not lost."""
+    try:
+        modelfile.save_model(output, state, meta, overwrite=True)  # checked before the first iteration
+    except OSError as exc:
+        import tempfile
+
+        rescue = Path(tempfile.mkdtemp(prefix="primkit-")) / output.name
+        modelfile.save_model(rescue, state, meta)
+        raise OSError(exc.errno, f"cannot write {output} ({exc.strerror or exc}); the trained model was saved to "
+                                 f"{rescue} instead") from None
 
 
 def _plot_history(history, path, stage1: int) -> None:
@@ -321,9 +411,10 @@ def train(
     if world > 1 and torch.device(device).type == "cuda":
         device = f"cuda:{int(os.environ.get('LOCAL_RANK', rank))}"
     output = Path(output) if output is not None else None
-    if output is not None and rank == 0:
-        io.refuse_existing(output, overwrite)
-    ckpt_path = output.with_name(output.name + ".checkpoint.safetensors") if output is not None else None
+    if output is not None and rank == 0:  # before the first iteration: hours of training must not end in "cannot write"
+        check_training_outputs(output, overwrite=overwrite, resume=resume)
+    outputs = training_outputs(output) if output is not None else None
+    ckpt_path = outputs["checkpoint"] if output is not None else None
 
     # tiny N(0, 0.02) activations turn into denormal floats, which made CPU steps up to 5x slower
     torch.set_flush_denormal(True)
@@ -338,22 +429,25 @@ def train(
     history: list = []
     start = 0
     if resume is not None:
-        weights, meta = modelfile.load_model(resume, map_location="cpu")
-        ck = meta.get("checkpoint")
-        if ck is None:
-            raise ValueError(f"{resume}: not a training checkpoint")
-        state = {k[len("model."):]: v for k, v in weights.items() if k.startswith("model.")}
-        net.load_state_dict(state)  # carries the head scales of the stage it stopped in
-        net.to(device)
-        optimizer = torch.optim.Adam(net.parameters(), lr=config.learning_rate)
-        _restore_optimizer(optimizer, {k: v.to(device) for k, v in weights.items() if k.startswith("optimizer.")}, ck["optimizer"])
-        generator.set_state(weights["rng.batches"])
-        torch.set_rng_state(weights["rng.torch"])
-        baseline.load_state_dict(ck["baseline"])
-        if ck.get("placement"):
-            placement.load_state_dict(ck["placement"])
-        history = ck["history"]
-        start = int(ck["iteration"])
+        weights, ck = _read_checkpoint(resume, net.config, config)
+        try:
+            state = {k[len("model."):]: v for k, v in weights.items() if k.startswith("model.")}
+            net.load_state_dict(state)  # carries the head scales of the stage it stopped in
+            net.to(device)
+            optimizer = torch.optim.Adam(net.parameters(), lr=config.learning_rate)
+            _restore_optimizer(optimizer, {k: v.to(device) for k, v in weights.items() if k.startswith("optimizer.")},
+                               ck["optimizer"])
+            generator.set_state(weights["rng.batches"])
+            torch.set_rng_state(weights["rng.torch"])
+            baseline.load_state_dict(ck["baseline"])
+            if ck.get("placement"):
+                placement.load_state_dict(ck["placement"])
+            history = list(ck["history"])
+            start = int(ck["iteration"])
+        except (KeyError, TypeError, ValueError, RuntimeError, IndexError, AttributeError) as exc:
+            raise modelfile.ModelFileError(resume, f"not a usable training checkpoint ({type(exc).__name__}: {exc})") from None
+        if not 0 <= start <= config.iterations:
+            raise modelfile.ModelFileError(resume, f"stopped at iteration {start}, outside this run's {config.iterations}")
     model = net
     if world > 1:
         from torch.nn.parallel import DistributedDataParallel
@@ -444,9 +538,9 @@ def train(
             bar.update()
             if stop["requested"] and it + 1 < total:
                 interrupted = True
-                if ckpt_path is not None and rank == 0:
-                    _save_checkpoint(ckpt_path, net, optimizer, generator, baseline, it + 1, history, config,
-                                     {"placement": placement.state_dict()})
+                if ckpt_path is not None and rank == 0 and _save_checkpoint(
+                        ckpt_path, net, optimizer, generator, baseline, it + 1, history, config,
+                        {"placement": placement.state_dict()}):
                     print(f"\ninterrupted after iteration {it + 1}: checkpoint saved to {ckpt_path} (resume with --resume)", file=sys.stderr)
                 break
             if ckpt_path is not None and rank == 0 and (it + 1) % config.checkpoint_every == 0 and it + 1 < total:
@@ -463,7 +557,6 @@ def train(
     seconds = time.perf_counter() - t0
     net.eval()
     if output is not None and rank == 0 and not interrupted:
-        stem = output.with_suffix("")
         meta = {
             "network": net.config.to_dict(),
             "grid": shapes.resolution,
@@ -483,9 +576,10 @@ def train(
             "metrics": {},
             "part_names": None,
         }
-        modelfile.save_model(output, net.state_dict(), meta, overwrite=True)
-        Path(str(stem) + ".history.json").write_text(json.dumps(history))
-        _plot_history(history, Path(str(stem) + ".training.png"), stage1)
+        _save_trained(output, net.state_dict(), meta)
+        with io.atomic_output(outputs["history"], overwrite=True) as tmp:  # checked before the first iteration
+            tmp.write_text(json.dumps(history))
+        _plot_history(history, outputs["plot"], stage1)
         if ckpt_path.exists():
             ckpt_path.unlink()
     return TrainResult(output if output is not None and not interrupted else None, net, history, interrupted, seconds)
