@@ -67,15 +67,29 @@ def _bundled_step(out: Path, folder: Path, cache: Path, quick: bool) -> None:
     render_abstractions(runs["refined"][0], meshes, out / "bundled.png", note=f" (refined {steps})")
 
 
+def _demo_outputs(out: Path, train_count: int, test_count: int) -> list:
+    """The files the demo writes into ``out`` (the report's thumbnails aside, in ``report/images``)."""
+    from .model.training import training_outputs
+
+    shapes = [out / "shapes" / kind / f"chair_{i:04d}{ext}" for kind, n in (("train", train_count), ("heldout", test_count))
+              for i in range(n) for ext in (".ply", ".seg", ".json")]
+    abstractions = [out / "abstractions" / f"chair_{i:04d}.cuboids{ext}" for i in range(test_count) for ext in (".json", ".ply")]
+    fixed = [out / name for name in ("bundled.json", "bundled.png", "report.json", "abstractions.png",
+                                     "report/index.html", "report/report.json")]
+    return [*training_outputs(out / "chair-demo.safetensors").values(), *fixed, *shapes, *abstractions]
+
+
 def run_demo(output="primkit-demo", *, quick: bool = False, force: bool = False, train_count: int = 96,
              test_count: int = 8, iterations: int = 2400) -> int:
     out = Path(output)
     model_path = out / "chair-demo.safetensors"
-    if model_path.exists() and not force:
-        print(f"primkit: error: {model_path}: exists (use --force to overwrite)", file=sys.stderr)
-        return 2
     if quick:
         train_count, test_count, iterations = 16, 4, 60
+    try:  # before any work: everything the demo writes can be written, and replaces nothing without --force
+        io.check_outputs(_demo_outputs(out, train_count, test_count), overwrite=force)
+    except (OSError, ValueError) as exc:
+        print(f"primkit: error: {exc}", file=sys.stderr)
+        return 2
     print(f"[1/4] generating {train_count} training and {test_count} held-out procedural chairs", file=sys.stderr)
     train_dir, test_dir = out / "shapes" / "train", out / "shapes" / "heldout"
     synthetic.write_collection(train_dir, "chair", train_count, seed=0, overwrite=force)

@@ -25,8 +25,12 @@ from ._common import (
     add_output,
     add_png,
     add_prepare_options,
+    check_outputs,
     collect,
     err,
+    input_paths,
+    model_file,
+    output_names,
     report_errors,
     settings_from_args,
 )
@@ -57,18 +61,24 @@ def _cmd_prepare(args) -> int:
 
 def _cmd_train(args) -> int:
     from ..data import PrepareSettings, prepare_collection, split_files
-    from ..io import refuse_existing
+    from ..model.network import NetworkConfig
     from ..model.presets import recipe
-    from ..model.training import ShapeTensors, train
+    from ..model.training import ShapeTensors, check_checkpoint, check_training_outputs, train
 
     out = Path(args.output)
-    refuse_existing(out, args.force)
     plan = recipe(args.preset, stage1=args.stage1, stage2=args.stage2, full_schedule=args.full_schedule,
                   hold_out_every=args.hold_out, up=args.up, front=args.front, parts=args.parts,
                   batch_size=args.batch_size, encoder=args.encoder, seed=args.seed, learning_rate=args.lr,
                   symmetry_weight=args.symmetry)
-    files, held = split_files(collect(args.inputs), plan.hold_out_every)
+    collected = collect(args.inputs)
     settings = settings_from_args(args, PrepareSettings(up=plan.up, front=plan.front))
+    # before preparing and training: the outputs can be written, and a checkpoint resumed fits this run
+    check_training_outputs(out, overwrite=args.force, resume=args.resume, inputs=input_paths(collected))
+    if args.resume is not None:
+        c = plan.config
+        check_checkpoint(args.resume, NetworkConfig(parts=c.parts, grid=settings.resolution, encoder=c.encoder,
+                                                    fc_width=c.fc_width))
+    files, held = split_files(collected, plan.hold_out_every)
     coll = prepare_collection(files, settings, cache_dir=args.cache, workers=args.workers)
     status = report_errors(coll.errors)
     if len(coll) == 0:
@@ -90,28 +100,35 @@ def _cmd_train(args) -> int:
     return status
 
 
+def _picture_path(path):
+    """``--png PATH`` checked: a ``.png`` file name (None when not asked for)."""
+    from ..io import check_suffix
+
+    return None if path is None else check_suffix(path, ".png", "a picture")
+
+
 def _cmd_abstract(args) -> int:
-    from ..io import refuse_existing
     from ..model.bundled import resolve_model
     from ..model.modelfile import read_metadata
 
-    if read_metadata(resolve_model(args.model)).get("kind") == "image-abstractor":
+    model_path = resolve_model(args.model)
+    if read_metadata(model_path).get("kind") == "image-abstractor":
         from .image import run_abstract_images
 
         return run_abstract_images(args)
-    from ..model.abstraction import abstract_shapes
+    from ..model.abstraction import abstract_shapes, load_model
     from ..viz.render import render_abstractions
 
-    refuse_existing(args.png, args.force)
-    out = abstract_shapes(collect(args.inputs), args.model, existence_threshold=args.threshold,
+    model = load_model(model_path)  # validated before the inputs are read
+    files = collect(args.inputs)
+    folder = Path(args.output)
+    outputs = [folder / f"{name}.cuboids{ext}" for name in output_names(files) for ext in (".json", ".ply")]
+    check_outputs(args, outputs + [_picture_path(args.png)], input_paths(files, model_path))
+    out = abstract_shapes(files, model, existence_threshold=args.threshold,
                           prune_threshold=None if args.prune <= 0 else args.prune, **abstraction_options(args))
     failed = list(out.errors)
     for r in out.results:
-        try:
-            j, m = r.save(args.output, overwrite=args.force)
-        except FileExistsError as exc:
-            failed.append(str(exc))
-            continue
+        j, m = r.save(args.output, overwrite=args.force)
         extra = ""
         if r.alignment is not None:
             extra += f"; oriented with up {r.alignment['up']}, front {r.alignment['front']}"
@@ -154,6 +171,10 @@ def _cmd_eval(args) -> int:
     files = _split_inputs(collect(args.inputs), abstractor, args.split)
     if args.limit:
         files = files[: args.limit]
+    if args.json:
+        from ..io import check_suffix
+
+        check_outputs(args, [check_suffix(args.json, ".json", "a scores file")], input_paths(files, model_file(args.model)))
     out = abstract_shapes(files, abstractor, **abstraction_options(args))
     conv = ChamferConvention(power=args.chamfer_power)
     scores = [score(a.canonical, a.canonical_shape(), conv) for a in out]
@@ -201,11 +222,19 @@ def _cmd_models(args) -> int:
 
 
 def _cmd_info(args) -> int:
+    """The metadata, after the checks loading the model makes (architecture against the tensors)."""
+    from ..model.bundled import resolve_model
     from ..model.modelfile import read_metadata
 
-    from ..model.bundled import resolve_model
+    path = resolve_model(args.model)
+    if read_metadata(path).get("kind") == "image-abstractor":
+        from ..image.inference import read_image_network
 
-    meta = read_metadata(resolve_model(args.model))
+        _, meta = read_image_network(path)
+    else:
+        from ..model.network import read_network
+
+        _, meta = read_network(path)
     print(json.dumps(meta, indent=1))
     return 0
 
@@ -321,7 +350,7 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         err("interrupted")
         return 130
-    except (ShapeFileError, ModelFileError, FileExistsError, FileNotFoundError, ValueError) as exc:
+    except (ShapeFileError, ModelFileError, OSError, ValueError) as exc:  # OSError: FileExistsError, a full disk...
         err(str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
         return 2
 

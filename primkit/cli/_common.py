@@ -11,6 +11,7 @@ library when its command runs (the model layer imports torch, the drawing kit VT
 
 from __future__ import annotations
 
+import re
 import sys
 from pathlib import Path
 
@@ -18,6 +19,10 @@ __all__ = [
     "err",
     "report_errors",
     "collect",
+    "output_names",
+    "input_paths",
+    "check_outputs",
+    "model_file",
     "settings_from_args",
     "abstraction_options",
     "add_model",
@@ -42,21 +47,96 @@ def err(msg: str) -> None:
     print(f"primkit: error: {msg}", file=sys.stderr)
 
 
+#: above this many errors, report_errors ends with a count of each reason
+SUMMARY_ABOVE = 10
+
+
 def report_errors(errors) -> int:
+    """Print one line per input that could not be used (``primkit: skipped <path>: <reason>``);
+    for more than :data:`SUMMARY_ABOVE` of them, then the reasons with how many inputs each stopped
+    and one of them. Returns the exit status: 1 when there were errors, else 0."""
+    errors = [str(e) for e in errors]
     for e in errors:
         print(f"primkit: skipped {e}", file=sys.stderr)
-    if errors:
-        print(f"primkit: {len(errors)} input(s) could not be used", file=sys.stderr)
-    return 1 if errors else 0
+    if not errors:
+        return 0
+    print(f"primkit: {len(errors)} input(s) could not be used", file=sys.stderr, end="")
+    if len(errors) <= SUMMARY_ABOVE:
+        print(file=sys.stderr)
+        return 1
+    groups = {}
+    for e in errors:
+        path, sep, reason = e.partition(": ")
+        key = re.sub(r"\d+", "N", reason if sep else e)  # "12 labels for 30 faces" and "9 labels ..." alike
+        groups.setdefault(key, []).append(path)
+    print(f", by reason ({len(groups)}):", file=sys.stderr)
+    for key, paths in sorted(groups.items(), key=lambda kv: -len(kv[1])):
+        print(f"  {len(paths):7d}  {key}  (e.g. {paths[0]})", file=sys.stderr)
+    return 1
 
 
 def collect(inputs) -> list[Path]:
+    """The shape files of the command line's inputs (files as given, folders searched
+    recursively), in order. A missing input, or a folder with no shape file in it, is a one-line
+    error (FileNotFoundError) before any work."""
     from ..data import find_shape_files
+    from ..io import MESH_SUFFIXES, POINT_SUFFIXES, VOXEL_SUFFIXES
 
     files = []
     for item in inputs:
-        files.extend(find_shape_files(item))
+        found = find_shape_files(item)
+        if not found:
+            suffixes = " ".join(dict.fromkeys(MESH_SUFFIXES + POINT_SUFFIXES + VOXEL_SUFFIXES))
+            raise FileNotFoundError(f"{item}: no shape files in this folder (searched recursively for {suffixes})")
+        files.extend(found)
     return files
+
+
+def output_names(files) -> list[str]:
+    """The names outputs take after each of ``files`` (:func:`primkit.data.shape_names`), saying on
+    stderr which inputs shared a name and what they are called instead."""
+    from ..data import shape_name, shape_names
+
+    names = shape_names(files)
+    plain = [shape_name(p) for p in files]
+    for shared in dict.fromkeys(n for n, m in zip(plain, names) if n != m):
+        items = [(p, m) for p, n, m in zip(files, plain, names) if n == shared]
+        print(f"primkit: note: {len(items)} inputs are named {shared} ({', '.join(str(p) for p, _ in items)}); "
+              f"their outputs are named {', '.join(m for _, m in items)}", file=sys.stderr)
+    return names
+
+
+def input_paths(files, *extra) -> list[Path]:
+    """Every file a run reads: the shape files with their labels and attributes
+    (:func:`primkit.data.input_files`), and ``extra`` (models, label folders' files; None skipped)."""
+    from ..data import input_files
+
+    out = [p for f in files for p in input_files(f)]
+    for item in extra:
+        if item is None:
+            continue
+        item = Path(item)
+        out.extend(sorted(item.iterdir()) if item.is_dir() else [item])
+    return out
+
+
+def model_file(model) -> Path | None:
+    """The file of ``--model`` (a path or a bundled model's name); None when there is none (loading
+    it reports that)."""
+    from ..model.bundled import resolve_model
+
+    try:
+        return resolve_model(model)
+    except FileNotFoundError:
+        return None
+
+
+def check_outputs(args, outputs, inputs=()) -> list[Path]:
+    """:func:`primkit.io.check_outputs` with the command's ``--force``: before any work, every
+    output can be written, is no input, and replaces nothing without ``--force``."""
+    from ..io import check_outputs as check
+
+    return check(outputs, inputs=inputs, overwrite=getattr(args, "force", False))
 
 
 def settings_from_args(args, base=None):

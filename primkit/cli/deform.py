@@ -15,7 +15,8 @@ from pathlib import Path
 import numpy as np
 
 from ..model.parts import resolve_parts
-from ._common import abstraction_options, add_abstraction_options, add_force, add_output, add_png, err, report_errors
+from ._common import (abstraction_options, add_abstraction_options, add_force, add_output, add_png, check_outputs, err,
+                      input_paths, model_file, report_errors)
 
 __all__ = ["register", "parse_edit"]
 
@@ -41,13 +42,15 @@ def parse_edit(text: str, names, *, kind: str) -> dict:
     return {int(k): val for k in resolve_parts(spec, names)}
 
 
-def _outputs(args) -> tuple[Path, Path | None, Path]:
-    from ..io import refuse_existing
+def _outputs(args, inputs) -> tuple[Path, Path | None, Path]:
+    """The deformed mesh, the picture and the JSON, checked before any work against the ``inputs``
+    (the meshes read, the model): writable, the right suffixes, nothing replaced without ``--force``."""
+    from ..io import MESH_WRITE_SUFFIXES, check_suffix
 
-    out = Path(args.output)
-    png = Path(args.png) if args.png else None
-    js = Path(args.json) if args.json else out.with_suffix(".json")
-    refuse_existing((out, png, js), args.force)
+    out = check_suffix(args.output, MESH_WRITE_SUFFIXES, "a deformed mesh")
+    png = check_suffix(args.png, ".png", "a picture") if args.png else None
+    js = check_suffix(args.json, ".json", "the quality measures") if args.json else out.with_suffix(".json")
+    check_outputs(args, (out, png, js), input_paths([Path(p) for p in inputs if Path(p).is_file()], model_file(args.model)))
     return out, png, js
 
 
@@ -114,7 +117,7 @@ def _cmd_deform(args) -> int:
     from ..viz.camera import CANONICAL_RADIUS
     from ..viz.render import Tile, cuboid_layer, write_png
 
-    out, png, js = _outputs(args)
+    out, png, js = _outputs(args, [args.source, args.target])
     src, tgt = Path(args.source), Path(args.target)
     abstractor, pairs, errors = _abstract(args, [src, tgt])
     if errors:
@@ -163,7 +166,7 @@ def _cmd_edit(args) -> int:
 
     from ..model.abstraction import load_model
 
-    out, png, js = _outputs(args)
+    out, png, js = _outputs(args, [args.mesh])
     src = Path(args.mesh)
     abstractor = load_model(args.model)
     names = abstractor.part_names

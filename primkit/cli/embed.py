@@ -12,7 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ._common import abstraction_options, add_abstraction_options, add_force, add_output, add_png, collect, err, report_errors
+from ._common import (abstraction_options, add_abstraction_options, add_force, add_output, add_png, check_outputs, collect,
+                      err, input_paths, model_file, output_names, report_errors)
 
 #: Above this many shapes ``embed`` writes no full distance matrix unless --distances yes.
 _MATRIX_LIMIT = 4000
@@ -87,18 +88,24 @@ def _describe(args, abstractor, results, grids, queries=None):
     return desc, X, Q
 
 
+def _picture_path(path):
+    from ..io import check_suffix
+
+    return None if path is None else check_suffix(path, ".png", "a picture")
+
+
 def _cmd_embed(args) -> int:
     from .. import embedding
-    from ..io import atomic_output, refuse_existing
+    from ..io import atomic_output, check_suffix
 
     out = Path(args.output)
     names_out = ["distances.npy", "distances.csv", "map.csv"]
     if args.metric == "descriptor":
         names_out += ["descriptors.npy"]
-    refuse_existing([out / n for n in names_out] + [args.png, args.svg], args.force)
     files = collect(args.inputs)
-    if not files:
-        raise ValueError(f"no shape files found in {', '.join(args.inputs)}")
+    output_names(files)  # says which inputs shared a name (the rows of the CSV files)
+    svg = None if args.svg is None else check_suffix(args.svg, ".svg", "a map")
+    check_outputs(args, [out / n for n in names_out] + [_picture_path(args.png), svg], input_paths(files, model_file(args.model)))
     abstractor, results, grids, errors = _abstract(args, files)
     if len(results) < 3:
         err(f"{len(results)} usable shape(s): a map needs at least 3")
@@ -142,16 +149,16 @@ def _cmd_embed(args) -> int:
 
 def _cmd_similar(args) -> int:
     from .. import embedding
-    from ..io import refuse_existing
 
     out = Path(args.output)
-    refuse_existing([out / "similar.csv", args.png], args.force)
     query_files = collect([args.query])
     if len(query_files) != 1:
         raise ValueError(f"{args.query}: expected one shape file, found {len(query_files)}")
     files = [f for f in collect(args.inputs) if f.resolve() != query_files[0].resolve()]
     if not files:
-        raise ValueError(f"no shape files found in {', '.join(args.inputs)}")
+        raise ValueError(f"no shape files found in {', '.join(args.inputs)} besides the query")
+    output_names(query_files + files)
+    check_outputs(args, [out / "similar.csv", _picture_path(args.png)], input_paths(query_files + files, model_file(args.model)))
     abstractor, results, grids, errors = _abstract(args, query_files + files)
     if not results or str(results[0].source) != str(query_files[0]):
         err(f"{query_files[0]}: the query could not be used")

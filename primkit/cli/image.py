@@ -12,7 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ._common import add_force, add_output, add_prepare_options, collect, err, report_errors, settings_from_args
+from ._common import (add_force, add_output, add_prepare_options, check_outputs, collect, err, input_paths, model_file,
+                      output_names, report_errors, settings_from_args)
 
 __all__ = ["register", "run_train_image", "run_abstract_images", "collect_images"]
 
@@ -22,11 +23,14 @@ IMAGE_SUFFIXES = {".png", ".jpg", ".jpeg", ".bmp", ".webp", ".tif", ".tiff"}
 def collect_images(inputs) -> tuple[list[Path], list[str]]:
     """Image files from files and folders (folders searched recursively, sorted); returns
     ``(files, errors)`` with one error line per input that is neither."""
+    from ..io import is_temporary
+
     files, errors = [], []
     for item in inputs:
         p = Path(item)
         if p.is_dir():
-            found = sorted(q for q in p.rglob("*") if q.is_file() and q.suffix.lower() in IMAGE_SUFFIXES)
+            found = sorted(q for q in p.rglob("*") if q.is_file() and q.suffix.lower() in IMAGE_SUFFIXES
+                           and not is_temporary(q))
             if not found:
                 errors.append(f"{p}: no image files in this folder")
             files.extend(found)
@@ -48,7 +52,7 @@ def run_abstract_images(args) -> int:
     """
     from ..viz.palette import part_colors
     from ..image.inference import ImageAbstractor, draw_over_image
-    from ..io import atomic_output, refuse_existing, write_mesh
+    from ..io import atomic_output, check_suffix, write_mesh
 
     try:
         model = ImageAbstractor.load(args.model)
@@ -56,36 +60,28 @@ def run_abstract_images(args) -> int:
         err(str(exc))
         return 2
     files, failed = collect_images(args.inputs)
+    out = Path(args.output)
+    png = None if args.png is None else check_suffix(args.png, ".png", "a picture")
+    outputs = [out / f"{n}.cuboids{ext}" for n in output_names(files) for ext in (".json", ".ply")]
+    check_outputs(args, outputs + [png], files + [model_file(args.model)])  # before any work
     results, errors = model.predict_files(files)
     failed += errors
-    out = Path(args.output)
-    out.mkdir(parents=True, exist_ok=True)
     vs = model.view_settings
-    try:
-        refuse_existing(args.png, args.force)
-    except FileExistsError as exc:
-        failed.append(str(exc))
-        args.png = None
     rows = []
     for r in results:
         paths = [out / f"{r.name}.cuboids.json", out / f"{r.name}.cuboids.ply"]
-        try:
-            refuse_existing(paths, args.force)
-        except FileExistsError as exc:
-            failed.append(str(exc))
-            continue
-        with atomic_output(paths[0], overwrite=True) as tmp:
+        with atomic_output(paths[0], overwrite=args.force) as tmp:
             Path(tmp).write_text(json.dumps(r.to_dict(), indent=1))
         v, f, part = r.cuboids.to_mesh()
-        write_mesh(paths[1], v, f, face_colors=part_colors(r.cuboids.count)[part], overwrite=True)
-        if args.png:
+        write_mesh(paths[1], v, f, face_colors=part_colors(r.cuboids.count)[part], overwrite=args.force)
+        if png:
             rows.append(draw_over_image(r, None, distance=float(sum(vs.distance) / 2), view_angle_deg=vs.view_angle_deg))
         print(f"{r.name}: {int(r.cuboids.existence.sum())} parts, seen from azimuth {r.azimuth_deg:.0f} deg, "
               f"elevation {r.elevation_deg:.0f} deg -> {paths[0]}")
     if rows:
         from PIL import Image
 
-        with atomic_output(args.png, overwrite=True) as tmp:
+        with atomic_output(png, overwrite=args.force) as tmp:
             Image.fromarray(np.concatenate(rows)).save(str(tmp), format="PNG")
     return report_errors(failed)
 
@@ -100,16 +96,16 @@ def run_train_image(args) -> int:
     from ..image.inference import ImageAbstractor
     from ..image.network import ImageNetConfig
     from ..image.distill import ImageTrainConfig, train_image_model
-    from ..io import refuse_existing
+    from ..io import check_suffix
 
-    out = Path(args.output)
-    refuse_existing(out, args.force)
+    out = check_suffix(args.output, ".safetensors", "a model file")
     try:
         teacher = Abstractor.load(args.teacher)
     except (FileNotFoundError, ValueError) as exc:
         err(str(exc))
         return 2
     files = collect(args.inputs)
+    check_outputs(args, [out], input_paths(files, model_file(args.teacher)))  # before any work
     every = teacher.hold_out_every if args.hold_out is None else args.hold_out
     train_files, _ = data.split_files(files, every)
     if args.limit:

@@ -8,7 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ._common import add_abstraction_options, add_force, add_output, add_png, collect, err, report_errors
+from ._common import (add_abstraction_options, add_force, add_output, add_png, check_outputs, collect, err, input_paths,
+                      output_names, report_errors)
 
 __all__ = ["register"]
 
@@ -114,25 +115,41 @@ def _voxel_truth(seg, archives):
     return None
 
 
+def _segment_outputs(args, files, out: Path, evaluations: dict, sources) -> list:
+    """Every file ``segment`` writes (checked before any work): per shape its labels (``.seg``, or
+    ``.voxlabels.npy`` for a voxel grid), ``.parts.ply`` and ``.cuboids.json``; the summaries, the
+    label codes, the evaluations and the picture."""
+    from ..io import VOXEL_SUFFIXES, check_suffix
+
+    voxels = [f.suffix.lower() in VOXEL_SUFFIXES for f in files]
+    outputs = []
+    for name, voxel in zip(output_names(files), voxels):
+        outputs += [out / f"{name}{'.voxlabels.npy' if voxel else '.seg'}", out / f"{name}.parts.ply",
+                    out / f"{name}.cuboids.json"]
+    outputs += [out / "summary.csv" if not all(voxels) else None, out / "summary-voxels.csv" if any(voxels) else None,
+                out / "labels.csv" if args.semantic else None]
+    outputs += list(evaluations.values()) if sources else []
+    return outputs + [None if args.png is None else check_suffix(args.png, ".png", "a picture")]
+
+
 def _cmd_segment(args) -> int:
-    from ..io import atomic_output, refuse_existing
+    from ..io import atomic_output
     from ..segmentation import Segmenter, VoxelSegmentation, evaluate, evaluate_voxels, read_ground_truth, write_summary
 
     out = Path(args.output)
     sources = _ground_truth_files(args)
     archives = _voxel_archives(sources)
     evaluations = {"meshes": out / "evaluation.json", "voxels": out / "evaluation-voxels.json"}
-    refuse_existing([args.png] + (list(evaluations.values()) if sources else []), args.force)
     segmenter = Segmenter(args.model, up=args.up, front=args.front, align=args.align, refine=args.refine)
-    segs, errors = segmenter.segment_files(collect(args.inputs), cache_dir=args.cache, workers=args.workers)
+    files = collect(args.inputs)
+    # before any work: nothing written over an input (the shapes' own .seg labels, the --gt files)
+    check_outputs(args, _segment_outputs(args, files, out, evaluations, sources),
+                  input_paths(files, _model_path(args.model), *(folder for folder, _ in sources)))
+    segs, errors = segmenter.segment_files(files, cache_dir=args.cache, workers=args.workers)
     failed = list(errors)
     written = []
     for s in segs:
-        try:
-            paths = s.save(out, semantic=args.semantic, overwrite=args.force)
-        except FileExistsError as exc:
-            failed.append(str(exc))
-            continue
+        paths = s.save(out, semantic=args.semantic, overwrite=args.force)
         written.append(s)
         if isinstance(s, VoxelSegmentation):
             present = len(np.unique(s.labels[s.labels >= 0]))
@@ -147,21 +164,18 @@ def _cmd_segment(args) -> int:
     grids = [s for s in segs if isinstance(s, VoxelSegmentation)]
     meshes = [s for s in segs if not isinstance(s, VoxelSegmentation)]
     summaries = [p for p, kind in ((out / "summary.csv", meshes), (out / "summary-voxels.csv", grids)) if kind]
-    try:
-        for path, kind in zip(summaries, [k for k in (meshes, grids) if k]):
-            write_summary(kind, path, overwrite=args.force)
-        if args.semantic:
-            from ..model.parts import label_codes
+    for path, kind in zip(summaries, [k for k in (meshes, grids) if k]):
+        write_summary(kind, path, overwrite=args.force)
+    if args.semantic:
+        from ..model.parts import label_codes
 
-            names, _ = label_codes(segmenter.part_names)
-            with atomic_output(out / "labels.csv", overwrite=args.force) as tmp:
-                Path(tmp).write_text("code,name\n" + "".join(f"{i + 1},{n}\n" for i, n in enumerate(names)))
-        for s in written:
-            s.cuboids.save_json(out / f"{s.name}.cuboids.json", overwrite=args.force)
-        if args.png:
-            _picture(segs, args.png)
-    except FileExistsError as exc:
-        failed.append(str(exc))
+        names, _ = label_codes(segmenter.part_names)
+        with atomic_output(out / "labels.csv", overwrite=args.force) as tmp:
+            Path(tmp).write_text("code,name\n" + "".join(f"{i + 1},{n}\n" for i, n in enumerate(names)))
+    for s in written:
+        s.cuboids.save_json(out / f"{s.name}.cuboids.json", overwrite=args.force)
+    if args.png:
+        _picture(segs, args.png)
     print("summary: " + ", ".join(map(str, summaries)) + (f"; picture: {args.png}" if args.png else ""))
 
     if sources and meshes:
@@ -204,17 +218,19 @@ def _cmd_segment(args) -> int:
 def _cmd_name_parts(args) -> int:
     import numpy as np
 
-    from ..io import refuse_existing
+    from ..io import check_suffix
     from ..model.modelfile import update_metadata
     from ..model.parts import names_from_labels
     from ..segmentation import Segmenter, VoxelSegmentation, read_ground_truth
 
     out = Path(args.output)
-    refuse_existing(out, args.force)
     sources = [(args.labels, args.names)] if args.labels else []
     archives = _voxel_archives(sources)
     segmenter = Segmenter(args.model, up=args.up, front=args.front, align=args.align, refine=args.refine)
-    segs, errors = segmenter.segment_files(collect(args.inputs), cache_dir=args.cache, workers=args.workers)
+    files = collect(args.inputs)
+    check_outputs(args, [check_suffix(out, ".safetensors", "a model file")],
+                  input_paths(files, _model_path(args.model), args.labels))
+    segs, errors = segmenter.segment_files(files, cache_dir=args.cache, workers=args.workers)
     failed = list(errors)
     names, assignments, labels, weights, used = [], [], [], [], []
     for s in segs:

@@ -84,14 +84,8 @@ def write_collection(
     _check_category(category)
     folder = Path(folder)
     stems = [folder / f"{category}_{i:04d}" for i in range(count)]
-    if not overwrite:
-        for stem in stems:
-            for suffix in (".ply", ".seg", ".json"):
-                path = stem.with_suffix(suffix)
-                if path.exists():
-                    raise FileExistsError(
-                        f"{path} already exists; pass overwrite=True to replace it"
-                    )
+    io.check_outputs([stem.with_suffix(suffix) for stem in stems for suffix in (".ply", ".seg", ".json")],
+                     overwrite=overwrite)  # writable, nothing replaced without overwrite
     shapes = generate(category, count, seed, rates=rates)  # bad rates fail before anything is written
     folder.mkdir(parents=True, exist_ok=True)
     mesh_paths = []

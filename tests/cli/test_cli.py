@@ -61,12 +61,13 @@ def test_abstract_batch_goes_on_past_a_bad_file(trained, tmp_path, capsys):
     lo, hi = mesh.bounds
     centres = cub.translations[cub.existence]
     assert ((centres > lo - 0.1 * (hi - lo)) & (centres < hi + 0.1 * (hi - lo))).all()
-    # nothing is overwritten without --force
+    # nothing is overwritten without --force: refused before any work, in one line
     stamp = jsons[0].stat().st_mtime_ns
     code = main(["abstract", str(inputs / jsons[0].name.replace(".cuboids.json", ".ply")), "--model", str(model),
                  "-o", str(out), "--cache", str(tmp_path / "c"), "--workers", "1"])
-    assert code == 1 and jsons[0].stat().st_mtime_ns == stamp
-    assert "--force" in capsys.readouterr().err
+    assert code == 2 and jsons[0].stat().st_mtime_ns == stamp
+    err = capsys.readouterr().err
+    assert "--force" in err and len(err.strip().splitlines()) == 1
 
 
 def test_eval_prints_the_convention(trained, tmp_path, capsys):

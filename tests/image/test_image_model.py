@@ -270,7 +270,8 @@ def test_run_abstract_images_writes_outputs_and_reports_bad_files(tiny_model, tm
     assert (out / "chair.cuboids.ply").is_file()
     assert Image.open(out / "chair.png").size == (2 * 32 * 4 + 8, 32 * 4)
     args.inputs = [str(tmp_path / "chair.png")]
-    assert run_abstract_images(args) == 1  # outputs exist and no --force
+    with pytest.raises(FileExistsError, match="--force"):  # outputs exist and no --force: refused before any work
+        run_abstract_images(args)
     args.force = True
     assert run_abstract_images(args) == 0
 
