@@ -1,4 +1,4 @@
-"""``primkit deform`` (a source mesh takes a target's part configuration) and ``primkit edit``
+"""``primkit deform`` (a source mesh or point cloud takes a target's part configuration) and ``primkit edit``
 (scale, turn and move named parts of one mesh): thin wrappers over :mod:`primkit.deformation`.
 
 Both abstract their inputs with ``--model``, work in the canonical frame of the source (so shapes
@@ -42,12 +42,16 @@ def parse_edit(text: str, names, *, kind: str) -> dict:
     return {int(k): val for k in resolve_parts(spec, names)}
 
 
-def _outputs(args, inputs) -> tuple[Path, Path | None, Path]:
-    """The deformed mesh, the picture and the JSON, checked before any work against the ``inputs``
-    (the meshes read, the model): writable, the right suffixes, nothing replaced without ``--force``."""
+def _outputs(args, inputs, *, points: bool = False) -> tuple[Path, Path | None, Path]:
+    """The deformed mesh (or points), the picture and the JSON, checked before any work against
+    the ``inputs`` (the shapes read, the model): writable, the right suffixes, nothing replaced
+    without ``--force``."""
     from ..io import MESH_WRITE_SUFFIXES, check_suffix
 
-    out = check_suffix(args.output, MESH_WRITE_SUFFIXES, "a deformed mesh")
+    if points:
+        out = check_suffix(args.output, (".xyz", ".npy", ".ply"), "a deformed point cloud")
+    else:
+        out = check_suffix(args.output, MESH_WRITE_SUFFIXES, "a deformed mesh")
     png = check_suffix(args.png, ".png", "a picture") if args.png else None
     js = check_suffix(args.json, ".json", "the quality measures") if args.json else out.with_suffix(".json")
     check_outputs(args, (out, png, js), input_paths([Path(p) for p in inputs if Path(p).is_file()], model_file(args.model)))
@@ -65,13 +69,15 @@ def _abstract(args, paths, model=None):
     return out.model, [(a.prepared, a.result) for a in out], []
 
 
-def _source_mesh(path):
-    from ..io import Mesh, ShapeFileError, read_shape
+def _source_mesh(path, *, points: bool = False):
+    """The source as read: a Mesh, or with ``points`` also a PointCloud (deformed point by point)."""
+    from ..io import Mesh, PointCloud, ShapeFileError, read_shape
 
     shape = read_shape(path)
-    if not isinstance(shape, Mesh):
-        raise ShapeFileError(path, "the source must be a triangle mesh (a point cloud or voxel grid has no surface to deform)")
-    return shape
+    if isinstance(shape, Mesh) or (points and isinstance(shape, PointCloud)):
+        return shape
+    what = "a triangle mesh or a point cloud" if points else "a triangle mesh (a point cloud has no surface to edit)"
+    raise ShapeFileError(path, f"the source must be {what}, not a voxel grid")
 
 
 def _parts_tile(title, vertices, faces, face_parts, cuboids, count=None):
@@ -117,18 +123,41 @@ def _cmd_deform(args) -> int:
     from ..viz.camera import CANONICAL_RADIUS
     from ..viz.render import Tile, cuboid_layer, write_png
 
-    out, png, js = _outputs(args, [args.source, args.target])
     src, tgt = Path(args.source), Path(args.target)
+    mesh = _source_mesh(src, points=True)  # read first: a point cloud is written as points
+    out, png, js = _outputs(args, [args.source, args.target], points=isinstance(mesh, io.PointCloud))
     abstractor, pairs, errors = _abstract(args, [src, tgt])
     if errors:
         return report_errors(errors)
     (ss, rs), (ts, rt) = pairs
-    mesh = _source_mesh(src)
+    if isinstance(mesh, io.PointCloud):
+        return _deform_points(args, mesh, src, tgt, out, png, js, abstractor, ss, rs, ts, rt)
     v = rs.frame.to_canonical(mesh.vertices)
     d = deformation.deform(v, rs.canonical, rt.canonical, falloff=args.falloff, faces=mesh.faces, unfold=True)
     q = d.quality(mesh.faces, target_points=ts.points, source_points=ss.points)
     names = abstractor.part_names
-    tr = d.transfer
+    _print_transfer(d.transfer, names)
+    print(f"Chamfer-L1 to the target (canonical frames, 10000+10000 samples): source {q['chamfer_source_target']:.4f} "
+          f"-> result {q['chamfer_result_target']:.4f}")
+    print(_summary_line(q) + f"; blending distance {d.binding.falloff:.4f}")
+    io.write_like(src, out, rs.frame.from_canonical(d.vertices), mesh.faces, overwrite=args.force)
+    report = {"source": str(src), "target": str(tgt), "model": str(args.model), "output": str(out),
+              "frame": "canonical frame of each shape (bbox centred, longest side 1)",
+              "chamfer": "Chamfer-L1 = (mean_A min_B |a-b| + mean_B min_A |b-a|) / 2, unsquared",
+              "falloff": d.binding.falloff, "parts": {**d.transfer.to_dict(), "names": names}, "quality": _named(q, names)}
+    with atomic_output(js, overwrite=args.force) as tmp:
+        Path(tmp).write_text(json.dumps(report, indent=1))
+    if png is not None:
+        flab = face_labels(v, mesh.faces, rs.canonical)  # the co-segmentation rule, drawn on both
+        tiles = [_parts_tile(f"source {ss.name}", v, mesh.faces, flab, rs.canonical),
+                 Tile(f"target {ts.name}", [_target_layer(ts), cuboid_layer(rt.canonical, opacity=0.25)]),
+                 _parts_tile("result", d.vertices, mesh.faces, flab, rt.canonical, rs.canonical.count)]
+        write_png(png, tiles, overwrite=args.force, columns=3, radius=CANONICAL_RADIUS)
+    print(f"-> {out}, {js}" + (f", {png}" if png else ""))
+    return 0
+
+
+def _print_transfer(tr, names) -> None:
     label = lambda ks: ", ".join(f"{names[k]}[{k}]" for k in ks) or "none"  # noqa: E731
     print(f"parts moved onto the target's: {label(tr.paired)}")
     for k, j in tr.source_only.items():
@@ -137,21 +166,40 @@ def _cmd_deform(args) -> int:
         print(f"  {names[k]}[{k}] ({why}) {what}")
     if tr.target_only:
         print(f"  only in the target (not represented): {label(tr.target_only)}")
-    print(f"Chamfer-L1 to the target (canonical frames, 10000+10000 samples): source {q['chamfer_source_target']:.4f} "
-          f"-> result {q['chamfer_result_target']:.4f}")
-    print(_summary_line(q) + f"; blending distance {d.binding.falloff:.4f}")
-    io.write_like(src, out, rs.frame.from_canonical(d.vertices), mesh.faces, overwrite=args.force)
-    report = {"source": str(src), "target": str(tgt), "model": str(args.model), "output": str(out),
+
+
+def _deform_points(args, cloud, src, tgt, out, png, js, abstractor, ss, rs, ts, rt) -> int:
+    """``deform`` of a point cloud: every point follows the blended maps of the parts near it
+    (the mesh rule without faces: no unfolding, no triangle measures); written as points."""
+    from .. import deformation, io
+    from ..io import atomic_output
+    from ..metrics import chamfer_distance
+    from ..segmentation import point_labels
+    from ..viz.camera import CANONICAL_RADIUS
+    from ..viz.render import Tile, cuboid_layer, point_segmentation_layer, write_png
+
+    v = rs.frame.to_canonical(cloud.points)
+    d = deformation.deform(v, rs.canonical, rt.canonical, falloff=args.falloff)
+    names = abstractor.part_names
+    _print_transfer(d.transfer, names)
+    q = {"chamfer_source_target": chamfer_distance(v, ts.points), "chamfer_result_target": chamfer_distance(d.vertices, ts.points)}
+    print(f"Chamfer-L1 to the target (canonical frames, the {len(v)} points against {len(ts.points)} target samples): "
+          f"source {q['chamfer_source_target']:.4f} -> result {q['chamfer_result_target']:.4f}; "
+          f"blending distance {d.binding.falloff:.4f}")
+    io.write_points(out, rs.frame.from_canonical(d.vertices), overwrite=args.force)
+    report = {"source": str(src), "target": str(tgt), "model": str(args.model), "output": str(out), "kind": "points",
               "frame": "canonical frame of each shape (bbox centred, longest side 1)",
               "chamfer": "Chamfer-L1 = (mean_A min_B |a-b| + mean_B min_A |b-a|) / 2, unsquared",
-              "falloff": d.binding.falloff, "parts": {**tr.to_dict(), "names": names}, "quality": _named(q, names)}
+              "falloff": d.binding.falloff, "parts": {**d.transfer.to_dict(), "names": names}, "quality": q}
     with atomic_output(js, overwrite=args.force) as tmp:
         Path(tmp).write_text(json.dumps(report, indent=1))
     if png is not None:
-        flab = face_labels(v, mesh.faces, rs.canonical)  # the co-segmentation rule, drawn on both
-        tiles = [_parts_tile(f"source {ss.name}", v, mesh.faces, flab, rs.canonical),
+        labels = point_labels(v, rs.canonical)
+        tiles = [Tile(f"source {ss.name}", [point_segmentation_layer(v, labels, rs.canonical.count, point_size=2.0),
+                                            cuboid_layer(rs.canonical, opacity=0.25)]),
                  Tile(f"target {ts.name}", [_target_layer(ts), cuboid_layer(rt.canonical, opacity=0.25)]),
-                 _parts_tile("result", d.vertices, mesh.faces, flab, rt.canonical, rs.canonical.count)]
+                 Tile("result", [point_segmentation_layer(d.vertices, labels, rs.canonical.count, point_size=2.0),
+                                 cuboid_layer(rt.canonical, opacity=0.25)])]
         write_png(png, tiles, overwrite=args.force, columns=3, radius=CANONICAL_RADIUS)
     print(f"-> {out}, {js}" + (f", {png}" if png else ""))
     return 0
@@ -226,7 +274,7 @@ def _cmd_edit(args) -> int:
 
 def _common_options(p) -> None:
     add_abstraction_options(p)
-    add_output(p, "the deformed mesh (.ply, .obj, .off, .glb, .stl)")
+    add_output(p, "the deformed mesh (.ply, .obj, .off, .glb, .stl), or points (.xyz, .npy, .ply)")
     p.add_argument("--falloff", type=float, default=None,
                    help="blending distance at seams, canonical units (default: widened to the seams' discrepancy)")
     add_png(p)
@@ -235,8 +283,8 @@ def _common_options(p) -> None:
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("deform", help="deform a source mesh into a target shape's part configuration")
-    p.add_argument("source", help="the mesh to deform")
+    p = subparsers.add_parser("deform", help="deform a source mesh or point cloud into a target shape's part configuration")
+    p.add_argument("source", help="the mesh (or point cloud) to deform")
     p.add_argument("target", help="the shape whose configuration it takes (mesh, points or voxels)")
     _common_options(p)
     p.set_defaults(func=_cmd_deform)

@@ -60,19 +60,19 @@ def _size(text: str) -> tuple[int, int]:
 
 
 def _meshes(args, inputs, progress: bool = True):
-    """The inputs abstracted (:func:`primkit.model.abstraction.abstract_shapes`), meshes only:
-    ``(shapes, model, errors)``, a point cloud or voxel grid reported as an error (no surface to draw)."""
+    """The inputs abstracted (:func:`primkit.model.abstraction.abstract_shapes`), as the viewers
+    draw them: ``(shapes, model, errors)``; meshes, and point clouds as points
+    (:func:`primkit.viewers.common.drawable`); a voxel grid is reported as an error."""
     from ..model.abstraction import abstract_shapes
+    from ..viewers.common import drawable
 
     out = abstract_shapes(inputs, args.model, progress=progress, **abstraction_options(args))
     shapes, errors = [], list(out.errors)
     for a in out:
         try:
-            a.mesh
+            shapes.append(drawable(a))
         except ValueError as exc:
             errors.append(str(exc))
-            continue
-        shapes.append(a)
     return shapes, out.model, errors
 
 

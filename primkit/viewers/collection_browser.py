@@ -118,9 +118,9 @@ def collection_browser(shapes, part_names=None, *, columns: int | None = None, m
         edges = common.add_cuboid_edges(p, cub)
         if edges is not None:
             edge_actors.append(edges)
-        labels = common.face_labels(v, s.faces, cub)
+        labels = common.part_labels(v, s.faces, cub)
         palette = np.vstack([colors, [[200, 200, 200]]]).astype(np.uint8)
-        seg = to_pyvista((v, s.faces), face_colors=palette[labels])
+        seg = to_pyvista((v, s.faces), face_colors=palette[labels]) if len(s.faces) else to_pyvista(v, colors=palette[labels])
         actors["segmentation"].append(p.add_mesh(seg, scalars="rgb", rgb=True, smooth_shading=False))
     _, up, _ = CAMERA.basis()
     p.add_point_labels(offsets - 0.62 * up, [s.name[:20] for s in shapes], font_size=10, shape_opacity=0.0,

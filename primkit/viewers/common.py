@@ -2,13 +2,17 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
+from .. import io
 from ..segmentation import face_labels as segmentation_face_labels
+from ..segmentation import point_labels
 from ..viz.backend import pyvista_module
 from ..viz.interop import to_pyvista
 
-__all__ = ["face_labels", "add_cuboid_edges", "describe_part", "text_of", "pick_actor", "on_click",
+__all__ = ["face_labels", "part_labels", "PointShape", "drawable", "add_cuboid_edges", "describe_part", "text_of", "pick_actor", "on_click",
            "display_position", "new_plotter"]
 
 
@@ -17,6 +21,62 @@ def face_labels(vertices, faces, cuboids) -> np.ndarray:
     if not cuboids.existence.any():
         return np.full(len(faces), -1, np.int64)
     return segmentation_face_labels(vertices, faces, cuboids)
+
+
+def part_labels(vertices, faces, cuboids) -> np.ndarray:
+    """The co-segmentation of what a viewer draws: per face for a mesh, per point when ``faces``
+    is empty (a point cloud); -1 when no part is present."""
+    if len(faces):
+        return face_labels(vertices, faces, cuboids)
+    if not cuboids.existence.any():
+        return np.full(len(vertices), -1, np.int64)
+    return point_labels(vertices, cuboids)
+
+
+@dataclass(frozen=True, eq=False)
+class PointShape:
+    """A point cloud's :class:`~primkit.model.abstraction.Abstraction` as the viewers take shapes:
+    ``vertices`` are its points and ``faces`` is empty, so the viewers draw points."""
+
+    abstraction: object
+    points: np.ndarray
+
+    @property
+    def name(self) -> str:
+        return self.abstraction.name
+
+    @property
+    def result(self):
+        return self.abstraction.result
+
+    @property
+    def cuboids(self):
+        return self.abstraction.cuboids
+
+    @property
+    def vertices(self) -> np.ndarray:
+        return self.points
+
+    @property
+    def faces(self) -> np.ndarray:
+        return np.zeros((0, 3), np.int64)
+
+    def canonical_vertices(self) -> np.ndarray:
+        return self.result.frame.to_canonical(self.points)
+
+
+def drawable(abstraction):
+    """The abstraction itself for a mesh, a :class:`PointShape` for a point cloud (file or memory).
+    Raises :class:`primkit.io.ShapeFileError` for a voxel grid (nothing to draw but its cuboids)."""
+    given = abstraction.given
+    if isinstance(given, io.PointCloud):
+        return PointShape(abstraction, given.points)
+    if given is None and abstraction.source:
+        shape = io.read_shape(abstraction.source)
+        if isinstance(shape, io.PointCloud):
+            return PointShape(abstraction, shape.points)
+    abstraction.mesh  # noqa: B018 - a mesh, or the one-line error of a voxel grid
+    return abstraction
 
 
 def add_cuboid_edges(plotter, cuboids, *, opacity: float = 1.0, line_width: float = 1.5):

@@ -114,7 +114,8 @@ def deformation_viewer(source, target, part_names=None, *, part: int | None = No
     sv, tv = source.canonical_vertices(), target.canonical_vertices()
     names = list(part_names) if part_names is not None else [f"part{k}" for k in range(sc.count)]
     transfer = transfer_transforms(sc, tc)
-    binding = bind(sv, sc, falloff=seam_falloff(sv, sc, transfer.transforms), faces=source.faces)
+    binding = bind(sv, sc, falloff=seam_falloff(sv, sc, transfer.transforms),
+                   faces=source.faces if len(source.faces) else None)  # a point cloud: no faces
     _, up, right = CAMERA.basis()
     offsets = [-STEP * right, np.zeros(3), STEP * right]
     p = common.new_plotter(off_screen, window_size, f"primkit - {title or 'deformation'}")

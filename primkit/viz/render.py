@@ -33,6 +33,7 @@ __all__ = [
     "cuboid_layer",
     "segmentation_layer",
     "points_layer",
+    "point_segmentation_layer",
     "render_tiles",
     "write_png",
     "ThumbnailRenderer",
@@ -46,9 +47,10 @@ class Layer:
     """One thing drawn in a tile.
 
     vertices : (n, 3) float; faces : (f, 3) int or None (None: points);
-    face_colors : (f, 3) uint8 or None (per-face colours, e.g. parts); color : a single colour
-    when ``face_colors`` is None; opacity in [0, 1]; edges : draw the creases (edges between faces
-    meeting at more than 30 degrees, and open borders) in black.
+    face_colors : (f, 3) uint8 or None (per-face colours, e.g. parts); point_colors : (n, 3) uint8
+    or None (per-point colours of a point layer); color : a single colour otherwise; opacity in
+    [0, 1]; edges : draw the creases (edges between faces meeting at more than 30 degrees, and open
+    borders) in black.
     """
 
     vertices: np.ndarray
@@ -58,6 +60,7 @@ class Layer:
     opacity: float = 1.0
     edges: bool = False
     point_size: float = 4.0
+    point_colors: np.ndarray | None = None
 
     def bounds(self) -> np.ndarray:
         """(2, 3) float: ``[min, max]`` of the vertices."""
@@ -66,14 +69,15 @@ class Layer:
 
     def to_pyvista(self):
         if self.faces is None:
-            return to_pyvista(np.asarray(self.vertices, float))
+            return to_pyvista(np.asarray(self.vertices, float), colors=self.point_colors)
         return to_pyvista((self.vertices, self.faces), face_colors=self.face_colors)
 
     def add_to(self, plotter, **kwargs):
         """Add this layer to ``plotter``; returns the actor."""
         poly = self.to_pyvista()
         if self.faces is None:
-            return plotter.add_mesh(poly, color=self.color, point_size=self.point_size, render_points_as_spheres=True,
+            colour = dict(scalars="rgb", rgb=True) if self.point_colors is not None else dict(color=self.color)
+            return plotter.add_mesh(poly, **colour, point_size=self.point_size, render_points_as_spheres=True,
                                     opacity=self.opacity, reset_camera=False, **kwargs)
         style = dict(opacity=self.opacity, smooth_shading=False, reset_camera=False)
         if self.face_colors is not None:
@@ -133,8 +137,18 @@ def segmentation_layer(vertices, faces, labels, count: int | None = None, **kwar
     return mesh_layer(vertices, faces, palette[np.where(labels < 0, -1, labels)], **kwargs)
 
 
-def points_layer(points, **kwargs) -> Layer:
-    return Layer(np.asarray(points, float), None, **kwargs)
+def points_layer(points, colors=None, **kwargs) -> Layer:
+    """Points, one colour (``color=``) or ``colors`` (n, 3) uint8 per point."""
+    return Layer(np.asarray(points, float), None, point_colors=None if colors is None else np.asarray(colors, np.uint8),
+                 **kwargs)
+
+
+def point_segmentation_layer(points, labels, count: int | None = None, **kwargs) -> Layer:
+    """Points coloured by a part index each (``labels`` (n,) int; -1: grey), the cuboids' colours."""
+    labels = np.asarray(labels, np.int64)
+    count = int(max(count or 0, labels.max(initial=-1) + 1))
+    palette = np.vstack([part_colors(max(count, 1)), [[200, 200, 200]]]).astype(np.uint8)
+    return points_layer(points, palette[np.where(labels < 0, -1, labels)], **kwargs)
 
 
 def _grid(n: int, columns: int) -> tuple[int, int]:
