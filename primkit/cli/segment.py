@@ -79,19 +79,23 @@ def _print_voxel_evaluation(report) -> None:
 
 
 def _picture(segs, path, limit: int = 16) -> None:
-    from ..segmentation import VoxelSegmentation
+    """Each shape beside its co-segmentation (a point cloud as points, coloured by part)."""
+    from ..segmentation import PointSegmentation, VoxelSegmentation
     from ..viz.palette import part_colors
-    from ..viz.render import render_pairs
+    from ..viz.render import Tile, mesh_layer, point_segmentation_layer, points_layer, write_png
 
-    items = []
+    tiles = []
     for s in segs[:limit]:
-        colors = part_colors(s.cuboids.count)
-        if isinstance(s, VoxelSegmentation):
-            v, f, labels = s.boundary_mesh()
-        else:
-            v, f, labels = s.vertices, s.faces, s.face_labels
-        items.append((s.name, (v, f), (v, f, colors[labels])))
-    render_pairs(items, path)
+        if isinstance(s, PointSegmentation):
+            plain = points_layer(s.points, point_size=2.0)
+            tiles += [Tile(s.name, [plain]), Tile("", [point_segmentation_layer(s.points, s.labels, s.cuboids.count,
+                                                                                 point_size=2.0)], frame=plain.bounds())]
+            continue
+        v, f, labels = s.boundary_mesh() if isinstance(s, VoxelSegmentation) else (s.vertices, s.faces, s.face_labels)
+        plain = mesh_layer(v, f)
+        tiles += [Tile(s.name, [plain]), Tile("", [mesh_layer(v, f, part_colors(s.cuboids.count)[labels])],
+                                              frame=plain.bounds())]
+    write_png(path, tiles, columns=2 * min(4, max(1, len(tiles) // 2)), tile=260, overwrite=True)
 
 
 def _voxel_archives(sources):
@@ -115,26 +119,54 @@ def _voxel_truth(seg, archives):
     return None
 
 
-def _segment_outputs(args, files, out: Path, evaluations: dict, sources) -> list:
-    """Every file ``segment`` writes (checked before any work): per shape its labels (``.seg``, or
-    ``.voxlabels.npy`` for a voxel grid), ``.parts.ply`` and ``.cuboids.json``; the summaries, the
-    label codes, the evaluations and the picture."""
-    from ..io import VOXEL_SUFFIXES, check_suffix
+_SUMMARIES = {"mesh": "summary.csv", "voxels": "summary-voxels.csv", "points": "summary-points.csv"}
 
-    voxels = [f.suffix.lower() in VOXEL_SUFFIXES for f in files]
+
+def _kind(path: Path) -> str:
+    """``"mesh"``, ``"voxels"`` or ``"points"`` for a shape file, from its suffix (and for a PLY, from
+    its header: a PLY without faces is a point cloud), without reading its geometry."""
+    from ..io import VOXEL_SUFFIXES
+
+    suffix = path.suffix.lower()
+    if suffix in VOXEL_SUFFIXES:
+        return "voxels"
+    if suffix in (".xyz", ".npy"):
+        return "points"
+    if suffix == ".ply":
+        try:
+            with open(path, "rb") as fh:
+                for line in fh.read(1 << 16).split(b"\n"):
+                    words = line.split()
+                    if words[:2] == [b"element", b"face"] and len(words) > 2:
+                        return "mesh" if words[2] != b"0" else "points"
+                    if line.strip() == b"end_header":
+                        return "points"
+        except OSError:
+            pass  # reported when it is read
+    return "mesh"
+
+
+def _segment_outputs(args, files, out: Path, evaluations: dict, sources) -> list:
+    """Every file ``segment`` writes (checked before any work): per shape its labels (``.seg``;
+    ``.voxlabels.npy`` for a voxel grid, ``.parts.npy`` for a point cloud), ``.parts.ply`` and
+    ``.cuboids.json``; the summaries, the label codes, the evaluations and the picture."""
+    from ..io import check_suffix
+
+    kinds = [_kind(f) for f in files]
+    labels = {"mesh": ".seg", "voxels": ".voxlabels.npy", "points": ".parts.npy"}
     outputs = []
-    for name, voxel in zip(output_names(files), voxels):
-        outputs += [out / f"{name}{'.voxlabels.npy' if voxel else '.seg'}", out / f"{name}.parts.ply",
-                    out / f"{name}.cuboids.json"]
-    outputs += [out / "summary.csv" if not all(voxels) else None, out / "summary-voxels.csv" if any(voxels) else None,
-                out / "labels.csv" if args.semantic else None]
+    for name, kind in zip(output_names(files), kinds):
+        outputs += [out / f"{name}{labels[kind]}", out / f"{name}.parts.ply", out / f"{name}.cuboids.json"]
+    outputs += [out / summary if kind in kinds else None for kind, summary in _SUMMARIES.items()]
+    outputs += [out / "labels.csv" if args.semantic else None]
     outputs += list(evaluations.values()) if sources else []
     return outputs + [None if args.png is None else check_suffix(args.png, ".png", "a picture")]
 
 
 def _cmd_segment(args) -> int:
     from ..io import atomic_output
-    from ..segmentation import Segmenter, VoxelSegmentation, evaluate, evaluate_voxels, read_ground_truth, write_summary
+    from ..segmentation import (PointSegmentation, Segmenter, VoxelSegmentation, evaluate, evaluate_voxels,
+                                read_ground_truth, write_summary)
 
     out = Path(args.output)
     sources = _ground_truth_files(args)
@@ -154,6 +186,9 @@ def _cmd_segment(args) -> int:
         if isinstance(s, VoxelSegmentation):
             present = len(np.unique(s.labels[s.labels >= 0]))
             print(f"{s.name}: {int((s.labels >= 0).sum())} voxels in {present} parts -> {paths['labels']}")
+        elif isinstance(s, PointSegmentation):
+            present = len(np.unique(s.labels[s.labels >= 0]))
+            print(f"{s.name}: {len(s.points)} points in {present} parts -> {paths['labels']}, {paths['mesh']}")
         else:
             present = len(set(s.face_labels.tolist()))
             print(f"{s.name}: {len(s.faces)} faces in {present} parts -> {paths['labels']}")
@@ -162,10 +197,12 @@ def _cmd_segment(args) -> int:
         err("no shape could be segmented")
         return 2
     grids = [s for s in segs if isinstance(s, VoxelSegmentation)]
-    meshes = [s for s in segs if not isinstance(s, VoxelSegmentation)]
-    summaries = [p for p, kind in ((out / "summary.csv", meshes), (out / "summary-voxels.csv", grids)) if kind]
-    for path, kind in zip(summaries, [k for k in (meshes, grids) if k]):
-        write_summary(kind, path, overwrite=args.force)
+    clouds = [s for s in segs if isinstance(s, PointSegmentation)]
+    meshes = [s for s in segs if not isinstance(s, (VoxelSegmentation, PointSegmentation))]
+    kinds = {"mesh": meshes, "voxels": grids, "points": clouds}
+    summaries = [out / _SUMMARIES[k] for k, group in kinds.items() if group]
+    for path, group in zip(summaries, [g for g in kinds.values() if g]):
+        write_summary(group, path, overwrite=args.force)
     if args.semantic:
         from ..model.parts import label_codes
 
@@ -212,6 +249,8 @@ def _cmd_segment(args) -> int:
             with atomic_output(evaluations["voxels"], overwrite=args.force) as tmp:
                 Path(tmp).write_text(json.dumps(report, indent=1))
             print(f"\nvoxel evaluation written to {evaluations['voxels']}")
+    if sources and clouds:
+        print(f"\n{len(clouds)} point clouds not evaluated: --gt holds labels of faces (.seg) or voxels, not of points")
     return report_errors(failed)
 
 
@@ -297,7 +336,7 @@ def _model_path(model):
 
 def register(sub) -> None:
     p = sub.add_parser("segment", help="co-segment a collection: each face to its primitive, the same part index on every shape")
-    p.add_argument("inputs", nargs="+", help="mesh or voxel (.binvox) files, or folders")
+    p.add_argument("inputs", nargs="+", help="mesh, voxel (.binvox) or point-cloud (.xyz, .npy, .ply) files, or folders")
     add_output(p, "output folder")
     add_abstraction_options(p)
     add_png(p)

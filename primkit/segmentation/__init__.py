@@ -9,17 +9,19 @@ given (Tulsiani et al. 2017, Sec. 5.1): every surface element goes to its neares
 * :mod:`.voxels`: the rule on a voxel grid's voxels (:class:`VoxelSegmentation`), per-voxel ground
   truth (e.g. PartNet's chair labels, :class:`VoxelLabelArchive`) and its evaluation
   (:func:`evaluate_voxels`);
+* :mod:`.points`: the rule on a point cloud's points (:class:`PointSegmentation`, a label per point);
 * :mod:`.segmenter`: collections of files (:class:`Segmenter`) and one shape (:func:`segment`).
 
 May import: ``primkit.model`` (abstraction), ``primkit.data``, ``primkit.viz`` (the palette),
-``primkit.primitives``, ``primkit.geometry``, ``primkit.io``. Inside: segmenter -> voxels -> meshes.
+``primkit.primitives``, ``primkit.geometry``, ``primkit.io``. Inside: segmenter -> voxels, points -> meshes.
 """
 
-from . import meshes, segmenter, voxels
+from . import meshes, points, segmenter, voxels
 from .meshes import (PROTOCOLS, GroundTruth, Segmentation, accuracy, evaluate, face_labels, label_iou, majority_mapping,
                      name_mapping, parse_label_names, point_labels, read_ground_truth, segment_mesh, vertex_labels)
+from .points import PointSegmentation, segment_points
 from .segmenter import Segmenter, segment, write_summary
 from .voxels import (PARTNET_LABEL_NAMES, VOXEL_PROTOCOLS, VoxelGroundTruth, VoxelLabelArchive, VoxelSegmentation,
                      evaluate_voxels, label_voxels, segment_voxels, voxel_centres)
 
-__all__ = meshes.__all__ + voxels.__all__ + segmenter.__all__
+__all__ = meshes.__all__ + voxels.__all__ + points.__all__ + segmenter.__all__

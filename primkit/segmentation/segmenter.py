@@ -1,5 +1,6 @@
 """Co-segmenting collections: abstract shape files with a model, then label each file's elements
-(a mesh's faces, a voxel grid's voxels) by their nearest primitive, in parallel processes."""
+(a mesh's faces, a voxel grid's voxels, a point cloud's points) by their nearest primitive, in
+parallel processes."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ from .. import io
 from ..data import parallel_map
 from ..model.abstraction import abstract, abstract_shapes, load_model
 from .meshes import Segmentation, segment_mesh
+from .points import PointSegmentation, segment_points
 from .voxels import VoxelSegmentation, segment_voxels
 
 __all__ = ["Segmenter", "segment", "write_summary"]
@@ -20,13 +22,16 @@ __all__ = ["Segmenter", "segment", "write_summary"]
 def _segment_file(job):
     """Worker: read one shape file and project it onto its cuboids: (segmentation, None) or (None, error).
 
-    Meshes get a :class:`Segmentation` (faces), voxel grids a :class:`VoxelSegmentation` (voxels).
+    Meshes get a :class:`Segmentation` (faces), voxel grids a :class:`VoxelSegmentation` (voxels),
+    point clouds a :class:`PointSegmentation` (points).
     """
     path, cuboids, name, names = job
     try:
         shape = io.read_shape(path)
         if isinstance(shape, io.VoxelGrid):
             return segment_voxels(shape, cuboids, name=name, source=str(path), part_names=names), None
+        if isinstance(shape, io.PointCloud):
+            return segment_points(shape, cuboids, name=name, source=str(path), part_names=names), None
         if not isinstance(shape, io.Mesh):
             raise io.ShapeFileError(path, f"a {type(shape).__name__} has no faces or voxels to label")
         return segment_mesh(shape.vertices, shape.faces, cuboids, name=name, source=str(path), part_names=names), None
@@ -75,8 +80,8 @@ class Segmenter:
     def segment_files(self, paths, *, cache_dir=None, workers=None, progress=True):
         """Abstract and co-segment shape files.
 
-        Returns ``(segmentations, errors)``: one :class:`Segmentation` (meshes) or
-        :class:`VoxelSegmentation` (voxel grids) per usable file, in input order, and one line per
+        Returns ``(segmentations, errors)``: one :class:`Segmentation` (meshes),
+        :class:`VoxelSegmentation` (voxel grids) or :class:`PointSegmentation` (point clouds) per usable file, in input order, and one line per
         file that could not be used (the batch goes on).
         """
         results, errors = self.abstract_files(paths, cache_dir=cache_dir, workers=workers, progress=progress)
@@ -94,12 +99,12 @@ class Segmenter:
         return segs, errors
 
 
-def segment(shape, model="chair", **options) -> Segmentation | VoxelSegmentation:
-    """Co-segment one mesh or voxel grid: a path, an :class:`primkit.io.Mesh` or
-    :class:`~primkit.io.VoxelGrid`, ``(vertices, faces)``, or a trimesh, pyvista or Open3D mesh
+def segment(shape, model="chair", **options) -> Segmentation | VoxelSegmentation | PointSegmentation:
+    """Co-segment one mesh, voxel grid or point cloud: a path, an :class:`primkit.io.Mesh`,
+    :class:`~primkit.io.VoxelGrid` or :class:`~primkit.io.PointCloud`, ``(vertices, faces)``,
+    ``(n, 3)`` points, or a trimesh, pyvista or Open3D mesh or cloud
     (:func:`primkit.model.abstraction.abstract`; ``options`` are its own: ``up``, ``front``,
-    ``align``, ``refine``, ...). Raises ShapeFileError for a point cloud, which has no faces to
-    label (use :func:`primkit.segmentation.point_labels` with the abstraction's cuboids).
+    ``align``, ``refine``, ...).
 
     >>> seg = primkit.segment("chair.off", model="chair")          # doctest: +SKIP
     >>> seg.face_labels                                           # doctest: +SKIP
@@ -109,6 +114,9 @@ def segment(shape, model="chair", **options) -> Segmentation | VoxelSegmentation
     if isinstance(a.given, io.VoxelGrid) or (a.given is None and a.prepared.kind == "voxels"):
         grid = a.given if a.given is not None else io.read_voxels(a.source)
         return segment_voxels(grid, a.cuboids, name=a.name, source=a.source, part_names=abstractor.part_names)
+    if isinstance(a.given, io.PointCloud) or (a.given is None and a.prepared.kind == "points"):
+        cloud = a.given if a.given is not None else io.read_points(a.source)
+        return segment_points(cloud, a.cuboids, name=a.name, source=a.source, part_names=abstractor.part_names)
     mesh = a.mesh
     return segment_mesh(mesh.vertices, mesh.faces, a.cuboids, name=a.name, source=a.source,
                         part_names=abstractor.part_names)
@@ -120,16 +128,19 @@ def write_summary(segmentations, path, *, overwrite: bool = False) -> Path:
 
     Meshes (:class:`Segmentation`): ``faces``, then surface areas (``area_total``,
     ``area_<k>_<name>``). Voxel grids (:class:`VoxelSegmentation`): ``voxels``, then voxel counts
-    (``voxels_<k>_<name>``). One kind per file.
+    (``voxels_<k>_<name>``). Point clouds (:class:`PointSegmentation`): ``points``, then point
+    counts. One kind per file.
     """
     if not segmentations:
         raise ValueError("no segmentations to summarise")
-    voxels = isinstance(segmentations[0], VoxelSegmentation)
-    if any(isinstance(s, VoxelSegmentation) != voxels for s in segmentations):
-        raise ValueError("write meshes and voxel grids into separate summaries")
+    kinds = {type(s) for s in segmentations}
+    if len(kinds) > 1:
+        raise ValueError("write meshes, voxel grids and point clouds into separate summaries")
+    voxels = isinstance(segmentations[0], (VoxelSegmentation, PointSegmentation))  # counted, not measured
     names = segmentations[0].part_names
     count = segmentations[0].cuboids.count
-    kind, unit = ("voxels", "voxels") if voxels else ("faces", "area")
+    kind = {VoxelSegmentation: "voxels", PointSegmentation: "points"}.get(type(segmentations[0]), "faces")
+    unit = kind if voxels else "area"
     header = ["shape", kind, "parts_present", f"{unit}_total"] + [f"{unit}_{k}_{names[k]}" for k in range(count)]
     with io.atomic_output(path, overwrite=overwrite) as tmp:
         with open(tmp, "w", newline="") as fh:
@@ -137,7 +148,8 @@ def write_summary(segmentations, path, *, overwrite: bool = False) -> Path:
             writer.writerow(header)
             for s in segmentations:
                 amounts = s.part_sizes() if voxels else s.part_areas()
-                elements = int(np.count_nonzero(s.labels >= 0)) if voxels else len(s.faces)
+                elements = len(s.points) if kind == "points" else int(np.count_nonzero(s.labels >= 0)) if voxels \
+                    else len(s.faces)
                 present = " ".join(str(k) for k in np.flatnonzero(amounts > 0))
                 writer.writerow([s.name, elements, present, f"{amounts.sum():.6g}"] + [f"{a:.6g}" for a in amounts])
     return Path(path)

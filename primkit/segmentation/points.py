@@ -1,0 +1,73 @@
+"""The co-segmentation rule on point clouds: each point to its nearest present cuboid
+(:func:`primkit.segmentation.meshes.point_labels`), written as a label per point."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .. import io, primitives
+from ..model import parts
+from ..viz.palette import part_colors
+from .meshes import point_labels
+
+__all__ = ["PointSegmentation", "segment_points"]
+
+
+@dataclass(frozen=True, eq=False)
+class PointSegmentation:
+    """The co-segmentation of one point cloud by its abstraction.
+
+    Attributes
+    ----------
+    name, source : str
+    points : (n, 3) float
+        The input's points, in its own frame.
+    labels : (n,) int
+        Primitive index of each point (-1 when no part is present).
+    cuboids : primitives.Cuboids
+        The abstraction, in the points' frame.
+    part_names : list of str
+    """
+
+    name: str
+    source: str
+    points: np.ndarray
+    labels: np.ndarray
+    cuboids: primitives.Cuboids
+    part_names: list = field(default_factory=list)
+
+    def part_sizes(self) -> np.ndarray:
+        """Points assigned to each index: ``(m,) int``."""
+        return np.bincount(self.labels[self.labels >= 0], minlength=self.cuboids.count)
+
+    def save(self, folder, *, semantic: bool = False, overwrite: bool = False) -> dict:
+        """Write ``<name>.parts.npy`` (``(n,) int16``: the part index of each point, in input order,
+        or with ``semantic`` the 1-based code of its name) and ``<name>.parts.ply`` (the points with
+        the PLY property ``part`` and their part's colour). Returns ``{"labels": path, "mesh": path}``."""
+        folder = Path(folder)
+        folder.mkdir(parents=True, exist_ok=True)
+        paths = {"labels": folder / f"{self.name}.parts.npy", "mesh": folder / f"{self.name}.parts.ply"}
+        io.refuse_existing(paths.values(), overwrite)
+        labels = self.labels
+        if semantic:
+            _, codes = parts.label_codes(self.part_names)
+            labels = np.where(labels >= 0, codes[np.clip(labels, 0, None)], -1)
+        with io.atomic_output(paths["labels"], overwrite=overwrite) as tmp:
+            with open(tmp, "wb") as fh:
+                np.save(fh, labels.astype(np.int16))
+        palette = np.vstack([part_colors(max(self.cuboids.count, 1)), [[200, 200, 200]]]).astype(np.uint8)
+        io.write_points(paths["mesh"], self.points, labels=labels, colors=palette[np.where(self.labels < 0, -1, self.labels)],
+                        overwrite=overwrite)
+        return paths
+
+
+def segment_points(cloud: io.PointCloud, cuboids: primitives.Cuboids, *, name: str = "shape", source: str = "",
+                   part_names=None) -> PointSegmentation:
+    """Co-segment one point cloud by its abstraction (cuboids in the cloud's frame)."""
+    names = list(part_names) if part_names is not None else parts.default_names(cuboids.count)
+    points = np.asarray(cloud.points, float)
+    labels = point_labels(points, cuboids) if cuboids.existence.any() else np.full(len(points), -1, np.int64)
+    return PointSegmentation(name, source, points, np.asarray(labels, np.int64), cuboids, names)
