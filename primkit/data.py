@@ -41,8 +41,9 @@ __all__ = [
 ]
 
 #: bump when the arrays produced by :func:`prepare` change meaning; part of every cache key
-#: (2: an inside-out mesh keeps its interior)
-PREPARATION_VERSION = 2
+#: (2: an inside-out mesh keeps its interior; 3: voxel grids prepared from the grid itself, samples
+#: drawn on the voxel squares)
+PREPARATION_VERSION = 3
 
 
 @dataclass(frozen=True)
@@ -96,8 +97,8 @@ class PreparedShape:
     points : (n, 3) float32
         Area-uniform surface samples.
     point_faces : (n,) int32
-        Face of each sample (of the input mesh; of the voxel boundary mesh for voxel inputs; -1 for
-        point clouds).
+        Face of each sample of the input mesh (-1 for voxel grids prepared at their own resolution
+        and for point clouds).
     point_labels : (n,) int32
         Part label of each sample's face when a ``.seg`` file accompanies the mesh, else -1.
     frame : geometry.CanonicalFrame
@@ -205,7 +206,8 @@ def _from_surface(vertices, faces, solid, surface, settings, frame, *, face_labe
     )
 
 
-def _prepare_voxels(grid: io.VoxelGrid, settings: PrepareSettings, name: str, source: str) -> PreparedShape:
+def _canonical_voxels(grid: io.VoxelGrid, settings: PrepareSettings):
+    """A voxel grid turned to the canonical axes, recentred by whole voxels, its cavities filled; and its frame."""
     occ = np.asarray(grid.occupancy, bool)
     res_in = occ.shape[0]
     if occ.shape != (res_in,) * 3:
@@ -229,14 +231,30 @@ def _prepare_voxels(grid: io.VoxelGrid, settings: PrepareSettings, name: str, so
     i0_can = np.rint((i0 - c) @ rotation.T + c) + shift
     p0 = -0.5 + (i0_can + 0.5) / res_in
     centre = rotation @ x0 - p0 / scale
-    frame = geometry.CanonicalFrame(rotation, centre, scale)
+    return occ, geometry.CanonicalFrame(rotation, centre, scale)
 
-    vertices, faces = geometry.voxel_boundary_mesh(occ)
+
+def _prepare_voxels(grid: io.VoxelGrid, settings: PrepareSettings, name: str, source: str) -> PreparedShape:
+    occ, frame = _canonical_voxels(grid, settings)
+    res_in = occ.shape[0]
     res = settings.resolution
     if res == res_in:
-        solid = occ
-    else:
-        solid = geometry.occupancy_grid(vertices, faces, res)
+        # the grid is the network's input as it is, and its surface needs no mesh: exact closest
+        # points by a distance transform, samples on the voxel squares (geometry.voxels)
+        return PreparedShape(
+            name=name,
+            occupancy=occ,
+            solid=occ,
+            closest=geometry.voxel_closest_points(occ),
+            points=geometry.sample_voxel_surface(occ, settings.samples, seed=settings.seed).astype(np.float32),
+            point_faces=np.full(settings.samples, -1, np.int32),
+            point_labels=np.full(settings.samples, -1, np.int32),
+            frame=frame,
+            source=source,
+            kind="voxels",
+        )
+    vertices, faces = geometry.voxel_boundary_mesh(occ)
+    solid = geometry.occupancy_grid(vertices, faces, res)
     surface = geometry.surface_voxels(vertices, faces, res) & solid
     # cells of a voxel grid touched by the boundary include empty neighbours; keep occupied ones
     return _from_surface(vertices, faces, solid, surface, settings, frame, name=name, source=source, kind="voxels")
@@ -287,7 +305,9 @@ def prepare(
     * **Voxel grids** (binvox): rotated to the canonical axes and recentred by whole voxels, so one
       voxel stays one cell and the grid is not resampled (one voxel = ``1 / R`` of the canonical
       cube, so a ShapeNetVox32 shape spanning the grid keeps its longest side 1). Enclosed cavities
-      are filled. Samples and distances come from the voxel boundary surface.
+      are filled. Samples and distances come from the voxel boundary surface; at the grid's own
+      resolution from the grid itself (:mod:`primkit.geometry.voxels`: exact closest points by a
+      distance transform, no mesh), otherwise through the boundary mesh.
     * **Point clouds**: samples are the points (resampled to ``settings.samples``); the closest
       point of a cell is the nearest input point; occupancy is the cells holding points with their
       enclosed cavities filled. This is an approximation: give a mesh when you have one.

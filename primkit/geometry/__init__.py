@@ -18,7 +18,9 @@ Which library does what, and why:
 
 Modules: :mod:`~primkit.geometry.frames` (the canonical frame), :mod:`~primkit.geometry.grids`
 (cell centres, surface cells, occupancy, voxel surfaces), :mod:`~primkit.geometry.distances`
-(closest points and distance grids), :mod:`~primkit.geometry.sampling` (surface samples).
+(closest points and distance grids), :mod:`~primkit.geometry.sampling` (surface samples),
+:mod:`~primkit.geometry.voxels` (a voxel grid's surface without a mesh: exact closest points by a
+distance transform, samples).
 ``primkit.geometry`` imports nothing else of primkit.
 """
 
@@ -26,6 +28,7 @@ from .distances import DistanceGrid, closest_points_on_triangles, distance_grid,
 from .frames import CanonicalFrame, axis_rotation, canonical_frame
 from .grids import fill_voxels, grid_centres, occupancy_grid, surface_voxels, voxel_boundary_mesh
 from .sampling import SurfaceSamples, sample_surface
+from .voxels import sample_voxel_surface, voxel_closest_points, voxel_surface_nodes, voxel_surface_squares
 
 __all__ = [
     "CanonicalFrame",
@@ -42,4 +45,8 @@ __all__ = [
     "lookup_distance_sq",
     "voxel_boundary_mesh",
     "fill_voxels",
+    "voxel_surface_nodes",
+    "voxel_closest_points",
+    "voxel_surface_squares",
+    "sample_voxel_surface",
 ]
