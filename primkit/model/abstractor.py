@@ -307,12 +307,9 @@ class Abstractor:
         if align not in (None, "none"):
             shapes, alignments = self.orient(shapes, align, existence_threshold)
         raw = self.predict_canonical(np.stack([s.occupancy for s in shapes]), batch_size)
-        cubs = []
-        for i in range(len(shapes)):
-            cub = self._cuboids(raw, i, existence_threshold)
-            if prune_threshold is not None and cub.existence.sum() > 1:
-                cub = primitives.prune_covered(cub, prune_threshold, seed=seed)
-            cubs.append(cub)
+        cubs = [self._cuboids(raw, i, existence_threshold) for i in range(len(shapes))]
+        if prune_threshold is not None:  # all shapes at once (the same result as one at a time)
+            cubs = primitives.prune_covered_many(cubs, prune_threshold, seed=seed)
         refinements = [None] * len(shapes)
         if refine:
             refined = []

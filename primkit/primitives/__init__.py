@@ -55,7 +55,7 @@ from .cuboids import CORNER_SIGNS, SCHEMA_VERSION, Cuboids
 from .differentiable import cuboid_distance_sq_torch, quaternion_to_matrix_torch, sample_surface_torch, world_to_local_torch
 from .distances import assign_points, contains, local_to_world, point_cuboid_distance, union_distance, world_to_local
 from .rotations import matrix_to_quaternion, quaternion_to_matrix
-from .sampling import SurfaceSamples, fraction_inside_others, prune_covered, sample_surface, sample_volume, union_surface_samples
+from .sampling import SurfaceSamples, fraction_inside_others, prune_covered, prune_covered_many, sample_surface, sample_volume, union_surface_samples
 
 __all__ = [
     "SCHEMA_VERSION",
@@ -73,6 +73,7 @@ __all__ = [
     "sample_volume",
     "fraction_inside_others",
     "prune_covered",
+    "prune_covered_many",
     "union_surface_samples",
     "assign_points",
     "quaternion_to_matrix_torch",

@@ -627,3 +627,25 @@ def test_quaternion_conversions_keep_primkit_conventions():
     assert P.quaternion_to_matrix(np.zeros((0, 4))).shape == (0, 3, 3)
     with pytest.raises(ValueError, match="nonzero"):
         P.quaternion_to_matrix([0.0, 0.0, 0.0, 0.0])
+
+
+def test_prune_covered_many_is_prune_covered_on_each():
+    rng = np.random.default_rng(11)
+    sets = []
+    for i in range(40):
+        m = 8 if i % 3 else 5
+        z = rng.uniform(0.03, 0.25, (m, 3))
+        q = rng.normal(size=(m, 4))
+        t = rng.uniform(-0.2, 0.2, (m, 3))  # crowded: many parts inside others
+        e = rng.random(m) < 0.8
+        sets.append(P.Cuboids(z, q, t, e))
+    sets.append(P.Cuboids(np.full((3, 3), 0.1), np.tile([1.0, 0, 0, 0], (3, 1)), np.zeros((3, 3)),
+                                   np.array([True, False, False])))  # one present part: nothing to prune
+    many = P.prune_covered_many(sets, 0.6, samples_per_cuboid=300, seed=2)
+    pruned = 0
+    for c, got in zip(sets, many):
+        want = P.prune_covered(c, 0.6, samples_per_cuboid=300, seed=2)
+        assert np.array_equal(got.existence, want.existence)
+        np.testing.assert_array_equal(got.half_extents, c.half_extents)
+        pruned += int(c.existence.sum() - got.existence.sum())
+    assert pruned > 20  # the case is not trivial
