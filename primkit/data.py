@@ -490,26 +490,50 @@ def _cache_key(path: Path, settings: PrepareSettings) -> str:
     return h.hexdigest()
 
 
-def _prepare_cached(args) -> tuple[str, str | None, str | None]:
-    """Worker: returns (path, cache file or None, error message or None)."""
+def _check_entry(target: Path, settings: PrepareSettings) -> None:
+    """Raise unless ``target`` is a whole cache entry for ``settings``: it loads (plain arrays, the
+    archive's own CRC-32 checks), has every array and the shapes the settings give."""
+    shape = PreparedShape.load(target)
+    res, n = settings.resolution, settings.samples
+    if shape.closest.shape != (res, res, res, 3) or shape.occupancy.shape != (res,) * 3:
+        raise ValueError(f"grids of {shape.closest.shape}, not {res}^3")
+    if not (len(shape.points) == len(shape.point_labels) == len(shape.point_faces) == n) or shape.points.shape[1:] != (3,):
+        raise ValueError("sample arrays of the wrong length")
+    if not (np.isfinite(shape.closest).all() and np.isfinite(shape.points).all()):
+        raise ValueError("non-finite values")
+
+
+def _prepare_cached(args) -> tuple:
+    """Worker: returns (path, cache file, a PreparedShape kept in memory, or None, error message or
+    None, note or None). A cache entry is read back and checked before it is trusted; a damaged
+    one (truncated, garbage, wrong keys, empty) is a miss, prepared again and replaced (note
+    ``"damaged"``); an entry that cannot be written leaves the shape in memory (note: the reason)."""
     path, settings, cache = args
     path = Path(path)
     try:
         key = _cache_key(path, settings)
     except OSError as exc:
-        return str(path), None, f"{path}: unreadable ({exc.strerror or exc})"
+        return str(path), None, f"{path}: unreadable ({exc.strerror or exc})", None
     target = Path(cache) / key[:2] / f"{key}.npz"
+    note = None
     if target.is_file():
-        return str(path), str(target), None
+        try:
+            _check_entry(target, settings)
+            return str(path), str(target), None, None
+        except Exception:  # noqa: BLE001 - whatever is wrong with the file, it is not an entry
+            note = "damaged"
     try:
         prepared = prepare_file(path, settings)
     except io.ShapeFileError as exc:
-        return str(path), None, str(exc)
+        return str(path), None, str(exc), note
     except Exception as exc:  # a bad file must not stop a batch
-        return str(path), None, f"{path}: cannot prepare ({type(exc).__name__}: {exc})"
-    target.parent.mkdir(parents=True, exist_ok=True)
-    prepared.save(target)
-    return str(path), str(target), None
+        return str(path), None, f"{path}: cannot prepare ({type(exc).__name__}: {exc})", note
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        prepared.save(target)
+    except OSError as exc:  # read-only or full: the shape stays in memory
+        return str(path), prepared, None, f"unwritable: {exc.strerror or exc}"
+    return str(path), str(target), None, note
 
 
 @dataclass
@@ -520,8 +544,9 @@ class PreparedCollection:
     ----------
     paths : list of Path
         Source files that prepared successfully.
-    cache_files : list of Path
-        Their prepared ``.npz`` files, aligned with ``paths``.
+    cache_files : list of Path or PreparedShape
+        Their prepared ``.npz`` files, aligned with ``paths``; the prepared shape itself where the
+        cache could not be written.
     errors : list of str
         One line per file that could not be used.
     settings : PrepareSettings
@@ -542,7 +567,8 @@ class PreparedCollection:
     def __getitem__(self, i: int) -> PreparedShape:
         # the cache is keyed by content, so two files with the same bytes share an entry: the name
         # and source always come from this collection's path
-        shape = PreparedShape.load(self.cache_files[i])
+        entry = self.cache_files[i]
+        shape = entry if isinstance(entry, PreparedShape) else PreparedShape.load(entry)
         path = self.paths[i]
         name = self.names[i] if self.names is not None else shape_name(path)
         return PreparedShape(**{**shape.__dict__, "name": name, "source": str(path)})
@@ -628,17 +654,29 @@ def prepare_collection(
     else:
         files = [Path(p) for p in files_or_folder]
     cache = Path(cache_dir) if cache_dir is not None else default_cache_dir()
-    cache.mkdir(parents=True, exist_ok=True)
+    try:
+        cache.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        pass  # each entry then fails to be written and stays in memory (one line below)
     jobs = [(str(p), settings, str(cache)) for p in files]
     results = {res[0]: res for res in parallel_map(_prepare_cached, jobs, workers=workers, progress=progress,
                                                    desc="preparing", unit="shape")}
     paths, cache_files, errors, names = [], [], [], []
+    damaged, unwritable = 0, None
     for job, name in zip(jobs, shape_names(files)):
-        path, target, error = results[job[0]]
+        path, target, error, note = results[job[0]]
+        damaged += note == "damaged"
+        if note and note.startswith("unwritable"):
+            unwritable = unwritable or note[len("unwritable: "):]
         if error is not None:
             errors.append(error)
         else:
             paths.append(Path(path))
-            cache_files.append(Path(target))
+            cache_files.append(target if isinstance(target, PreparedShape) else Path(target))
             names.append(name)
+    if damaged:
+        print(f"primkit: cache: {damaged} damaged entr{'y' if damaged == 1 else 'ies'} in {cache} "
+              "(truncated or not an entry) prepared again", file=sys.stderr)
+    if unwritable:
+        print(f"primkit: cache: {cache} cannot be written ({unwritable}): shapes prepared in memory", file=sys.stderr)
     return PreparedCollection(paths, cache_files, errors, settings, names)

@@ -105,6 +105,48 @@ def test_prepare_collection_cache_and_bad_files(tmp_path):
     assert other[0].points.shape == (2000, 3)
 
 
+def test_damaged_cache_entries_are_prepared_again_and_said_once(tmp_path, capsys):
+    folder = tmp_path / "shapes"
+    synthetic.write_collection(folder, "chair", 5, seed=3)
+    cache = tmp_path / "cache"
+    first = data.prepare_collection(folder, data.PrepareSettings(samples=500), cache_dir=cache, workers=1, progress=False)
+    reference = [first[i] for i in range(len(first))]
+    entries = sorted(cache.rglob("*.npz"))
+    assert len(entries) == 5
+    entries[0].write_bytes(entries[0].read_bytes()[:5000])  # truncated
+    entries[1].write_bytes(b"\x00garbage" * 100)  # not an archive
+    entries[2].write_bytes(b"")  # empty
+    with open(entries[3], "wb") as fh:  # an archive with the wrong keys
+        np.savez(fh, something=np.zeros(3))
+    capsys.readouterr()
+    again = data.prepare_collection(folder, data.PrepareSettings(samples=500), cache_dir=cache, workers=1, progress=False)
+    err = capsys.readouterr().err
+    assert len(again) == 5 and not again.errors
+    lines = [line for line in err.splitlines() if "cache" in line]
+    assert len(lines) == 1 and "4 damaged entries" in lines[0] and "Traceback" not in err
+    for i in range(5):
+        got = again[i]
+        assert np.array_equal(got.closest, reference[i].closest) and np.array_equal(got.points, reference[i].points)
+    capsys.readouterr()
+    data.prepare_collection(folder, data.PrepareSettings(samples=500), cache_dir=cache, workers=1, progress=False)
+    assert "damaged" not in capsys.readouterr().err  # repaired for good
+
+
+def test_an_unwritable_cache_prepares_in_memory(tmp_path, capsys):
+    folder = tmp_path / "shapes"
+    synthetic.write_collection(folder, "table", 3, seed=2)
+    blocked = tmp_path / "cache"
+    blocked.write_text("a file where the cache folder should be")  # mkdir fails, as on a read-only disk
+    coll = data.prepare_collection(folder, data.PrepareSettings(samples=300), cache_dir=blocked, workers=2, progress=False)
+    err = capsys.readouterr().err
+    assert len(coll) == 3 and not coll.errors
+    assert [line for line in err.splitlines() if "cache" in line] == [
+        f"primkit: cache: {blocked} cannot be written (Not a directory): shapes prepared in memory"] or \
+        (len([line for line in err.splitlines() if "cannot be written" in line]) == 1 and "Traceback" not in err)
+    assert coll[2].points.shape == (300, 3)
+    assert blocked.read_text().startswith("a file")
+
+
 def test_label_count_mismatch_is_reported(tmp_path):
     shape = synthetic.chair(0)
     p = io.write_mesh(tmp_path / "c.ply", shape.vertices, shape.faces)
