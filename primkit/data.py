@@ -6,9 +6,12 @@ keyed by each file's content *and* the preparation settings, so an edited file o
 is prepared again and nothing stale is read. The torch ``Dataset`` on top lives in
 :mod:`primkit.model.training` (torch stays in the model and training code).
 
-Cache layout: ``<cache>/<key[:2]>/<key>.npz`` (uncompressed NumPy archives), where ``key`` is the
-SHA-256 of the file's bytes, the bytes of a ``.seg`` label file beside it (if any), and the
-settings. The default cache is ``$PRIMKIT_CACHE`` or ``~/.cache/primkit/prepared``.
+Cache layout (:data:`CACHE_FORMAT` 2): ``<cache>/v2/<segment>/`` folders of up to
+:data:`SEGMENT_SHAPES` shapes each, one ``.npy`` file per array with a row per shape (compact codes,
+:mod:`primkit.geometry.quantize`; memory-mapped when read) and an ``index.json`` giving each row's
+key, CRC-32 and frame. ``key`` is the SHA-256 of the file's bytes, the bytes of a ``.seg`` label
+file beside it (if any), and the settings. The default cache is ``$PRIMKIT_CACHE`` or
+``~/.cache/primkit/prepared``.
 """
 
 from __future__ import annotations
@@ -16,7 +19,10 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import secrets
+import shutil
 import sys
+import zlib
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -38,6 +44,9 @@ __all__ = [
     "default_cache_dir",
     "PreparedCollection",
     "prepare_collection",
+    "CacheSegment",
+    "CACHE_FORMAT",
+    "compact_by_default",
 ]
 
 #: bump when the arrays produced by :func:`prepare` change meaning; part of every cache key
@@ -490,63 +499,275 @@ def _cache_key(path: Path, settings: PrepareSettings) -> str:
     return h.hexdigest()
 
 
-def _check_entry(target: Path, settings: PrepareSettings) -> None:
-    """Raise unless ``target`` is a whole cache entry for ``settings``: it loads (plain arrays, the
-    archive's own CRC-32 checks), has every array and the shapes the settings give."""
-    shape = PreparedShape.load(target)
-    res, n = settings.resolution, settings.samples
-    if shape.closest.shape != (res, res, res, 3) or shape.occupancy.shape != (res,) * 3:
-        raise ValueError(f"grids of {shape.closest.shape}, not {res}^3")
-    if not (len(shape.points) == len(shape.point_labels) == len(shape.point_faces) == n) or shape.points.shape[1:] != (3,):
-        raise ValueError("sample arrays of the wrong length")
-    if not (np.isfinite(shape.closest).all() and np.isfinite(shape.points).all()):
-        raise ValueError("non-finite values")
+#: the cache's layout and codes; bump when either changes. Its entries live in ``<cache>/v<CACHE_FORMAT>``
+CACHE_FORMAT = 2
+#: shapes per segment: a run that is killed keeps every whole segment it wrote
+SEGMENT_SHAPES = 256
+#: the arrays of a cache row, in the order of its checksum; ``solid`` and ``labels`` only where needed
+_ROW_ARRAYS = ("occupancy", "near", "closest", "points")
 
 
-def _prepare_cached(args) -> tuple:
-    """Worker: returns (path, cache file, a PreparedShape kept in memory, or None, error message or
-    None, note or None). A cache entry is read back and checked before it is trusted; a damaged
-    one (truncated, garbage, wrong keys, empty) is a miss, prepared again and replaced (note
-    ``"damaged"``); an entry that cannot be written leaves the shape in memory (note: the reason)."""
-    path, settings, cache = args
-    path = Path(path)
-    try:
-        key = _cache_key(path, settings)
-    except OSError as exc:
-        return str(path), None, f"{path}: unreadable ({exc.strerror or exc})", None
-    target = Path(cache) / key[:2] / f"{key}.npz"
-    note = None
-    if target.is_file():
+def compact_by_default() -> bool:
+    """Whether the cache stores compact codes unless told (``PRIMKIT_CACHE_CODES=compact``); the
+    default is the exact float32 values."""
+    return os.environ.get("PRIMKIT_CACHE_CODES", "exact").lower() == "compact"
+
+
+def _encode_row(shape: PreparedShape, compact: bool) -> dict:
+    """The cache's arrays of one shape: bits of the grids, the closest points coordinate-planar and
+    the samples, as float32 or (``compact``) as the codes of :mod:`primkit.geometry.quantize`; the
+    solid grid only where it differs from the occupancy (not for voxel grids), labels only where
+    there are any; no face ids (nothing reads them)."""
+    if compact:
+        codes, near = geometry.encode_closest(shape.closest)
+        row = {"occupancy": np.packbits(shape.occupancy), "near": near, "closest": codes,
+               "points": geometry.encode_points(shape.points)}
+    else:
+        res = shape.resolution
+        row = {"occupancy": np.packbits(shape.occupancy),
+               "closest": np.ascontiguousarray(np.asarray(shape.closest, np.float32).reshape(res**3, 3).T),
+               "points": np.ascontiguousarray(shape.points, np.float32)}
+    if not np.array_equal(shape.solid, shape.occupancy):
+        row["solid"] = np.packbits(shape.solid)
+    if (shape.point_labels >= 0).any():
+        row["labels"] = shape.point_labels.astype(np.int16)
+    meta = {"frame": shape.frame.to_dict(), "kind": shape.kind, "info": shape.info}
+    return {"arrays": row, "meta": meta}
+
+
+def _row_crc(arrays: dict) -> int:
+    crc = 0
+    for name in _ROW_ARRAYS + ("solid", "labels"):
+        if name in arrays:
+            crc = zlib.crc32(np.ascontiguousarray(arrays[name]).data, crc)
+    return crc
+
+
+class CacheSegment:
+    """A block of cached shapes: one ``.npy`` file per array (rows = shapes), memory-mapped, and an
+    ``index.json`` (format, settings, each row's key, checksum, frame and kind).
+
+    Nothing is read until asked for: a row is checked (CRC-32 of its bytes) by :meth:`verify` and
+    decoded by :meth:`shape`; :meth:`gather` decodes a batch of rows for training. A segment built
+    by :meth:`from_rows` lives in memory until :meth:`save` writes it.
+    """
+
+    def __init__(self, arrays: dict, rows: list, settings_key: str, resolution: int, samples: int, folder=None,
+                 compact: bool = False):
+        self.arrays, self.rows = arrays, rows
+        self.settings_key, self.resolution, self.samples = settings_key, resolution, samples
+        self.folder, self.compact = folder, compact
+
+    def _shapes(self) -> dict:
+        """Each array's row shape and dtype."""
+        cells = self.resolution**3
+        bits = ((cells + 7) // 8,)
+        out = {"occupancy": (bits, np.uint8), "closest": ((3, cells), np.float32), "points": ((self.samples, 3), np.float32),
+               "solid": (bits, np.uint8), "labels": ((self.samples,), np.int16)}
+        if self.compact:
+            out.update(near=(bits, np.uint8), closest=((3, cells), np.uint8), points=((self.samples,), np.uint32))
+        return out
+
+    def _row_arrays_names(self) -> tuple:
+        return tuple(n for n in _ROW_ARRAYS if n != "near" or self.compact)
+
+    @classmethod
+    def open(cls, folder) -> "CacheSegment":
+        """The segment written in ``folder``; raises (any exception) when it is not a whole one."""
+        folder = Path(folder)
+        index = json.loads((folder / "index.json").read_text())
+        if index.get("format") != CACHE_FORMAT:
+            raise ValueError(f"format {index.get('format')}, not {CACHE_FORMAT}")
+        seg = cls({}, index["rows"], index["settings"], int(index["resolution"]), int(index["samples"]), folder,
+                  compact={"compact": True, "float32": False}[index["codes"]])
+        for name, (want, dtype) in seg._shapes().items():
+            f = folder / f"{name}.npy"
+            if name in ("solid", "labels") and not f.exists():
+                continue
+            a = np.load(f, mmap_mode="r", allow_pickle=False)
+            count = len(seg.rows) if name in _ROW_ARRAYS else 1 + max(r.get(name, -1) for r in seg.rows)
+            if a.shape != (count,) + want or a.dtype != dtype:
+                raise ValueError(f"{f}: {a.dtype} {a.shape}, not {np.dtype(dtype)} {(count,) + want}")
+            seg.arrays[name] = a
+        return seg
+
+    @classmethod
+    def from_rows(cls, settings: PrepareSettings, entries: list, compact: bool = False) -> "CacheSegment":
+        """A segment in memory of ``entries``: ``(key, row)`` with rows of :func:`_encode_row`."""
+        rows, extra = [], {"solid": [], "labels": []}
+        for key, rec in entries:
+            arrays = rec["arrays"]
+            row = {"key": key, "crc": _row_crc(arrays), "meta": rec["meta"]}
+            for opt in extra:
+                if opt in arrays:
+                    row[opt] = len(extra[opt])
+                    extra[opt].append(arrays[opt])
+            rows.append(row)
+        names = [n for n in _ROW_ARRAYS if n != "near" or compact]
+        arrays = {name: np.stack([rec["arrays"][name] for _, rec in entries]) for name in names}
+        arrays.update({name: np.stack(items) for name, items in extra.items() if items})
+        return cls(arrays, rows, settings.key(), settings.resolution, settings.samples, compact=compact)
+
+    def save(self, root) -> "CacheSegment":
+        """Write this segment under ``root`` (a hidden folder renamed into place: a killed write
+        leaves no partial segment) and return it opened from there, memory-mapped."""
+        root = Path(root)
+        # named by its keys and a random tag: unique, so that two runs writing the same shapes at
+        # once (shards, a re-run after a kill) each keep theirs, and a repair never meets the
+        # damaged segment it replaces
+        token = secrets.token_hex(4)
+        name = f"{hashlib.sha256(chr(10).join(self.keys()).encode()).hexdigest()[:16]}-{token}"
+        final = root / name
+        tmp = root / f".{name}.{token}.tmp"
+        tmp.mkdir(parents=True)
         try:
-            _check_entry(target, settings)
-            return str(path), str(target), None, None
-        except Exception:  # noqa: BLE001 - whatever is wrong with the file, it is not an entry
-            note = "damaged"
+            for array, values in self.arrays.items():
+                np.save(tmp / f"{array}.npy", values)
+            index = {"format": CACHE_FORMAT, "codes": "compact" if self.compact else "float32",
+                     "settings": self.settings_key, "resolution": self.resolution, "samples": self.samples,
+                     "rows": self.rows}
+            (tmp / "index.json").write_text(json.dumps(index))
+            os.rename(tmp, final)
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
+        return CacheSegment.open(final)
+
+    def __len__(self) -> int:
+        return len(self.rows)
+
+    def keys(self) -> list:
+        return [r["key"] for r in self.rows]
+
+    def row_arrays(self, j: int) -> dict:
+        r = self.rows[j]
+        out = {name: self.arrays[name][j] for name in self._row_arrays_names()}
+        for name in ("solid", "labels"):
+            if r.get(name, -1) >= 0:
+                out[name] = self.arrays[name][r[name]]
+        return out
+
+    def verify(self, j: int) -> bool:
+        """Whether row ``j`` reads back with its checksum (the bytes as written)."""
+        try:
+            return _row_crc(self.row_arrays(j)) == self.rows[j]["crc"]
+        except (OSError, ValueError, IndexError, KeyError, TypeError):
+            return False
+
+    def shape(self, j: int, name: str = "", source: str = "") -> PreparedShape:
+        """Row ``j`` decoded to a :class:`PreparedShape` (``point_faces`` are -1: not stored)."""
+        a, r, res = self.row_arrays(j), self.rows[j], self.resolution
+        grid = (res, res, res)
+        occupancy = np.unpackbits(a["occupancy"])[: res**3].reshape(grid).astype(bool)
+        solid = np.unpackbits(a["solid"])[: res**3].reshape(grid).astype(bool) if "solid" in a else occupancy.copy()
+        labels = np.asarray(a["labels"], np.int32) if "labels" in a else np.full(self.samples, -1, np.int32)
+        meta = r["meta"]
+        if self.compact:
+            closest, points = geometry.decode_closest(a["closest"], a["near"], res), geometry.decode_points(a["points"])
+        else:
+            closest, points = np.ascontiguousarray(np.asarray(a["closest"]).T).reshape(res, res, res, 3), np.array(a["points"])
+        return PreparedShape(
+            name=name, occupancy=occupancy, solid=solid, closest=closest,
+            points=points, point_faces=np.full(self.samples, -1, np.int32),
+            point_labels=labels, frame=geometry.CanonicalFrame.from_dict(meta["frame"]), source=source,
+            kind=meta["kind"], info=meta.get("info", {}))
+
+    def gather(self, rows, pick) -> tuple:
+        """The arrays of several rows for a batch: occupancy (b, R, R, R) bool, the closest
+        points as stored (b, 3, R^3), float32 or codes (uint8) with their near bits (b, R^3 / 8)
+        uint8 (for :func:`primkit.geometry.decode_closest`, or its torch twin in training; None
+        for float32), and the samples ``pick`` ((b, k) row numbers) of each row, (b, k, 3) float32."""
+        res = self.resolution
+        rows = np.asarray(rows)
+        occ = np.unpackbits(self.arrays["occupancy"][rows], axis=1)[:, : res**3].reshape(-1, res, res, res).view(bool)
+        points = self.arrays["points"][rows]
+        if self.compact:
+            pts = geometry.decode_points(np.take_along_axis(points, np.asarray(pick), 1))
+            return occ, self.arrays["closest"][rows], self.arrays["near"][rows], pts
+        pts = np.take_along_axis(points, np.asarray(pick)[..., None], 1)
+        return occ, self.arrays["closest"][rows], None, pts
+
+
+def _old_cache_entries(cache: Path) -> int:
+    """Entries of the first cache format (``<cache>/<xx>/<key>.npz``) under ``cache``."""
+    count = 0
+    try:
+        for sub in cache.iterdir():
+            if len(sub.name) == 2 and sub.is_dir():
+                count += sum(1 for f in sub.iterdir() if f.suffix == ".npz")
+    except OSError:
+        pass
+    return count
+
+
+class _CacheIndex:
+    """The segments of a cache folder for one settings and codes: key -> (segment, row)."""
+
+    def __init__(self, root: Path, settings: PrepareSettings, compact: bool):
+        self.root = root
+        self.where: dict = {}
+        self.damaged = 0
+        key = settings.key()
+        try:
+            folders = sorted(p for p in root.iterdir() if not p.name.startswith(".") and p.is_dir())
+        except OSError:
+            folders = []
+        for folder in folders:
+            try:
+                seg = CacheSegment.open(folder)
+            except Exception:  # noqa: BLE001 - whatever is wrong with it, it holds no usable entry
+                # segments are renamed into place whole, so a visible one that does not open is
+                # damaged for good: removed, and its shapes are misses
+                self.damaged += 1
+                shutil.rmtree(folder, ignore_errors=True)
+                continue
+            if seg.settings_key != key or seg.compact != compact:
+                continue
+            for j, k in enumerate(seg.keys()):
+                self.where.setdefault(k, []).append((seg, j))
+
+    def find(self, key: str):
+        """A verified (segment, row) for ``key``, or None; a key whose every copy fails its
+        checksum counts as damaged (prepared again into a new segment, which then wins)."""
+        candidates = self.where.get(key, ())
+        for seg, j in candidates:
+            if seg.verify(j):
+                return seg, j
+        self.damaged += bool(candidates)
+        return None
+
+
+def _key_job(args) -> tuple:
+    path, settings = args
+    try:
+        return path, _cache_key(Path(path), settings), None
+    except OSError as exc:
+        return path, None, f"{path}: unreadable ({exc.strerror or exc})"
+
+
+def _prepare_row(args) -> tuple:
+    """Worker: ``(path, key, row or None, error or None)``; a bad file must not stop a batch."""
+    path, settings, key, compact = args
     try:
         prepared = prepare_file(path, settings)
     except io.ShapeFileError as exc:
-        return str(path), None, str(exc), note
-    except Exception as exc:  # a bad file must not stop a batch
-        return str(path), None, f"{path}: cannot prepare ({type(exc).__name__}: {exc})", note
-    try:
-        target.parent.mkdir(parents=True, exist_ok=True)
-        prepared.save(target)
-    except OSError as exc:  # read-only or full: the shape stays in memory
-        return str(path), prepared, None, f"unwritable: {exc.strerror or exc}"
-    return str(path), str(target), None, note
+        return path, key, None, str(exc)
+    except Exception as exc:  # noqa: BLE001
+        return path, key, None, f"{path}: cannot prepare ({type(exc).__name__}: {exc})"
+    return path, key, _encode_row(prepared, compact), None
 
 
 @dataclass
 class PreparedCollection:
-    """The prepared shapes of a folder: cache files in a stable (sorted) order, loaded on access.
+    """The prepared shapes of a folder, in a stable (sorted) order, decoded on access.
 
     Attributes
     ----------
     paths : list of Path
         Source files that prepared successfully.
-    cache_files : list of Path or PreparedShape
-        Their prepared ``.npz`` files, aligned with ``paths``; the prepared shape itself where the
-        cache could not be written.
+    entries : list of (CacheSegment, int)
+        Where each shape is, aligned with ``paths``: a segment's row (a segment kept in memory
+        where the cache could not be written).
     errors : list of str
         One line per file that could not be used.
     settings : PrepareSettings
@@ -556,26 +777,58 @@ class PreparedCollection:
     """
 
     paths: list
-    cache_files: list
+    entries: list
     errors: list
     settings: PrepareSettings
     names: list | None = None
 
     def __len__(self) -> int:
-        return len(self.cache_files)
+        return len(self.entries)
+
+    def name(self, i: int) -> str:
+        return self.names[i] if self.names is not None else shape_name(self.paths[i])
 
     def __getitem__(self, i: int) -> PreparedShape:
         # the cache is keyed by content, so two files with the same bytes share an entry: the name
         # and source always come from this collection's path
-        entry = self.cache_files[i]
-        shape = entry if isinstance(entry, PreparedShape) else PreparedShape.load(entry)
-        path = self.paths[i]
-        name = self.names[i] if self.names is not None else shape_name(path)
-        return PreparedShape(**{**shape.__dict__, "name": name, "source": str(path)})
+        seg, j = self.entries[i]
+        return seg.shape(j, self.name(i), str(self.paths[i]))
 
     def __iter__(self):
         for i in range(len(self)):
             yield self[i]
+
+    def point_labels(self, i: int) -> np.ndarray:
+        """(n,) int32 part labels of shape ``i``'s samples (-1 where none), without decoding the rest."""
+        seg, j = self.entries[i]
+        row = seg.rows[j].get("labels", -1)
+        return np.asarray(seg.arrays["labels"][row], np.int32) if row >= 0 else np.full(seg.samples, -1, np.int32)
+
+    def gather(self, index, pick) -> tuple:
+        """The arrays of the shapes ``index`` for a training batch (:meth:`CacheSegment.gather`),
+        read from their segments' memory-mapped rows and nothing else: occupancy (b, R, R, R)
+        bool, closest points (b, 3, R^3) as stored (float32, or uint8 codes with near bits
+        (b, R^3 / 8), else None), and the samples ``pick`` ((b, k) row numbers), (b, k, 3) float32."""
+        index = np.asarray(index)
+        pick = np.asarray(pick)
+        res = self.settings.resolution
+        cells = res**3
+        compact = self.entries[index[0]][0].compact if len(index) else False
+        occ = np.empty((len(index), res, res, res), bool)
+        codes = np.empty((len(index), 3, cells), np.uint8 if compact else np.float32)
+        near = np.empty((len(index), (cells + 7) // 8), np.uint8) if compact else None
+        pts = np.empty(pick.shape + (3,), np.float32)
+        groups: dict = {}
+        for b, i in enumerate(index):
+            groups.setdefault(id(self.entries[i][0]), []).append(b)
+        for members in groups.values():
+            seg = self.entries[index[members[0]]][0]
+            rows = [self.entries[index[b]][1] for b in members]
+            o, c, n, p = seg.gather(rows, pick[members])
+            occ[members], codes[members], pts[members] = o, c, p
+            if near is not None:
+                near[members] = n
+        return occ, codes, near, pts
 
 
 def _one_thread_worker() -> None:
@@ -634,11 +887,21 @@ def prepare_collection(
     cache_dir=None,
     workers: int | None = None,
     progress: bool = True,
+    compact: bool | None = None,
 ) -> PreparedCollection:
     """Prepare every shape file of a folder (or a list of files) through the cache, in parallel.
 
     Files that cannot be used are reported in ``errors`` (one line each, naming the file) and the
     rest go on. Files already in the cache (same bytes, same settings) are not prepared again.
+
+    The cache (``<cache>/v2``, :data:`CACHE_FORMAT`) holds segments of up to
+    :data:`SEGMENT_SHAPES` shapes, memory-mapped when read, so that a collection of any size opens
+    at once and training can hold only its batch in memory. ``compact`` (default
+    ``PRIMKIT_CACHE_CODES=compact``, else float32) stores the codes of
+    :mod:`primkit.geometry.quantize`: a quarter of the first format's bytes, within the accuracy
+    declared there. Every entry is checked before it is trusted (its CRC-32); a
+    damaged one is a miss, prepared again and said once. A cache that cannot be written keeps the
+    shapes in memory (said once). Entries of the first format are not read (said once).
 
     Parameters
     ----------
@@ -648,35 +911,74 @@ def prepare_collection(
     progress : bool
         Show a progress bar (tqdm, on stderr).
     """
+    from concurrent.futures import ThreadPoolExecutor
 
     if isinstance(files_or_folder, (str, os.PathLike)):
         files = find_shape_files(files_or_folder)
     else:
         files = [Path(p) for p in files_or_folder]
     cache = Path(cache_dir) if cache_dir is not None else default_cache_dir()
-    try:
-        cache.mkdir(parents=True, exist_ok=True)
-    except OSError:
-        pass  # each entry then fails to be written and stays in memory (one line below)
-    jobs = [(str(p), settings, str(cache)) for p in files]
-    results = {res[0]: res for res in parallel_map(_prepare_cached, jobs, workers=workers, progress=progress,
-                                                   desc="preparing", unit="shape")}
-    paths, cache_files, errors, names = [], [], [], []
-    damaged, unwritable = 0, None
-    for job, name in zip(jobs, shape_names(files)):
-        path, target, error, note = results[job[0]]
-        damaged += note == "damaged"
-        if note and note.startswith("unwritable"):
-            unwritable = unwritable or note[len("unwritable: "):]
+    root = cache / f"v{CACHE_FORMAT}"
+    old = _old_cache_entries(cache)
+    if old:
+        print(f"primkit: cache: {cache} holds {old} entr{'y' if old == 1 else 'ies'} of an older format, not read: "
+              f"shapes are prepared again into {root} (delete {cache}/?? to free the space)", file=sys.stderr)
+    compact = compact_by_default() if compact is None else bool(compact)
+    index = _CacheIndex(root, settings, compact)
+    # keys: the bytes of every file hashed, in threads (reading and hashlib release the GIL)
+    with ThreadPoolExecutor(max_workers=4) as pool:
+        keyed = list(pool.map(_key_job, [(str(p), settings) for p in files]))
+    entries: dict = {}
+    errors: dict = {}
+    misses: dict = {}  # key -> the paths with those bytes (prepared once)
+    for path, key, error in keyed:
         if error is not None:
-            errors.append(error)
+            errors[path] = error
+            continue
+        found = index.find(key)
+        if found is not None:
+            entries[path] = found
         else:
-            paths.append(Path(path))
-            cache_files.append(target if isinstance(target, PreparedShape) else Path(target))
-            names.append(name)
-    if damaged:
-        print(f"primkit: cache: {damaged} damaged entr{'y' if damaged == 1 else 'ies'} in {cache} "
+            misses.setdefault(key, []).append(path)
+    unwritable = None
+    pending: list = []
+
+    def flush():
+        nonlocal unwritable
+        if not pending:
+            return
+        segment = CacheSegment.from_rows(settings, [(key, rec) for _, key, rec in pending], compact)
+        if unwritable is None:
+            try:
+                segment = segment.save(root)
+            except OSError as exc:  # read-only, full, not a folder: the shapes stay in memory
+                unwritable = exc.strerror or str(exc)
+        for j, (_, key, _) in enumerate(pending):
+            for path in misses[key]:
+                entries[path] = (segment, j)
+        pending.clear()
+
+    jobs = [(paths[0], settings, key, compact) for key, paths in misses.items()]
+    for path, key, rec, error in parallel_map(_prepare_row, jobs, workers=workers, progress=progress,
+                                              desc="preparing", unit="shape"):
+        if error is not None:
+            errors.update(dict.fromkeys(misses[key], error))
+            continue
+        pending.append((path, key, rec))
+        if len(pending) >= SEGMENT_SHAPES:
+            flush()
+    flush()
+    if index.damaged:
+        print(f"primkit: cache: {index.damaged} damaged entr{'y' if index.damaged == 1 else 'ies'} in {root} "
               "(truncated or not an entry) prepared again", file=sys.stderr)
     if unwritable:
-        print(f"primkit: cache: {cache} cannot be written ({unwritable}): shapes prepared in memory", file=sys.stderr)
-    return PreparedCollection(paths, cache_files, errors, settings, names)
+        print(f"primkit: cache: {root} cannot be written ({unwritable}): shapes prepared in memory", file=sys.stderr)
+    paths, found, errs, names = [], [], [], []
+    for p, name in zip(files, shape_names(files)):
+        if str(p) in errors:
+            errs.append(errors[str(p)])
+        else:
+            paths.append(p)
+            found.append(entries[str(p)])
+            names.append(name)
+    return PreparedCollection(paths, found, errs, settings, names)

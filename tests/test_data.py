@@ -79,6 +79,14 @@ def test_prepare_points_approximates_the_mesh(chairs):
     assert diff.min() > -2e-3 and np.median(diff) < 0.01
 
 
+def _keys(coll):
+    return [seg.rows[j]["key"] for seg, j in coll.entries]
+
+
+def _segments(cache):
+    return sorted(p for p in (cache / f"v{data.CACHE_FORMAT}").iterdir() if not p.name.startswith("."))
+
+
 def test_prepare_collection_cache_and_bad_files(tmp_path):
     folder = tmp_path / "shapes"
     paths = synthetic.write_collection(folder, "table", 3, seed=1)
@@ -89,47 +97,110 @@ def test_prepare_collection_cache_and_bad_files(tmp_path):
     assert len(coll) == 3 and len(coll.errors) == 1
     assert coll.errors[0].startswith(str(folder / "broken.off")) and "\n" not in coll.errors[0]
     assert {p: p.read_bytes() for p in folder.iterdir()} == before  # inputs untouched
-    files = set(cache.rglob("*.npz"))
+    files = set(cache.rglob("*.npy"))
     mtimes = {f: f.stat().st_mtime_ns for f in files}
     again = data.prepare_collection(folder, cache_dir=cache, workers=1, progress=False)
-    assert set(again.cache_files) == set(coll.cache_files)
-    assert {f: f.stat().st_mtime_ns for f in files} == mtimes  # nothing prepared twice
+    assert _keys(again) == _keys(coll) and len(_segments(cache)) == 1
+    assert set(cache.rglob("*.npy")) == files and {f: f.stat().st_mtime_ns for f in files} == mtimes  # nothing prepared twice
     # an edited file and a changed setting are prepared again
     shape = synthetic.table(99)
     io.write_mesh(paths[0], shape.vertices, shape.faces, overwrite=True)
     (folder / paths[0].with_suffix(".seg").name).write_text("\n".join(map(str, shape.face_labels)) + "\n")
     edited = data.prepare_collection(folder, cache_dir=cache, workers=1, progress=False)
-    assert edited.cache_files[0] not in coll.cache_files and edited.cache_files[1:] == coll.cache_files[1:]
+    assert _keys(edited)[0] not in _keys(coll) and _keys(edited)[1:] == _keys(coll)[1:]
     other = data.prepare_collection(folder, data.PrepareSettings(samples=2000), cache_dir=cache, workers=1, progress=False)
-    assert not set(other.cache_files) & set(edited.cache_files)
+    assert not set(_keys(other)) & set(_keys(edited))
     assert other[0].points.shape == (2000, 3)
 
 
-def test_damaged_cache_entries_are_prepared_again_and_said_once(tmp_path, capsys):
+@pytest.mark.parametrize("compact", [False, True])
+def test_cached_shapes_are_the_prepared_ones_within_the_declared_error(tmp_path, compact):
+    folder = tmp_path / "shapes"
+    paths = synthetic.write_collection(folder, "chair", 2, seed=4)
+    occ = np.zeros((32, 32, 32), bool)
+    occ[4:28, 2:30, 9:20] = True
+    occ[8:24, 10:30, 11:18] = False  # a hollow box: near and far cells inside and out
+    io.write_voxels(folder / "grid.binvox", io.VoxelGrid(occ, np.zeros(3), 1.0))
+    settings = data.PrepareSettings(samples=3000)
+    coll = data.prepare_collection(folder, settings, cache_dir=tmp_path / "cache", workers=1, progress=False,
+                                   compact=compact)
+    near_err, far_err = geometry.closest_error(32) if compact else (0.0, 0.0)
+    for i, path in enumerate(coll.paths):
+        exact, got = data.prepare_file(path, settings), coll[i]
+        assert got.name == data.shape_name(path) and got.source == str(path) and got.kind == exact.kind
+        assert np.array_equal(got.occupancy, exact.occupancy) and np.array_equal(got.solid, exact.solid)
+        assert np.array_equal(got.point_labels, exact.point_labels)
+        assert (got.point_labels >= 0).all() == (exact.kind == "mesh")
+        err = np.abs(got.closest - exact.closest).max(-1)
+        offset = np.abs(exact.closest - geometry.grid_centres(32)).max(-1) * 32
+        assert err[offset <= 1].max() <= near_err + 1e-6 and err.max() <= far_err + 1e-6
+        point_err = np.array(geometry.POINT_ERROR) + 1e-6 if compact else 0.0
+        assert (np.abs(got.points - exact.points).max(0) <= point_err).all()
+        assert np.allclose(got.frame.to_canonical(np.eye(3)), exact.frame.to_canonical(np.eye(3)))
+    assert len(coll) == len(paths) + 1
+
+
+def test_a_cached_shape_takes_a_quarter_of_the_first_format(tmp_path):
+    # the first format: PreparedShape.save's .npz (float32 closest points and samples, int32 ids)
+    grid = io.VoxelGrid(np.pad(np.ones((20, 26, 12), bool), ((6, 6), (3, 3), (10, 10))), np.zeros(3), 1.0)
+    settings = data.PrepareSettings()
+    shape = data.prepare(grid, settings)
+    shape.save(tmp_path / "first.npz")
+    first = (tmp_path / "first.npz").stat().st_size
+    segment = data.CacheSegment.from_rows(settings, [("k", data._encode_row(shape, True))], True).save(tmp_path / "cache")
+    now = sum(f.stat().st_size for f in segment.folder.iterdir())
+    assert now <= first / 4, (now, first)
+    exact = data.CacheSegment.from_rows(settings, [("k", data._encode_row(shape, False))]).save(tmp_path / "cache")
+    assert sum(f.stat().st_size for f in exact.folder.iterdir()) < first  # float32: no face ids, no labels of -1
+    assert np.array_equal(exact.shape(0).closest, shape.closest) and np.array_equal(exact.shape(0).points, shape.points)
+    assert np.array_equal(segment.shape(0).occupancy, shape.occupancy)
+
+
+@pytest.mark.parametrize("compact", [False, True])
+def test_damaged_cache_entries_are_prepared_again_and_said_once(tmp_path, capsys, monkeypatch, compact):
+    monkeypatch.setenv("PRIMKIT_CACHE_CODES", "compact" if compact else "exact")
+    monkeypatch.setattr(data, "SEGMENT_SHAPES", 2)  # 5 shapes: segments of 2, 2 and 1
     folder = tmp_path / "shapes"
     synthetic.write_collection(folder, "chair", 5, seed=3)
     cache = tmp_path / "cache"
-    first = data.prepare_collection(folder, data.PrepareSettings(samples=500), cache_dir=cache, workers=1, progress=False)
+    settings = data.PrepareSettings(samples=500)
+    first = data.prepare_collection(folder, settings, cache_dir=cache, workers=1, progress=False)
     reference = [first[i] for i in range(len(first))]
-    entries = sorted(cache.rglob("*.npz"))
-    assert len(entries) == 5
-    entries[0].write_bytes(entries[0].read_bytes()[:5000])  # truncated
-    entries[1].write_bytes(b"\x00garbage" * 100)  # not an archive
-    entries[2].write_bytes(b"")  # empty
-    with open(entries[3], "wb") as fh:  # an archive with the wrong keys
-        np.savez(fh, something=np.zeros(3))
+    segments = _segments(cache)
+    assert len(segments) == 3
+    with open(segments[0] / "closest.npy", "r+b") as fh:  # one row's bytes changed: a checksum fails
+        fh.seek(-100, 2)
+        fh.write(b"\xff" * 50)
+    points = segments[1] / "points.npy"
+    points.write_bytes(points.read_bytes()[:3000])  # truncated
+    (segments[2] / "index.json").write_text("{garbage")
     capsys.readouterr()
-    again = data.prepare_collection(folder, data.PrepareSettings(samples=500), cache_dir=cache, workers=1, progress=False)
+    again = data.prepare_collection(folder, settings, cache_dir=cache, workers=1, progress=False)
     err = capsys.readouterr().err
     assert len(again) == 5 and not again.errors
     lines = [line for line in err.splitlines() if "cache" in line]
-    assert len(lines) == 1 and "4 damaged entries" in lines[0] and "Traceback" not in err
+    assert len(lines) == 1 and "damaged" in lines[0] and "Traceback" not in err, err
     for i in range(5):
         got = again[i]
         assert np.array_equal(got.closest, reference[i].closest) and np.array_equal(got.points, reference[i].points)
     capsys.readouterr()
-    data.prepare_collection(folder, data.PrepareSettings(samples=500), cache_dir=cache, workers=1, progress=False)
+    data.prepare_collection(folder, settings, cache_dir=cache, workers=1, progress=False)
     assert "damaged" not in capsys.readouterr().err  # repaired for good
+
+
+def test_an_old_cache_is_said_once_and_prepared_again(tmp_path, capsys):
+    folder = tmp_path / "shapes"
+    synthetic.write_collection(folder, "table", 2, seed=2)
+    cache = tmp_path / "cache"
+    (cache / "ab").mkdir(parents=True)
+    table = synthetic.table(0)
+    data.prepare(io.Mesh(table.vertices, table.faces), data.PrepareSettings(samples=100)).save(
+        cache / "ab" / ("ab" + "0" * 62 + ".npz"))
+    coll = data.prepare_collection(folder, data.PrepareSettings(samples=300), cache_dir=cache, workers=1, progress=False)
+    err = capsys.readouterr().err
+    assert len(coll) == 2 and not coll.errors
+    lines = [line for line in err.splitlines() if "cache" in line]
+    assert len(lines) == 1 and "older format" in lines[0] and str(cache) in lines[0], err
 
 
 def test_an_unwritable_cache_prepares_in_memory(tmp_path, capsys):
@@ -137,14 +208,17 @@ def test_an_unwritable_cache_prepares_in_memory(tmp_path, capsys):
     synthetic.write_collection(folder, "table", 3, seed=2)
     blocked = tmp_path / "cache"
     blocked.write_text("a file where the cache folder should be")  # mkdir fails, as on a read-only disk
-    coll = data.prepare_collection(folder, data.PrepareSettings(samples=300), cache_dir=blocked, workers=2, progress=False)
+    settings = data.PrepareSettings(samples=300)
+    coll = data.prepare_collection(folder, settings, cache_dir=blocked, workers=2, progress=False)
     err = capsys.readouterr().err
     assert len(coll) == 3 and not coll.errors
     assert [line for line in err.splitlines() if "cache" in line] == [
-        f"primkit: cache: {blocked} cannot be written (Not a directory): shapes prepared in memory"] or \
-        (len([line for line in err.splitlines() if "cannot be written" in line]) == 1 and "Traceback" not in err)
+        f"primkit: cache: {blocked / 'v2'} cannot be written (Not a directory): shapes prepared in memory"], err
     assert coll[2].points.shape == (300, 3)
     assert blocked.read_text().startswith("a file")
+    # the same values as through a cache
+    cached = data.prepare_collection(folder, settings, cache_dir=tmp_path / "ok", workers=1, progress=False)
+    assert all(np.array_equal(coll[i].closest, cached[i].closest) for i in range(3))
 
 
 def test_label_count_mismatch_is_reported(tmp_path):

@@ -20,13 +20,16 @@ Modules: :mod:`~primkit.geometry.frames` (the canonical frame), :mod:`~primkit.g
 (cell centres, surface cells, occupancy, voxel surfaces), :mod:`~primkit.geometry.distances`
 (closest points and distance grids), :mod:`~primkit.geometry.sampling` (surface samples),
 :mod:`~primkit.geometry.voxels` (a voxel grid's surface without a mesh: exact closest points by a
-distance transform, samples).
+distance transform, samples), :mod:`~primkit.geometry.quantize` (the cache's compact codes of
+closest points and samples).
 ``primkit.geometry`` imports nothing else of primkit.
 """
 
 from .distances import DistanceGrid, closest_points_on_triangles, distance_grid, lookup_distance_sq
 from .frames import CanonicalFrame, axis_rotation, canonical_frame
 from .grids import fill_voxels, grid_centres, occupancy_grid, surface_voxels, voxel_boundary_mesh
+from .quantize import (POINT_ERROR, centres_planar, closest_error, closest_scales, decode_closest, decode_points,
+                       encode_closest, encode_points, near_shift)
 from .sampling import SurfaceSamples, sample_surface
 from .voxels import sample_voxel_surface, voxel_closest_points, voxel_surface_nodes, voxel_surface_squares
 
@@ -49,4 +52,13 @@ __all__ = [
     "voxel_closest_points",
     "voxel_surface_squares",
     "sample_voxel_surface",
+    "encode_closest",
+    "decode_closest",
+    "encode_points",
+    "decode_points",
+    "closest_error",
+    "POINT_ERROR",
+    "closest_scales",
+    "centres_planar",
+    "near_shift",
 ]

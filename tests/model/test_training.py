@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from primkit.model import losses, network, training
-from primkit import primitives
+from primkit import data, geometry, primitives, synthetic
 
 
 def random_cuboids(batch, m, seed=0, dtype=torch.float64):
@@ -233,3 +233,36 @@ def test_training_leaves_the_global_torch_state_alone(prepared_chairs, tmp_path)
     assert torch.get_num_threads() == threads  # the thread count the caller had
     tiny = torch.tensor([1e-40], dtype=torch.float32)
     assert (tiny * 1.0).item() != 0.0  # denormals are kept again
+
+
+@pytest.mark.parametrize("compact", [False, True])
+def test_batches_streamed_from_the_cache_are_the_stacked_ones(tmp_path, compact):
+    folder = tmp_path / "shapes"
+    synthetic.write_collection(folder, "chair", 3, seed=8)
+    coll = data.prepare_collection(folder, data.PrepareSettings(samples=700), cache_dir=tmp_path / "cache", workers=1,
+                                   progress=False, compact=compact)
+    streamed, stacked = training.ShapeTensors(coll, stack_limit=0), training.ShapeTensors(list(coll))
+    decoded = training.ShapeTensors(coll)  # small: decoded once into tensors
+    assert streamed.streamed and not decoded.streamed and not stacked.streamed
+    assert streamed.names == stacked.names == decoded.names and len(streamed) == 3
+    for name in ("occupancy", "closest", "points", "point_labels"):
+        assert torch.equal(getattr(decoded, name), getattr(stacked, name)), name
+    index = torch.tensor([2, 0, 2, 1])
+    a = streamed.batch(index, 50, torch.Generator().manual_seed(1), "cpu")
+    b = stacked.batch(index, 50, torch.Generator().manual_seed(1), "cpu")
+    for x, y in zip(a, b):
+        assert x.shape == y.shape and x.dtype == y.dtype and torch.equal(x, y)
+    assert a[1].permute(0, 4, 1, 2, 3).is_contiguous()  # planar, as the distance lookup reads it
+    config = small_config(stage1_iterations=2, stage2_iterations=2, batch_size=2, log_every=1)
+    runs = [training.train(s, None, config, device="cpu", progress=False, threads=1).history
+            for s in (streamed, stacked, decoded)]
+    assert runs[0] == runs[1] == runs[2]
+
+
+def test_torch_decoding_of_closest_points_is_numpys_bit_for_bit():
+    rng = np.random.default_rng(2)
+    res = 16
+    codes = rng.integers(0, 256, (3, 3, res**3), dtype=np.uint8)
+    near = rng.integers(0, 256, (3, res**3 // 8), dtype=np.uint8)
+    want = geometry.decode_closest(codes, near, res, planar=True)
+    assert torch.equal(training.decode_closest(codes, near, res), torch.from_numpy(want))
