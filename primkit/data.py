@@ -846,7 +846,8 @@ def _one_thread_worker() -> None:
         torch.set_num_threads(1)
 
 
-def parallel_map(func, jobs, *, workers: int | None = None, progress: bool = True, desc: str = "", unit: str = "shape"):
+def parallel_map(func, jobs, *, workers: int | None = None, progress: bool = True, desc: str = "", unit: str = "shape",
+                 executor=None):
     """``func`` over ``jobs`` in worker processes, results in job order, with a progress bar.
 
     ``workers``: processes (by default the cores free, :func:`primkit.parallel.free_cores`: a core
@@ -855,6 +856,9 @@ def parallel_map(func, jobs, *, workers: int | None = None, progress: bool = Tru
     compete for the cores. ``func`` must be a module-level function and should return its errors
     rather than raise. Processes are forked on Linux (fast, and safe here: workers run
     NumPy/Open3D/libigl code only).
+
+    ``executor``: any object with a ``concurrent.futures.Executor``'s ``map`` (a Dask client's
+    ``get_executor()``, :func:`primkit.parallel.executor_from`) runs the jobs there instead.
     """
     from tqdm.auto import tqdm
 
@@ -862,7 +866,11 @@ def parallel_map(func, jobs, *, workers: int | None = None, progress: bool = Tru
     workers = workers or (parallel.free_cores() if len(jobs) > 1 else 1)
     bar = tqdm(total=len(jobs), desc=desc, unit=unit, disable=not progress, file=sys.stderr)
     try:
-        if workers == 1 or len(jobs) <= 1:
+        if executor is not None and jobs:
+            for res in executor.map(func, jobs):
+                yield res
+                bar.update()
+        elif workers == 1 or len(jobs) <= 1:
             for job in jobs:
                 yield func(job)
                 bar.update()
@@ -888,6 +896,8 @@ def prepare_collection(
     workers: int | None = None,
     progress: bool = True,
     compact: bool | None = None,
+    executor=None,
+    shard=None,
 ) -> PreparedCollection:
     """Prepare every shape file of a folder (or a list of files) through the cache, in parallel.
 
@@ -910,6 +920,15 @@ def prepare_collection(
         Processes to use; all cores by default. ``1`` prepares in this process.
     progress : bool
         Show a progress bar (tqdm, on stderr).
+    executor : optional
+        Where to prepare the shapes the cache lacks: an executor (anything with
+        ``concurrent.futures.Executor.map``) or an address for :func:`primkit.parallel.executor_from`
+        (a Dask scheduler ``tcp://HOST:PORT``, ``ray``). The workers need primkit and the files,
+        not the cache: prepared rows come back here and are written by this process.
+    shard : (k, n), optional
+        Only shard k of n of the files (:func:`primkit.parallel.shard_indices`: every n-th of the
+        list, from the k-th); names are given over all the files, so the shards of one
+        collection name their shapes as one run would.
     """
     from concurrent.futures import ThreadPoolExecutor
 
@@ -917,6 +936,9 @@ def prepare_collection(
         files = find_shape_files(files_or_folder)
     else:
         files = [Path(p) for p in files_or_folder]
+    all_names = shape_names(files)
+    keep = parallel.shard_indices(len(files), shard)
+    files, all_names = [files[i] for i in keep], [all_names[i] for i in keep]
     cache = Path(cache_dir) if cache_dir is not None else default_cache_dir()
     root = cache / f"v{CACHE_FORMAT}"
     old = _old_cache_entries(cache)
@@ -959,14 +981,15 @@ def prepare_collection(
         pending.clear()
 
     jobs = [(paths[0], settings, key, compact) for key, paths in misses.items()]
-    for path, key, rec, error in parallel_map(_prepare_row, jobs, workers=workers, progress=progress,
-                                              desc="preparing", unit="shape"):
-        if error is not None:
-            errors.update(dict.fromkeys(misses[key], error))
-            continue
-        pending.append((path, key, rec))
-        if len(pending) >= SEGMENT_SHAPES:
-            flush()
+    with parallel.executor_from(executor) as pool:
+        for path, key, rec, error in parallel_map(_prepare_row, jobs, workers=workers, progress=progress,
+                                                  desc="preparing", unit="shape", executor=pool):
+            if error is not None:
+                errors.update(dict.fromkeys(misses[key], error))
+                continue
+            pending.append((path, key, rec))
+            if len(pending) >= SEGMENT_SHAPES:
+                flush()
     flush()
     if index.damaged:
         print(f"primkit: cache: {index.damaged} damaged entr{'y' if index.damaged == 1 else 'ies'} in {root} "
@@ -974,7 +997,7 @@ def prepare_collection(
     if unwritable:
         print(f"primkit: cache: {root} cannot be written ({unwritable}): shapes prepared in memory", file=sys.stderr)
     paths, found, errs, names = [], [], [], []
-    for p, name in zip(files, shape_names(files)):
+    for p, name in zip(files, all_names):
         if str(p) in errors:
             errs.append(errors[str(p)])
         else:

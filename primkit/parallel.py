@@ -280,3 +280,93 @@ class ThreadGovernor:
 
     def __exit__(self, *exc):
         self.close()
+
+
+def parse_shard(text) -> tuple[int, int] | None:
+    """``(k, n)`` of ``--shard K/N`` (1-based: ``1/4`` .. ``4/4``), or of ``auto``: the rank
+    variables of torchrun (``RANK``, ``WORLD_SIZE``), a SLURM job array (``SLURM_ARRAY_TASK_ID``
+    from ``SLURM_ARRAY_TASK_MIN``, ``SLURM_ARRAY_TASK_COUNT``) or SLURM tasks (``SLURM_PROCID``,
+    ``SLURM_NTASKS``), in that order; None for no shard (``auto`` with none of them set)."""
+    if text is None:
+        return None
+    text = str(text).strip()
+    env = os.environ
+    if text == "auto":
+        if "WORLD_SIZE" in env and "RANK" in env:
+            k, n = int(env["RANK"]) + 1, int(env["WORLD_SIZE"])
+        elif "SLURM_ARRAY_TASK_ID" in env and "SLURM_ARRAY_TASK_COUNT" in env:
+            k = int(env["SLURM_ARRAY_TASK_ID"]) - int(env.get("SLURM_ARRAY_TASK_MIN", "0")) + 1
+            n = int(env["SLURM_ARRAY_TASK_COUNT"])
+        elif "SLURM_PROCID" in env and "SLURM_NTASKS" in env:
+            k, n = int(env["SLURM_PROCID"]) + 1, int(env["SLURM_NTASKS"])
+        else:
+            return None
+    else:
+        k_text, sep, n_text = text.partition("/")
+        try:
+            k, n = int(k_text), int(n_text)
+        except ValueError:
+            raise ValueError(f"--shard wants K/N (for example 1/4) or auto, got {text!r}") from None
+        if not sep:
+            raise ValueError(f"--shard wants K/N (for example 1/4) or auto, got {text!r}")
+    if not 1 <= k <= n:
+        raise ValueError(f"shard {k}/{n}: K must be between 1 and N")
+    return k, n
+
+
+def shard_indices(count: int, shard) -> list:
+    """The positions of shard ``(k, n)`` among ``count`` sorted inputs: every n-th from k - 1, so
+    that the shards of one collection are disjoint, together hold every input, and are the same
+    on every machine for the same inputs. All of them for None."""
+    if shard is None:
+        return list(range(count))
+    k, n = shard
+    return list(range(k - 1, count, n))
+
+
+class _PoolExecutor:
+    """A ``multiprocessing.Pool``-like object (``ray.util.multiprocessing.Pool``) seen as the
+    ``map`` of a ``concurrent.futures.Executor``: results in order, as they come."""
+
+    def __init__(self, pool):
+        self.pool = pool
+
+    def map(self, func, jobs):
+        return self.pool.imap(func, jobs)
+
+
+@contextlib.contextmanager
+def executor_from(address):
+    """A ``concurrent.futures``-style executor for ``--executor ADDRESS``, closed afterwards.
+
+    * ``tcp://HOST:PORT`` (or any address a ``dask.distributed.Client`` takes; ``dask`` alone
+      starts a local cluster): the client's ``get_executor()`` (``pip install primkit[dask]``).
+    * ``ray`` or ``ray://HOST:PORT``: ``ray.util.multiprocessing.Pool`` on that cluster (``ray``
+      alone: a local one; ``pip install primkit[ray]``).
+
+    An executor passed as it is (anything with ``map``) is yielded unchanged and left open.
+    """
+    if address is None or hasattr(address, "map"):
+        yield address
+        return
+    address = str(address)
+    if address == "ray" or address.startswith("ray://"):
+        try:
+            from ray.util.multiprocessing import Pool
+        except ImportError:
+            raise RuntimeError("--executor ray needs Ray: pip install 'ray[default]'") from None
+        pool = Pool(ray_address=None if address == "ray" else address)
+        try:
+            yield _PoolExecutor(pool)
+        finally:
+            pool.terminate()
+        return
+    try:
+        from distributed import Client
+    except ImportError:
+        raise RuntimeError(f"--executor {address} needs dask.distributed: pip install distributed") from None
+    client = Client() if address == "dask" else Client(address)
+    try:
+        yield client.get_executor()
+    finally:
+        client.close()

@@ -25,6 +25,9 @@ from ._common import (
     add_output,
     add_png,
     add_prepare_options,
+    add_scale_out,
+    parse_shard_option,
+    shard_of,
     check_outputs,
     collect,
     err,
@@ -54,8 +57,10 @@ def _cmd_generate(args) -> int:
 def _cmd_prepare(args) -> int:
     from ..data import prepare_collection
 
-    coll = prepare_collection(collect(args.inputs), settings_from_args(args), cache_dir=args.cache, workers=args.workers)
-    print(f"prepared {len(coll)} shape(s) into {args.cache or 'the default cache'}")
+    coll = prepare_collection(collect(args.inputs), settings_from_args(args), cache_dir=args.cache, workers=args.workers,
+                              executor=args.executor, shard=parse_shard_option(args))
+    shard = f" (shard {args.shard})" if args.shard else ""
+    print(f"prepared {len(coll)} shape(s){shard} into {args.cache or 'the default cache'}")
     return report_errors(coll.errors)
 
 
@@ -122,7 +127,11 @@ def _cmd_abstract(args) -> int:
     model = load_model(model_path)  # validated before the inputs are read
     files = collect(args.inputs)
     folder = Path(args.output)
-    outputs = [folder / f"{name}.cuboids{ext}" for name in output_names(files) for ext in (".json", ".ply")]
+    if args.shard and args.png:
+        err("--png draws the whole collection: not with --shard")
+        return 2
+    # with --shard, this shard's outputs only, named as one run over all the inputs names them
+    outputs = [folder / f"{name}.cuboids{ext}" for name in shard_of(args, output_names(files)) for ext in (".json", ".ply")]
     check_outputs(args, outputs + [_picture_path(args.png)], input_paths(files, model_path))
     out = abstract_shapes(files, model, existence_threshold=args.threshold,
                           prune_threshold=None if args.prune <= 0 else args.prune, **abstraction_options(args))
@@ -271,6 +280,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("prepare", help="prepare shapes into the cache (grids, samples, distances)")
     p.add_argument("inputs", nargs="+")
     add_prepare_options(p)
+    add_scale_out(p)
     p.set_defaults(func=_cmd_prepare)
 
     p = sub.add_parser("train", help="train an abstractor on a folder of shapes")
@@ -302,6 +312,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("inputs", nargs="+")
     add_output(p, "output folder")
     add_abstraction_options(p)
+    add_scale_out(p)
     add_png(p)
     p.add_argument("--threshold", type=float, default=0.5, help="existence probability above which a part exists")
     p.add_argument("--prune", type=float, default=0.6, help="drop parts more than this fraction inside others (0: off)")

@@ -33,6 +33,9 @@ __all__ = [
     "add_refine",
     "add_cache",
     "add_workers",
+    "add_scale_out",
+    "parse_shard_option",
+    "shard_of",
     "add_png",
     "add_prepare_options",
     "add_abstraction_options",
@@ -40,7 +43,8 @@ __all__ = [
 ]
 
 #: the shared options' destinations, as ``tests/cli/test_options.py`` checks them
-SHARED_OPTIONS = ("model", "output", "force", "up", "front", "align", "refine", "cache", "workers", "png")
+SHARED_OPTIONS = ("model", "output", "force", "up", "front", "align", "refine", "cache", "workers", "png", "executor",
+                  "shard")
 
 
 def err(msg: str) -> None:
@@ -155,6 +159,10 @@ def abstraction_options(args) -> dict:
     """The keyword arguments of :func:`primkit.model.abstraction.abstract_shapes` that the shared
     options give (the inputs' axes only when given, so the library's defaults stand otherwise)."""
     options = {"align": args.align, "refine": args.refine, "cache": args.cache, "workers": args.workers}
+    if getattr(args, "executor", None) is not None:
+        options["executor"] = args.executor
+    if getattr(args, "shard", None) is not None:
+        options["shard"] = parse_shard_option(args)
     options.update({k: getattr(args, k) for k in ("up", "front") if getattr(args, k, None) is not None})
     return options
 
@@ -199,6 +207,34 @@ def add_cache(p) -> None:
 
 def add_workers(p) -> None:
     p.add_argument("--workers", type=int, default=None, help="processes for preparation (default: all cores)")
+
+
+def add_scale_out(p, shard: bool = True) -> None:
+    """``--executor`` and (``shard``) ``--shard``, for the commands that map over files (prepare,
+    abstract; embed's abstraction step takes ``--executor`` only: its outputs are the collection's)."""
+    p.add_argument("--executor", default=None, metavar="ADDRESS",
+                   help="prepare on a cluster: a Dask scheduler (tcp://HOST:8786; dask: a local cluster) or ray "
+                        "(ray://HOST:10001); the results come back here, the workers need primkit and the files")
+    if not shard:
+        return
+    p.add_argument("--shard", default=None, metavar="K/N",
+                   help="only the K-th of N shards of the inputs (every N-th file from the K-th), for job arrays; "
+                        "auto: from torchrun's RANK/WORLD_SIZE or SLURM's array or task variables. The shards' outputs "
+                        "are named as one run's and merge without clashes")
+
+
+def parse_shard_option(args):
+    """``(k, n)`` of ``args.shard``, or None."""
+    from ..parallel import parse_shard
+
+    return parse_shard(getattr(args, "shard", None))
+
+
+def shard_of(args, items: list) -> list:
+    """The items of ``args.shard``'s shard (all of them without one)."""
+    from ..parallel import shard_indices
+
+    return [items[i] for i in shard_indices(len(items), parse_shard_option(args))]
 
 
 def add_png(p) -> None:

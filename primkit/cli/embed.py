@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._common import (abstraction_options, add_abstraction_options, add_force, add_output, add_png, check_outputs, collect,
+from ._common import (abstraction_options, add_abstraction_options, add_scale_out, add_force, add_output, add_png, check_outputs, collect,
                       err, input_paths, model_file, output_names, report_errors)
 
 #: Above this many shapes ``embed`` writes no full distance matrix unless --distances yes.
@@ -205,6 +205,7 @@ def _common_options(p) -> None:
     p.add_argument("--thumbnails", choices=["shape", "cuboids"], default="shape",
                    help="draw each shape's voxel surface, or its cuboids (selected parts coloured)")
     add_abstraction_options(p)
+    add_scale_out(p, shard=False)
     p.add_argument("--samples", type=int, default=None, help="surface samples per shape (default 10000)")
     add_output(p, "output folder")
     add_png(p)

@@ -206,6 +206,8 @@ def abstract_shapes(
     cache=None,
     workers: int | None = None,
     progress: bool = True,
+    executor=None,
+    shard=None,
     batch_size: int = 128,
 ) -> Abstractions:
     """Prepare and abstract shapes, in input order.
@@ -229,6 +231,8 @@ def abstract_shapes(
         How to prepare (resolution, samples, axes); default the model's.
     names : one name per in-memory shape (default ``shape<i>``, ``i`` its position in ``inputs``).
     cache, workers, progress : the preparation cache folder, processes and progress bars.
+    executor, shard : where files are prepared, and which shard of them is abstracted
+        (:func:`primkit.data.prepare_collection`'s); shapes given as arrays are never sharded.
     batch_size : shapes read from the cache and abstracted at once.
 
     Returns
@@ -274,7 +278,8 @@ def abstract_shapes(
                 continue
             order.append(("memory", len(memory)))
             memory.append((shape, prepared))
-    coll = data.prepare_collection(files, settings, cache_dir=cache, workers=workers, progress=progress) if files else None
+    coll = data.prepare_collection(files, settings, cache_dir=cache, workers=workers, progress=progress,
+                                   executor=executor, shard=shard) if files else None
     if coll is not None:
         errors = list(coll.errors) + errors
         usable = {str(p): j for j, p in enumerate(coll.paths)}

@@ -1,0 +1,91 @@
+"""Batches beyond one machine: ``--shard K/N`` (job arrays) and ``--executor`` (a Dask cluster)
+give the outputs of one local run, named alike, without clashes."""
+
+import json
+
+import numpy as np
+import pytest
+
+from primkit import data, parallel, synthetic
+from primkit.cli import main
+
+
+def _outputs(folder):
+    return {p.name: p.read_bytes() for p in sorted(folder.iterdir())}
+
+
+@pytest.fixture(scope="module")
+def shapes(tmp_path_factory):
+    root = tmp_path_factory.mktemp("scale")
+    # two folders of the same file names: the shards must name them as one run does (a-..., b-...)
+    synthetic.write_collection(root / "in" / "a", "chair", 3, seed=2)
+    synthetic.write_collection(root / "in" / "b", "chair", 2, seed=5)
+    one = root / "one"
+    assert main(["abstract", str(root / "in"), "--model", "chair", "-o", str(one), "--cache", str(root / "cache-one"),
+                 "--workers", "1"]) == 0
+    return root, _outputs(one)
+
+
+def test_shards_together_give_one_runs_outputs(shapes, tmp_path):
+    root, reference = shapes
+    out = tmp_path / "sharded"
+    seen = []
+    for k in (1, 2):
+        assert main(["abstract", str(root / "in"), "--model", "chair", "-o", str(out), "--cache", str(tmp_path / "cache"),
+                     "--workers", "1", "--shard", f"{k}/2"]) == 0
+        seen.append(set(_outputs(out)))
+    assert seen[0] and seen[0] < seen[1]  # the first shard wrote a part, the second the rest
+    got = _outputs(out)
+    assert sorted(got) == sorted(reference)
+    # the same cuboids: the network sees other batches (other shapes beside each), which moves
+    # float32 results in the 7th digit, so numbers are compared, not bytes
+    for name in (n for n in reference if n.endswith(".json")):
+        a, b = json.loads(reference[name]), json.loads(got[name])
+        assert [p["index"] for p in a["parts"]] == [p["index"] for p in b["parts"]], name
+        for pa, pb in zip(a["parts"], b["parts"]):
+            for key in ("translation", "half_extents", "quaternion_wxyz"):
+                assert np.allclose(pa[key], pb[key], atol=1e-5), (name, key)
+    assert any(name.startswith("a-") for name in reference) and any(name.startswith("b-") for name in reference)
+
+
+def test_prepare_shards_fill_one_cache(shapes, tmp_path, capsys):
+    root, _ = shapes
+    cache = tmp_path / "cache"
+    for k in (1, 2, 3):
+        assert main(["prepare", str(root / "in"), "--cache", str(cache), "--workers", "1", "--shard", f"{k}/3"]) == 0
+    capsys.readouterr()
+    coll = data.prepare_collection(root / "in", cache_dir=cache, workers=1, progress=False)
+    assert len(coll) == 5 and "preparing" not in capsys.readouterr().err  # every shape found, none prepared
+
+
+def test_shard_option(monkeypatch):
+    assert parallel.parse_shard("2/5") == (2, 5) and parallel.parse_shard(None) is None
+    for bad in ("0/2", "3/2", "1", "a/b"):
+        with pytest.raises(ValueError, match="shard"):
+            parallel.parse_shard(bad)
+    for var in ("RANK", "WORLD_SIZE", "SLURM_ARRAY_TASK_ID", "SLURM_ARRAY_TASK_MIN", "SLURM_ARRAY_TASK_COUNT",
+                "SLURM_PROCID", "SLURM_NTASKS"):
+        monkeypatch.delenv(var, raising=False)
+    assert parallel.parse_shard("auto") is None
+    monkeypatch.setenv("SLURM_PROCID", "3")
+    monkeypatch.setenv("SLURM_NTASKS", "4")
+    assert parallel.parse_shard("auto") == (4, 4)
+    monkeypatch.setenv("SLURM_ARRAY_TASK_ID", "5")
+    monkeypatch.setenv("SLURM_ARRAY_TASK_MIN", "1")
+    monkeypatch.setenv("SLURM_ARRAY_TASK_COUNT", "8")
+    assert parallel.parse_shard("auto") == (5, 8)
+    monkeypatch.setenv("RANK", "0")
+    monkeypatch.setenv("WORLD_SIZE", "2")
+    assert parallel.parse_shard("auto") == (1, 2)  # torchrun's first
+    shards = [parallel.shard_indices(11, (k, 3)) for k in (1, 2, 3)]
+    assert sorted(sum(shards, [])) == list(range(11)) and not set(shards[0]) & set(shards[1])
+
+
+def test_executor_on_a_dask_local_cluster(shapes, tmp_path):
+    distributed = pytest.importorskip("distributed")
+    root, reference = shapes
+    out = tmp_path / "dask"
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        assert main(["abstract", str(root / "in"), "--model", "chair", "-o", str(out), "--cache", str(tmp_path / "cache"),
+                     "--executor", cluster.scheduler_address]) == 0
+    assert _outputs(out) == reference
