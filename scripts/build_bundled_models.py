@@ -1,17 +1,20 @@
 """Evaluate trained models and ship them as bundled models with their model cards.
 
-Usage (after ``primkit train ... --preset NAME -o RUNS/NAME.safetensors`` for each preset)::
+Usage (after ``primkit train ... --preset NAME -o RUNS/NAME.safetensors`` for each preset, and
+``scripts/name_bundled_models.sh RUNS`` to name their parts)::
 
     python scripts/build_bundled_models.py --runs RUNS [--names chair table airplane animal]
-        [--limit 200] [--refine 200] [--pictures docs/images]
+        [--limit 200] [--refine 200] [--pictures docs/images] [--partnet validation test]
 
 For each model: its held-out shapes (the preset's rule applied to the training folder recorded in
-the model) are abstracted without and with ``--refine``; the chair model is also run on the COSEG
-chairs in ``../shared/data/coseg_chairs`` (+Y up, front +Z) as given with the front named, with
-``--align auto`` on copies turned into random axis-aligned orientations, and the seat's primitive
-index is checked across chairs. The figures go into the model card (metadata key ``card``), and the
-model file with its card is written to ``primkit/model/bundled/NAME.safetensors``. Pictures of the
-abstractions go to ``--pictures``.
+the model) are abstracted without and with ``--refine``. The chair model is also evaluated with
+default flags (no axes declared) on the PartNet chairs (``scripts/partnet_chairs.py``: the
+validation part by default; the test part only when asked, once, for the model that ships), on the
+COSEG chairs in ``../shared/data/coseg_chairs`` (faces labelled right, the same index across
+chairs, copies turned into random axis-aligned orientations) and by ``primkit deform`` on their
+ordered pairs. The figures go into the model card (metadata key ``card``), and the model file with
+its card is written to ``primkit/model/bundled/NAME.safetensors``. Pictures of the abstractions go
+to ``--pictures``.
 """
 
 from __future__ import annotations
@@ -28,9 +31,11 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "scripts"))
 
-from primkit import data, geometry, io  # noqa: E402
+from primkit import data, geometry, io, segmentation  # noqa: E402
 from primkit.model import modelfile, orientation  # noqa: E402
+from primkit.model.abstraction import abstract_shapes  # noqa: E402
 from primkit.model.abstractor import Abstractor  # noqa: E402
 from primkit.metrics import ChamferConvention, part_label_agreement, score, summarize  # noqa: E402
 from primkit.model.presets import get_preset  # noqa: E402
@@ -38,6 +43,7 @@ from primkit.viz.render import render_abstractions  # noqa: E402
 
 SHARED = ROOT.parent / "shared" / "data"
 CONV = ChamferConvention()
+CONV_DIAGONAL = ChamferConvention(unit="diagonal")
 
 
 def _brief(summary: dict) -> dict:
@@ -55,6 +61,8 @@ def evaluate(abstractor, shapes, **kwargs):
     seconds = (time.perf_counter() - t0) / max(1, len(shapes))
     scores = [score(r.canonical, r.canonical_shape(s), CONV) for r, s in zip(results, shapes)]
     out = _brief(summarize(scores))
+    diagonal = [score(r.canonical, r.canonical_shape(s), CONV_DIAGONAL) for r, s in zip(results, shapes)]
+    out["chamfer_l1_diagonal"] = round(summarize(diagonal)["chamfer"]["mean"], 5)
     out["seconds_per_shape"] = round(seconds, 4)
     return out, results
 
@@ -73,37 +81,47 @@ def picture(results, shapes, path, title_extra=""):
     print(f"  picture: {path}", file=sys.stderr)
 
 
+def _coseg_truths(segs, names):
+    truths = []
+    for s in segs:
+        p = Path(s.source)
+        conv = "back,seat,legs/base" if p.parent.parent.name == "large_chairs" else "legs/base,seat,back"
+        truths.append(segmentation.read_ground_truth(p.parent.parent / "gt" / f"{p.stem}.seg", len(s.faces), conv, names))
+    return truths
+
+
 def coseg_chairs(abstractor, refine: int, pictures: Path | None, cache) -> dict:
+    """The COSEG chairs with default flags (no axes declared): fidelity in both units, the share of
+    faces labelled right under the paper's protocol and the stored names, the same index across
+    chairs, and random axis-aligned turns of each chair."""
     folder = SHARED / "coseg_chairs"
     files = sorted(folder.glob("*/shapes/*.off"))
-    # label values differ between the two subsets (see the data's README); map them to names
-    semantic = {"large_chairs": {1: 0, 2: 1, 3: 2}, "chairs_101-120": {3: 0, 2: 1, 1: 2}}
-    names = ["back", "seat", "legs"]
-    settings = data.PrepareSettings(up="+y", front="+z")
-    coll = data.prepare_collection(files, settings, cache_dir=cache, progress=False)
-    shapes = list(coll)
-    labels = []
-    for p, s in zip(coll.paths, shapes):
-        lut = semantic[p.parent.parent.name]
-        labels.append(np.array([lut.get(int(v), -1) for v in s.point_labels]))
-    out = {"shapes": len(shapes), "frame": "+Y up, front +Z (given to the model)"}
-    res_plain, results = evaluate(abstractor, shapes)
-    out["as_given"] = res_plain
-    out["as_given"]["part_index_agreement"] = {
-        k: v for k, v in part_label_agreement([r.canonical for r in results], [s.points for s in shapes], labels, names)["per_label"].items()
-    }
-    if pictures:
-        picture(results, shapes, pictures / "chair-coseg.png")
-    res_ref, results_ref = evaluate(abstractor, shapes, refine=refine)
-    out["refined"] = res_ref
-    out["refined"]["steps"] = refine
-    out["refined"]["part_index_agreement"] = {
-        k: v for k, v in part_label_agreement([r.canonical for r in results_ref], [s.points for s in shapes], labels, names)["per_label"].items()
-    }
-    if pictures:
-        picture(results_ref, shapes, pictures / "chair-coseg-refined.png", " (refined)")
+    out = {"shapes": len(files), "frame": "default flags: no axes declared (+Y up unless lying down, front searched)"}
+    for key, steps in (("as_given", 0), ("refined", refine)):
+        abstractions = abstract_shapes(files, abstractor, refine=steps, cache=cache, progress=False)
+        results = abstractions.results
+        shapes = [a.prepared for a in abstractions]
+        segs, errors = segmentation.Segmenter(abstractor).segment_results(results, progress=False)
+        names: list = []
+        report = segmentation.evaluate(segs, _coseg_truths(segs, names), part_names=abstractor.part_names)
+        r = _brief(summarize([score(x.canonical, x.canonical_shape(s), CONV) for x, s in zip(results, shapes)]))
+        r["chamfer_l1_diagonal"] = round(summarize([score(x.canonical, x.canonical_shape(s), CONV_DIAGONAL)
+                                                    for x, s in zip(results, shapes)])["chamfer"]["mean"], 5)
+        r["steps"] = steps
+        for protocol, e in report["protocols"].items():
+            r[f"faces_right_{protocol}"] = round(e["mean_faces"], 4)
+            r[f"area_right_{protocol}"] = round(e["mean_area"], 4)
+        r["per_shape_faces_right"] = {n: round(v["faces"], 4) for n, v in
+                                      report["protocols"]["collection-majority"]["shapes"].items()}
+        r["part_index_agreement"] = dict(part_label_agreement(
+            [x.canonical for x in results], [s.points for s in shapes],
+            [_point_labels(s, p) for s, p in zip(shapes, files)], ["back", "seat", "legs"])["per_label"])
+        out[key] = r
+        if pictures:
+            picture(results, shapes, pictures / ("chair-coseg.png" if steps == 0 else "chair-coseg-refined.png"),
+                    "" if steps == 0 else " (refined)")
 
-    # turned copies: each chair in a random axis-aligned orientation, no axes given, --align auto
+    # turned copies: each chair in a random axis-aligned orientation, no axes given
     rng = np.random.default_rng(0)
     with tempfile.TemporaryDirectory() as tmp:
         truth = []
@@ -113,26 +131,88 @@ def coseg_chairs(abstractor, refine: int, pictures: Path | None, cache) -> dict:
             a = orientation.AXIS_ROTATIONS[rng.integers(1, 24)]
             dst = Path(tmp) / f"{p.parent.parent.name}-{p.stem}.ply"
             io.write_mesh(dst, mesh.vertices @ a.T, mesh.faces)
-            # the rotation that the frame must apply to the turned copy: the given frame's after a.T
             truth.append(a)
             turned_files.append(dst)
         tcoll = data.prepare_collection(turned_files, data.PrepareSettings(), cache_dir=cache, progress=False)
         tshapes = list(tcoll)
         res_al, results_al = evaluate(abstractor, tshapes, align="auto")
-        recovered_up = recovered_both = 0
+        recovered_up = 0
         from primkit.geometry import axis_rotation
 
         want = axis_rotation("+y", "+z")
         for r, a in zip(results_al, truth):
             total = r.frame.rotation  # canonical = total @ x for the turned input x = a @ original
-            expected = want @ a.T
-            recovered_up += bool(np.allclose(total[1], expected[1]))
-            recovered_both += bool(np.allclose(total, expected))
+            recovered_up += bool(np.allclose(total[1], (want @ a.T)[1]))
         res_al["up_recovered"] = f"{recovered_up}/{len(results_al)}"
-        res_al["up_and_front_recovered"] = f"{recovered_both}/{len(results_al)}"
         out["turned_align_auto"] = res_al
-        if pictures:
-            picture(results_al, tshapes, pictures / "chair-coseg-turned-align.png", " (align auto)")
+    return out
+
+
+def _point_labels(shape, path: Path) -> np.ndarray:
+    semantic = {"large_chairs": {1: 0, 2: 1, 3: 2}, "chairs_101-120": {3: 0, 2: 1, 1: 2}}
+    lut = semantic[path.parent.parent.name]
+    return np.array([lut.get(int(v), -1) for v in shape.point_labels])
+
+
+def coseg_deform(model_path: Path, limit: int = 0) -> dict:
+    """``primkit deform`` with default flags on the ordered pairs of COSEG chairs: is the result
+    closer to the target than the source? Chamfer-L1 with each mesh in its own frame (bounding box
+    centred, diagonal 1: the files use different units), 10k + 10k area-uniform samples."""
+    import contextlib
+    import io as text_io
+
+    import trimesh
+
+    from primkit.cli import main as cli
+    from primkit.metrics import chamfer_distance
+
+    files = sorted((SHARED / "coseg_chairs").glob("*/shapes/*.off"))
+
+    def unit_points(path, seed):
+        m = io.read_mesh(path)
+        p, _ = trimesh.sample.sample_surface(trimesh.Trimesh(m.vertices, m.faces, process=False), 10000, seed=seed)
+        lo, hi = m.vertices.min(0), m.vertices.max(0)
+        return (p - (lo + hi) / 2) / np.linalg.norm(hi - lo)
+
+    pairs = [(a, b) for a in files for b in files if a != b][: limit or None]
+    closer, failed, before, after = 0, 0, [], []
+    with tempfile.TemporaryDirectory() as tmp:
+        for k, (a, b) in enumerate(pairs):
+            dst = Path(tmp) / f"{k}.off"
+            with contextlib.redirect_stdout(text_io.StringIO()):
+                code = cli(["deform", str(a), str(b), "--model", str(model_path), "-o", str(dst), "--workers", "1"])
+            if code != 0:
+                failed += 1
+                continue
+            tgt = unit_points(b, 1)
+            before.append(chamfer_distance(unit_points(a, 2), tgt))
+            after.append(chamfer_distance(unit_points(dst, 3), tgt))
+            closer += after[-1] < before[-1]
+    return {"pairs": len(pairs), "closer": int(closer), "failed": failed,
+            "chamfer_source_target": round(float(np.mean(before)), 5) if before else None,
+            "chamfer_result_target": round(float(np.mean(after)), 5) if after else None,
+            "convention": "Chamfer-L1 (two-way mean, unsquared), each mesh centred with bounding-box diagonal 1, "
+                          "10k + 10k samples; default flags of primkit deform"}
+
+
+def partnet(model_path: Path, parts: list[str]) -> dict:
+    """The chair model on the PartNet validation (and, once, test) chairs with default flags."""
+    import partnet_chairs
+
+    validation, test, archive = partnet_chairs.split()
+    out = {}
+    for part in parts:
+        files = validation if part == "validation" else test
+        report = partnet_chairs.evaluate(model_path, files, archive)
+        for line in partnet_chairs.summary_lines(report):
+            print(f"  PartNet {part}: {line}", file=sys.stderr)
+        keep = {k: report[k] for k in ("iou_rule", "mean_over", "shapes_evaluated", "frames", "parts_histogram",
+                                       "parts_mean", "distinct_index_sets")}
+        keep["protocols"] = {p: {k: e[k] for k in ("iou", "mean_iou", "accuracy", "mapping")}
+                             | {"arm_detection": e["detection"]["arms"],
+                                "absent_kept_absent": {n: d["absent_kept_absent"] for n, d in e["detection"].items()}}
+                             for p, e in report["protocols"].items()}
+        out[part] = keep
     return out
 
 
@@ -160,26 +240,53 @@ def card_text(name: str, card: dict) -> str:
     lines = [f"# primkit bundled model: {name}", "", card["summary"], "",
              f"- Data: {card['data']}", f"- Terms: {card['terms']}", f"- Reproduce: `{card['command']}`",
              f"- Schedule: {card['schedule']}", f"- Training time: {card['training_time']}",
-             f"- Metric convention: {m['convention']}", ""]
+             f"- Part names: {card['part_names']}",
+             f"- Metric convention: {m['convention']} (\"diagonal\": the same in units of the shape's bounding-box diagonal)", ""]
     h = m["held_out"]
     lines.append(f"Held-out shapes ({h['evaluated']} of {h['held_out_total']} never trained on):")
     for key in ("network", "refined"):
         r = h[key]
-        lines.append(f"- {key}: Chamfer-L1 {r['chamfer_l1']:.4f}, IoU {r['iou']:.3f}, parts {r['parts']:.1f}, "
-                     f"{r['seconds_per_shape'] * 1000:.0f} ms/shape")
+        lines.append(f"- {key}: Chamfer-L1 {r['chamfer_l1']:.4f} (diagonal {r['chamfer_l1_diagonal']:.4f}), IoU {r['iou']:.3f}, "
+                     f"parts {r['parts']:.1f}, {r['seconds_per_shape'] * 1000:.0f} ms/shape")
+    if "partnet_chairs" in m:
+        lines.append("")
+        lines.append("PartNet chairs (held-out ShapeNetVox32 chairs with PartNet's part boxes as voxel labels, "
+                     "default flags, no refinement; scripts/partnet_chairs.py; per-shape IoU, 1 when a label is absent from both):")
+        for part, rep in m["partnet_chairs"].items():
+            for protocol, e in rep["protocols"].items():
+                arm = e["arm_detection"]
+                lines.append(f"- {part} ({rep['shapes_evaluated']} chairs), {protocol}: " + ", ".join(
+                    f"{k} {v:.3f}" for k, v in e["iou"].items()) + f"; mean over back, seat, legs {e['mean_iou']:.3f}; "
+                    f"arm detection F1 {arm['f1']:.3f}")
+            hist = ", ".join(f"{n}: {c}" for n, c in rep["parts_histogram"].items())
+            lines.append(f"  parts per chair (mean {rep['parts_mean']:.1f}): {hist}")
     if "coseg_chairs" in m:
         c = m["coseg_chairs"]
         lines.append("")
-        lines.append(f"COSEG chairs ({c['shapes']} real meshes, another source than ShapeNet):")
-        for key in ("as_given", "refined", "turned_align_auto"):
+        lines.append(f"COSEG chairs ({c['shapes']} real meshes, another source than ShapeNet; {c['frame']}):")
+        for key in ("as_given", "refined"):
             r = c[key]
-            extra = ""
-            if "part_index_agreement" in r:
-                extra = "; same index across chairs: " + ", ".join(f"{k} {v['agreement']:.0%} (#{v['index']})" for k, v in r["part_index_agreement"].items())
-            if "up_recovered" in r:
-                extra = f"; up recovered {r['up_recovered']}, up and front {r['up_and_front_recovered']}"
-            lines.append(f"- {key}: Chamfer-L1 {r['chamfer_l1']:.4f}, IoU {r['iou']:.3f}, parts {r['parts']:.1f}{extra}")
+            agree = ", ".join(f"{k} {v['agreement']:.0%} (#{v['index']})" for k, v in r["part_index_agreement"].items())
+            lines.append(f"- {key} (refine {r['steps']}): faces labelled right {r['faces_right_collection-majority']:.1%} "
+                         f"(paper's protocol), {r.get('faces_right_model-names', float('nan')):.1%} (stored names); "
+                         f"Chamfer-L1 {r['chamfer_l1']:.4f} (diagonal {r['chamfer_l1_diagonal']:.4f}), parts {r['parts']:.1f}; "
+                         f"same index across chairs: {agree}")
+        r = c["turned_align_auto"]
+        lines.append(f"- each chair turned at random (axis-aligned): up recovered {r['up_recovered']}")
+    if "coseg_deform" in m:
+        d = m["coseg_deform"]
+        lines.append(f"- primkit deform on {d['pairs']} ordered pairs: {d['closer']} end closer to the target than the "
+                     f"source (mean Chamfer {d['chamfer_source_target']:.4f} -> {d['chamfer_result_target']:.4f}, "
+                     "unit-diagonal frames)")
     return "\n".join(lines) + "\n"
+
+
+def _naming(meta: dict) -> str:
+    n = meta.get("part_naming")
+    if not n:
+        return "none stored"
+    where = ", ".join(n.get("labels_from") or n.get("inputs") or [])
+    return f"learned by primkit name-parts from {n['shapes']} labelled shapes ({where}); {n['rule']}"
 
 
 def main(argv=None) -> int:
@@ -191,6 +298,9 @@ def main(argv=None) -> int:
     ap.add_argument("--pictures", type=Path, default=None)
     ap.add_argument("--cache", default=None)
     ap.add_argument("--dest", type=Path, default=ROOT / "primkit" / "model" / "bundled")
+    ap.add_argument("--partnet", nargs="*", default=["validation"], choices=["validation", "test"],
+                    help="chair: the PartNet parts to evaluate (test: once, for the model that ships)")
+    ap.add_argument("--deform-pairs", type=int, default=0, help="chair: COSEG pairs for primkit deform (0: all 90)")
     args = ap.parse_args(argv)
     if args.pictures:
         args.pictures.mkdir(parents=True, exist_ok=True)
@@ -204,8 +314,11 @@ def main(argv=None) -> int:
         weights, meta = modelfile.load_model(src)
         abstractor = Abstractor.load(src)
         metrics = {"convention": CONV.describe(), "held_out": held_out(abstractor, meta, args.limit, args.refine, args.pictures, name, args.cache)}
+        if name == "chair" and (SHARED / "partnet_chair_boxes").is_dir() and args.partnet:
+            metrics["partnet_chairs"] = partnet(src, args.partnet)
         if name == "chair" and (SHARED / "coseg_chairs").is_dir():
             metrics["coseg_chairs"] = coseg_chairs(abstractor, args.refine, args.pictures, args.cache)
+            metrics["coseg_deform"] = coseg_deform(src, args.deform_pairs)
         t = meta["training"]
         cfg = t["config"]
         card = {
@@ -216,7 +329,9 @@ def main(argv=None) -> int:
             "schedule": f"{cfg['stage1_iterations']} + {cfg['stage2_iterations']} iterations (stage 1 all parts on, stage 2 "
                         f"existence learned), batch {cfg['batch_size']}, Adam {cfg['learning_rate']}, "
                         f"{cfg['points_per_shape']} points per shape, {cfg['samples_per_cuboid']} samples per cuboid, "
+                        f"existence by {cfg.get('existence_gradient', 'reinforce')} gradient, "
                         f"parsimony {cfg['parsimony']}, seed {cfg['seed']}",
+            "part_names": _naming(meta),
             "training_time": f"{t['seconds'] / 60:.1f} min on {t['device']} ({os.cpu_count()} cores, {platform.processor() or platform.machine()}), torch {t['torch']}",
             "metrics": metrics,
         }

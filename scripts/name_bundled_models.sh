@@ -1,12 +1,27 @@
 #!/usr/bin/env bash
-# Name the part indices of the bundled models from procedural part-labelled shapes that primkit
-# generates itself (seed 7, never used in training or tests), so the names are learned on shapes
-# other than any evaluation set. Rewrites primkit/model/bundled/<name>.safetensors (weights unchanged).
+# Name the part indices of trained models before they are built into bundled models
+# (scripts/build_bundled_models.py --runs RUNS/named):
+# - chair: from real labels, the first 40 PartNet validation chairs (scripts/partnet_chairs.py's
+#   split; PartNet's part boxes as voxel labels), never the test part;
+# - table, airplane, animal: from 40 procedural part-labelled shapes that primkit generates itself
+#   (seed 7, never used in training or tests); no labelled real tables or airplanes are in ../shared.
+# Usage: scripts/name_bundled_models.sh RUNS   (reads RUNS/NAME.safetensors, writes RUNS/named/NAME.safetensors)
 set -euo pipefail
 cd "$(dirname "$0")/.."
-work="${1:-$(mktemp -d)}"
+runs="${1:?usage: $0 RUNS}"
+work="$(mktemp -d)"
+mkdir -p "$runs/named"
 for category in chair table airplane animal; do
-  .venv/bin/primkit generate "$category" -n 40 --seed 7 -o "$work/$category" --force
-  .venv/bin/primkit name-parts "$work/$category" --model "primkit/model/bundled/$category.safetensors" \
-    -o "primkit/model/bundled/$category.safetensors" --refine 200 --cache "$work/cache" --force
+  model="$runs/$category.safetensors"
+  [ -f "$model" ] || { echo "$model: missing, skipped" >&2; continue; }
+  if [ "$category" = chair ]; then
+    mapfile -t files < <(.venv/bin/python -c 'import sys; sys.path.insert(0, "scripts"); import partnet_chairs as p
+print("\n".join(str(f) for f in p.split()[0][:40]))')
+    .venv/bin/primkit name-parts "${files[@]}" --model "$model" -o "$runs/named/$category.safetensors" \
+      --labels ../shared/data/partnet_chair_boxes --force
+  else
+    .venv/bin/primkit generate "$category" -n 40 --seed 7 -o "$work/$category" --force
+    .venv/bin/primkit name-parts "$work/$category" --model "$model" -o "$runs/named/$category.safetensors" \
+      --refine 200 --cache "$work/cache" --force
+  fi
 done
