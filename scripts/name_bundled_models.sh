@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Name the part indices of trained models before they are built into bundled models
 # (scripts/build_bundled_models.py --runs RUNS/named):
-# - chair: from real labels, the first 40 PartNet validation chairs (scripts/partnet_chairs.py's
+# - chair: from real labels, the first 100 PartNet validation chairs (scripts/partnet_chairs.py's
 #   split; PartNet's part boxes as voxel labels), never the test part;
 # - table, airplane, animal: from 40 procedural part-labelled shapes that primkit generates itself
 #   (seed 7, never used in training or tests); no labelled real tables or airplanes are in ../shared.
@@ -16,7 +16,7 @@ for category in chair table airplane animal; do
   [ -f "$model" ] || { echo "$model: missing, skipped" >&2; continue; }
   if [ "$category" = chair ]; then
     mapfile -t files < <(.venv/bin/python -c 'import sys; sys.path.insert(0, "scripts"); import partnet_chairs as p
-print("\n".join(str(f) for f in p.split()[0][:40]))')
+print("\n".join(str(f) for f in p.split()[0][:100]))')
     .venv/bin/primkit name-parts "${files[@]}" --model "$model" -o "$runs/named/$category.safetensors" \
       --labels ../shared/data/partnet_chair_boxes --force
   else
