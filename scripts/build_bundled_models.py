@@ -20,6 +20,7 @@ to ``--pictures``.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import platform
 import sys
@@ -195,6 +196,15 @@ def coseg_deform(model_path: Path, limit: int = 0) -> dict:
                           "10k + 10k samples; default flags of primkit deform"}
 
 
+def _finite(value):
+    """NaN (an undefined rate, e.g. no chair without that label) as None: model metadata is strict JSON."""
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_finite(v) for v in value]
+    return None if isinstance(value, float) and value != value else value
+
+
 def partnet(model_path: Path, parts: list[str]) -> dict:
     """The chair model on the PartNet validation (and, once, test) chairs with default flags."""
     import partnet_chairs
@@ -212,7 +222,7 @@ def partnet(model_path: Path, parts: list[str]) -> dict:
                              | {"arm_detection": e["detection"]["arms"],
                                 "absent_kept_absent": {n: d["absent_kept_absent"] for n, d in e["detection"].items()}}
                              for p, e in report["protocols"].items()}
-        out[part] = keep
+        out[part] = _finite(keep)
     return out
 
 
@@ -339,6 +349,7 @@ def main(argv=None) -> int:
         meta["card"] = card
         meta["metrics"] = metrics
         args.dest.mkdir(parents=True, exist_ok=True)
+        (args.dest / f"{name}.card.json").write_text(json.dumps(card, indent=1))  # kept if the save fails
         dst = modelfile.save_model(args.dest / f"{name}.safetensors", weights, meta, overwrite=True)
         print(card["text"])
         print(f"wrote {dst} ({dst.stat().st_size / 1024:.0f} KiB)", file=sys.stderr)

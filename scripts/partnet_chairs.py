@@ -66,7 +66,7 @@ def evaluate(model, files, archive, *, refine: int = 0, workers=None, progress: 
         "seconds": round(seconds, 1),
         "refine": refine,
         "frames": "default flags: no axes declared (+Y up unless the collection lies on a side, front searched)",
-        "parts_histogram": {int(n): int(c) for n, c in zip(*np.unique(counts, return_counts=True))},
+        "parts_histogram": {str(n): int(c) for n, c in zip(*np.unique(counts, return_counts=True))},
         "parts_mean": float(counts.mean()),
         "presence_per_index": [round(float(p), 3) for p in present.mean(axis=0)],
         "distinct_index_sets": len(index_sets),
