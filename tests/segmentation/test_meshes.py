@@ -246,10 +246,12 @@ def test_name_parts_writes_a_named_copy(tmp_path, capsys):
 
 @pytest.mark.shared
 def test_coseg_chairs_accuracy(shared_data, tmp_path):
-    """The issue's target: mean accuracy >= 89% under the paper's protocol on the COSEG chairs,
-    both label conventions (large_chairs: 1 back, 2 seat, 3 legs; chairs_101-120: 1 legs, 2 seat, 3 back)."""
+    """The README's figure: with default flags (no axes declared, no refinement) the bundled chair
+    labels 90.7% of the COSEG chairs' faces right under the paper's protocol and with its stored
+    names (both label conventions: large_chairs 1 back, 2 seat, 3 legs; chairs_101-120 1 legs,
+    2 seat, 3 back)."""
     root = shared_data / "coseg_chairs"
-    seg = segmentation.Segmenter("chair", front="+z", refine=200)
+    seg = segmentation.Segmenter("chair")
     files = sorted(root.glob("*/shapes/*.off"))
     segs, errors = seg.segment_files(files, cache_dir=tmp_path, workers=1, progress=False)
     assert not errors and len(segs) == len(files) >= 10
@@ -260,5 +262,5 @@ def test_coseg_chairs_accuracy(shared_data, tmp_path):
         truths.append(segmentation.read_ground_truth(p.parent.parent / "gt" / f"{p.stem}.seg", len(s.faces), conv, names))
     report = segmentation.evaluate(segs, truths, part_names=seg.part_names)
     paper = report["protocols"]["collection-majority"]
-    assert paper["mean_area"] >= 0.89 and paper["mean_faces"] >= 0.89
-    assert report["protocols"]["model-names"]["mean_area"] >= 0.85
+    assert paper["mean_area"] >= 0.92 and paper["mean_faces"] >= 0.90
+    assert report["protocols"]["model-names"]["mean_faces"] >= 0.90
