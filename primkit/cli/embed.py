@@ -96,7 +96,7 @@ def _picture_path(path):
 
 def _cmd_embed(args) -> int:
     from .. import embedding
-    from ..io import atomic_output, check_suffix
+    from ..io import check_suffix, write_array
 
     out = Path(args.output)
     names_out = ["distances.npy", "distances.csv", "map.csv"]
@@ -122,17 +122,13 @@ def _cmd_embed(args) -> int:
         D = None
     out.mkdir(parents=True, exist_ok=True)
     if D is not None:
-        with atomic_output(out / "distances.npy", overwrite=args.force) as tmp:
-            with open(tmp, "wb") as fh:
-                np.save(fh, D)
+        write_array(out / "distances.npy", D, overwrite=args.force)
         rows = ["name," + ",".join(names)] + [f"{n}," + ",".join(f"{v:.6g}" for v in row) for n, row in zip(names, D)]
         _write_text(out / "distances.csv", "\n".join(rows) + "\n", args.force)
     else:
         print(f"{s} shapes: no full distance matrix written (--distances yes asks for it)", file=sys.stderr)
     if X is not None:
-        with atomic_output(out / "descriptors.npy", overwrite=args.force) as tmp:
-            with open(tmp, "wb") as fh:
-                np.save(fh, X)
+        write_array(out / "descriptors.npy", X, overwrite=args.force)
     if X is None:
         coords = embedding.tsne_map(distances=D, perplexity=args.perplexity, random_state=args.seed)
     else:

@@ -52,7 +52,7 @@ layer: it imports nothing else of primkit.
 """
 
 from . import files, formats, values
-from .files import OutputError, atomic_output, check_outputs, check_suffix, is_temporary, refuse_existing
+from .files import OutputError, atomic_output, check_outputs, check_suffix, is_temporary, refuse_existing, write_array
 from .formats import LABEL_SUFFIXES, MESH_SUFFIXES, MESH_WRITE_SUFFIXES, POINT_SUFFIXES, VOXEL_SUFFIXES, is_shape_file, read_labels, read_mesh, read_points, read_shape, read_voxels, write_labels, write_like, write_mesh, write_points, write_voxels
 from .values import Mesh, PointCloud, ShapeFileError, VoxelGrid
 

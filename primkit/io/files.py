@@ -23,7 +23,9 @@ import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 
-__all__ = ["OutputError", "check_outputs", "check_suffix", "refuse_existing", "atomic_output", "is_temporary"]
+import numpy as np
+
+__all__ = ["OutputError", "check_outputs", "check_suffix", "refuse_existing", "atomic_output", "write_array", "is_temporary"]
 
 #: the name of :func:`atomic_output`'s temporaries: ``.<name>.<8 hex digits>.tmp<suffix>``
 _TEMPORARY = re.compile(r"^\..+\.[0-9a-f]{8}\.tmp(\.[^.]*)?$")
@@ -182,6 +184,15 @@ def atomic_output(path, *, overwrite=False):
         except FileNotFoundError:
             pass
         raise
+
+
+def write_array(path, array, *, overwrite=False) -> Path:
+    """Write one NumPy array as ``.npy`` through :func:`atomic_output`; returns the path."""
+    path = Path(path)
+    with atomic_output(path, overwrite=overwrite) as temporary:
+        with open(temporary, "wb") as fh:
+            np.save(fh, np.asarray(array))
+    return path
 
 
 def _as_list(paths) -> list:

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["default_names", "resolve_parts", "names_from_labels", "label_codes"]
+__all__ = ["default_names", "resolve_parts", "names_from_labels", "label_codes", "named_labels"]
 
 
 def default_names(count: int) -> list[str]:
@@ -121,3 +121,11 @@ def label_codes(names) -> tuple[list[str], np.ndarray]:
             distinct.append(n)
         codes.append(distinct.index(n) + 1)
     return distinct, np.array(codes, dtype=np.int64)
+
+
+def named_labels(labels, names) -> np.ndarray:
+    """Part indices (any shape, -1 for unassigned) as the 1-based codes of their names
+    (:func:`label_codes`); -1 stays -1."""
+    labels = np.asarray(labels)
+    _, codes = label_codes(names)
+    return np.where(labels >= 0, codes[np.clip(labels, 0, None)], -1)

@@ -51,13 +51,8 @@ class PointSegmentation:
         folder.mkdir(parents=True, exist_ok=True)
         paths = {"labels": folder / f"{self.name}.parts.npy", "mesh": folder / f"{self.name}.parts.ply"}
         io.refuse_existing(paths.values(), overwrite)
-        labels = self.labels
-        if semantic:
-            _, codes = parts.label_codes(self.part_names)
-            labels = np.where(labels >= 0, codes[np.clip(labels, 0, None)], -1)
-        with io.atomic_output(paths["labels"], overwrite=overwrite) as tmp:
-            with open(tmp, "wb") as fh:
-                np.save(fh, labels.astype(np.int16))
+        labels = parts.named_labels(self.labels, self.part_names) if semantic else self.labels
+        io.write_array(paths["labels"], labels.astype(np.int16), overwrite=overwrite)
         palette = np.vstack([part_colors(max(self.cuboids.count, 1)), [[200, 200, 200]]]).astype(np.uint8)
         io.write_points(paths["mesh"], self.points, labels=labels, colors=palette[np.where(self.labels < 0, -1, self.labels)],
                         overwrite=overwrite)

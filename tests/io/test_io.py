@@ -689,3 +689,24 @@ def test_binvox_writer_reproduces_a_shapenet_file_byte_for_byte(shared_data, tmp
     src = sorted((shared_data / "shapenetvox32" / "03001627").iterdir())[5] / "model.binvox"
     out = io.write_voxels(tmp_path / "copy.binvox", io.read_voxels(src))
     assert out.read_bytes() == src.read_bytes()
+
+
+def test_write_array_round_trips_and_refuses_to_overwrite(tmp_path):
+    a = np.arange(24, dtype=np.int16).reshape(2, 3, 4) - 5
+    path = io.write_array(tmp_path / "a.npy", a)
+    assert np.array_equal(np.load(path), a) and np.load(path).dtype == np.int16
+    with pytest.raises(FileExistsError):
+        io.write_array(path, a + 1)
+    io.write_array(path, a + 1, overwrite=True)
+    assert np.array_equal(np.load(path), a + 1)
+    assert not [p for p in tmp_path.iterdir() if io.is_temporary(p)]
+
+
+def test_named_labels_keep_unassigned_and_code_names_from_one():
+    from primkit.model.parts import label_codes, named_labels
+
+    names = ["seat", "legs", "legs", "back"]
+    labels = np.array([[0, 1, -1], [2, 3, -1]])
+    expected = np.array([[label_codes(names)[1][k] if k >= 0 else -1 for k in row] for row in labels])
+    assert np.array_equal(named_labels(labels, names), expected)
+    assert np.array_equal(named_labels(labels, names), [[1, 2, -1], [2, 3, -1]])
