@@ -36,6 +36,10 @@ __all__ = [
     "ThreadGovernor",
     "torch_threads",
     "limit_native_threads",
+    "parse_shard",
+    "shard_indices",
+    "ExecutorError",
+    "executor_from",
 ]
 
 #: set by primkit when it chose ``OMP_NUM_THREADS`` itself (so that the value is not taken as the user's)
@@ -324,9 +328,14 @@ def shard_indices(count: int, shard) -> list:
     return list(range(k - 1, count, n))
 
 
+class ExecutorError(RuntimeError):
+    """``--executor ADDRESS`` cannot be used: its engine is not installed, or nothing answers there."""
+
+
 class _PoolExecutor:
     """A ``multiprocessing.Pool``-like object (``ray.util.multiprocessing.Pool``) seen as the
-    ``map`` of a ``concurrent.futures.Executor``: results in order, as they come."""
+    ``map`` of a ``concurrent.futures.Executor``: results in order, as they come. (Ray 2.58 has
+    no ``concurrent.futures`` executor of its own; its Pool is the documented drop-in.)"""
 
     def __init__(self, pool):
         self.pool = pool
@@ -335,14 +344,31 @@ class _PoolExecutor:
         return self.pool.imap(func, jobs)
 
 
+def _ray_address(address: str):
+    """What ``ray.init`` is given for ``--executor ray...``: None for ``ray`` (a cluster already
+    joined, ``RAY_ADDRESS``, one started here by ``ray start``, else a new local one), the Ray
+    Client address for ``ray://HOST:10001``, ``auto`` or ``HOST:6379`` for ``ray:auto`` /
+    ``ray:HOST:6379`` (a running cluster, from one of its nodes)."""
+    if address == "ray":
+        return None
+    if address.startswith("ray://"):
+        return address
+    rest = address[len("ray:"):]
+    if not rest:
+        raise ValueError(f"--executor {address}: give ray, ray:auto, ray:HOST:PORT or ray://HOST:PORT")
+    return rest
+
+
 @contextlib.contextmanager
 def executor_from(address):
     """A ``concurrent.futures``-style executor for ``--executor ADDRESS``, closed afterwards.
 
     * ``tcp://HOST:PORT`` (or any address a ``dask.distributed.Client`` takes; ``dask`` alone
       starts a local cluster): the client's ``get_executor()`` (``pip install primkit[dask]``).
-    * ``ray`` or ``ray://HOST:PORT``: ``ray.util.multiprocessing.Pool`` on that cluster (``ray``
-      alone: a local one; ``pip install primkit[ray]``).
+    * ``ray``, ``ray:auto``, ``ray:HOST:PORT`` or ``ray://HOST:PORT``:
+      ``ray.util.multiprocessing.Pool`` on that cluster (:func:`_ray_address`; ``pip install
+      primkit[ray]``). A Ray instance this call started is shut down afterwards; one the caller
+      started (``ray.init``) is used as it is and left running.
 
     An executor passed as it is (anything with ``map``) is yielded unchanged and left open.
     """
@@ -350,22 +376,35 @@ def executor_from(address):
         yield address
         return
     address = str(address)
-    if address == "ray" or address.startswith("ray://"):
+    if address == "ray" or address.startswith("ray:"):
+        ray_address = _ray_address(address)
         try:
+            import ray
             from ray.util.multiprocessing import Pool
         except ImportError:
-            raise RuntimeError("--executor ray needs Ray: pip install 'ray[default]'") from None
-        pool = Pool(ray_address=None if address == "ray" else address)
+            raise ExecutorError(f"--executor {address} needs Ray: pip install 'ray[default]'") from None
+        started = not ray.is_initialized()
+        try:
+            pool = Pool(ray_address=ray_address)
+        except (ConnectionError, ValueError) as exc:  # no cluster there, or one without CPUs
+            if started and ray.is_initialized():
+                ray.shutdown()
+            raise ExecutorError(f"--executor {address}: {str(exc).splitlines()[0]}") from None
         try:
             yield _PoolExecutor(pool)
         finally:
             pool.terminate()
+            if started:
+                ray.shutdown()
         return
     try:
         from distributed import Client
     except ImportError:
-        raise RuntimeError(f"--executor {address} needs dask.distributed: pip install distributed") from None
-    client = Client() if address == "dask" else Client(address)
+        raise ExecutorError(f"--executor {address} needs dask.distributed: pip install distributed") from None
+    try:
+        client = Client() if address == "dask" else Client(address)
+    except (OSError, ValueError, TypeError) as exc:  # nothing answers there (a timeout), or not an address
+        raise ExecutorError(f"--executor {address}: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None
     try:
         yield client.get_executor()
     finally:

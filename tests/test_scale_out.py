@@ -2,6 +2,7 @@
 give the outputs of one local run, named alike, without clashes."""
 
 import json
+import sys
 
 import numpy as np
 import pytest
@@ -89,3 +90,51 @@ def test_executor_on_a_dask_local_cluster(shapes, tmp_path):
         assert main(["abstract", str(root / "in"), "--model", "chair", "-o", str(out), "--cache", str(tmp_path / "cache"),
                      "--executor", cluster.scheduler_address]) == 0
     assert _outputs(out) == reference
+
+
+# ------------------------------------------------------------------ Ray
+
+
+def test_executor_on_a_local_ray_instance(shapes, tmp_path, monkeypatch):
+    """abstract with --executor ray on a Ray instance started here (2 CPUs): the outputs of the
+    local run, byte for byte."""
+    ray = pytest.importorskip("ray")
+    root, reference = shapes
+    sent = []
+    pool_map = parallel._PoolExecutor.map
+
+    def map_(self, func, jobs):
+        jobs = list(jobs)
+        sent.append((func.__name__, len(jobs)))
+        return pool_map(self, func, jobs)
+
+    monkeypatch.setattr(parallel._PoolExecutor, "map", map_)
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    try:
+        assert main(["abstract", str(root / "in"), "--model", "chair", "-o", str(tmp_path / "abstract"),
+                     "--cache", str(tmp_path / "cache"), "--executor", "ray"]) == 0
+        assert ray.is_initialized()  # the caller's instance is left running
+        assert sent == [("_prepare_row", 5)]  # the five shapes prepared there
+    finally:
+        ray.shutdown()
+    assert _outputs(tmp_path / "abstract") == reference
+
+
+def test_ray_addresses():
+    assert parallel._ray_address("ray") is None
+    assert parallel._ray_address("ray:auto") == "auto"
+    assert parallel._ray_address("ray:10.0.0.1:6379") == "10.0.0.1:6379"
+    assert parallel._ray_address("ray://head:10001") == "ray://head:10001"
+    with pytest.raises(ValueError, match="ray:auto"):
+        parallel._ray_address("ray:")
+
+
+def test_a_missing_engine_is_one_line(shapes, tmp_path, monkeypatch, capsys):
+    root, _ = shapes
+    for module, address, words in (("ray", "ray", "needs Ray"), ("distributed", "tcp://127.0.0.1:8786", "needs dask")):
+        monkeypatch.setitem(sys.modules, module, None)  # not installed
+        assert main(["abstract", str(root / "in"), "--model", "chair", "-o", str(tmp_path / "out"),
+                     "--cache", str(root / "cache-one"), "--executor", address]) == 2
+        err = [line for line in capsys.readouterr().err.splitlines() if not line.startswith("primkit: note:")]
+        assert len(err) == 1 and words in err[0] and address in err[0], err
+    assert not (tmp_path / "out").exists()

@@ -353,6 +353,7 @@ def _command_modules() -> list[str]:
 def main(argv=None) -> int:
     from ..io import ShapeFileError
     from ..model.modelfile import ModelFileError
+    from ..parallel import ExecutorError
 
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -361,7 +362,7 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         err("interrupted")
         return 130
-    except (ShapeFileError, ModelFileError, OSError, ValueError) as exc:  # OSError: FileExistsError, a full disk...
+    except (ShapeFileError, ModelFileError, ExecutorError, OSError, ValueError) as exc:  # OSError: FileExistsError, a full disk...
         err(str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
         return 2
 
