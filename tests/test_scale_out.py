@@ -92,12 +92,106 @@ def test_executor_on_a_dask_local_cluster(shapes, tmp_path):
     assert _outputs(out) == reference
 
 
-# ------------------------------------------------------------------ Ray
+# ------------------------------------------------------------------ segment
 
 
-def test_executor_on_a_local_ray_instance(shapes, tmp_path, monkeypatch):
-    """abstract with --executor ray on a Ray instance started here (2 CPUs): the outputs of the
-    local run, byte for byte."""
+def _segment(root, out, cache, *extra):
+    return main(["segment", str(root / "in"), "--model", "chair", "-o", str(out), "--cache", str(cache), "--workers", "1",
+                 "--semantic", *extra])
+
+
+@pytest.fixture(scope="module")
+def segmented(shapes):
+    """One local segment run over the five chairs (the cache abstract's run filled: the same settings)."""
+    root, _ = shapes
+    one = root / "seg-one"
+    assert _segment(root, one, root / "cache-one") == 0
+    return _outputs(one)
+
+
+def _same_cuboids(a, b, name):
+    a, b = json.loads(a), json.loads(b)
+    assert [p["index"] for p in a["parts"]] == [p["index"] for p in b["parts"]], name
+    for pa, pb in zip(a["parts"], b["parts"]):
+        for key in ("translation", "half_extents", "quaternion_wxyz"):
+            assert np.allclose(pa[key], pb[key], atol=1e-5), (name, key)
+
+
+def _rows(text):
+    lines = text.decode().splitlines()
+    return lines[0], {line.split(",")[0]: line.split(",")[1:] for line in lines[1:]}
+
+
+def test_segment_shards_together_give_one_runs_outputs(shapes, segmented, tmp_path, capsys):
+    root, _ = shapes
+    out = tmp_path / "sharded"
+    for k in (1, 2):
+        assert _segment(root, out, tmp_path / "cache", "--shard", f"{k}/2") == 0
+    assert "summary of shard 2/2" in capsys.readouterr().out
+    got = _outputs(out)
+    shard_summaries = ["summary.shard-1-of-2.csv", "summary.shard-2-of-2.csv"]
+    assert sorted(got) == sorted(set(segmented) - {"summary.csv"} | set(shard_summaries))
+    shapes_of = [_rows(got[name])[1] for name in shard_summaries]
+    assert len(shapes_of[0]) == 3 and len(shapes_of[1]) == 2 and not set(shapes_of[0]) & set(shapes_of[1])
+    header, reference_rows = _rows(segmented["summary.csv"])
+    assert all(_rows(got[name])[0] == header for name in shard_summaries)
+    rows = {**shapes_of[0], **shapes_of[1]}
+    assert sorted(rows) == sorted(reference_rows)
+    for name, row in rows.items():  # faces, parts present alike; areas within float32 noise
+        assert row[:2] == reference_rows[name][:2], name
+        assert np.allclose(np.array(row[2:], float), np.array(reference_rows[name][2:], float), rtol=1e-5), name
+    # labels and coloured meshes byte for byte: a face changes part only if its nearest cuboids tie
+    # within the 1e-7 by which the shards' cuboids differ (other batch neighbours in the network)
+    for name, content in segmented.items():
+        if name.endswith((".seg", ".parts.ply")) or name == "labels.csv":
+            assert got[name] == content, name
+        elif name.endswith(".cuboids.json"):
+            _same_cuboids(content, got[name], name)
+
+
+def test_segment_shard_refuses_whole_collection_work(shapes, tmp_path, capsys):
+    root, _ = shapes
+    out = tmp_path / "out"
+    assert _segment(root, out, tmp_path / "cache", "--shard", "1/2", "--gt", str(root / "in")) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--gt" in err[0] and "--shard" in err[0]
+    assert _segment(root, out, tmp_path / "cache", "--shard", "2/2", "--png", str(tmp_path / "seg.png")) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--png" in err[0] and "--shard" in err[0]
+    assert _segment(root, out, tmp_path / "cache", "--shard", "7/7") == 0  # 5 inputs: shard 7 holds none
+    assert "none of the 5 inputs" in capsys.readouterr().out
+    assert not out.exists()
+
+
+def test_segment_rerun_of_a_shard_needs_force(shapes, segmented, tmp_path, capsys):
+    """A shard rerun after a lost worker or a kill: what exists is refused without --force (each
+    output was written whole), and --force redoes the shard's files."""
+    root, _ = shapes
+    out = tmp_path / "out"
+    assert _segment(root, out, root / "cache-one", "--shard", "2/2") == 0
+    lost = sorted(n for n in _outputs(out) if n.endswith(".seg"))[0]
+    (out / lost).unlink()
+    capsys.readouterr()
+    assert _segment(root, out, root / "cache-one", "--shard", "2/2") == 2
+    assert "exists" in capsys.readouterr().err and not (out / lost).exists()
+    assert _segment(root, out, root / "cache-one", "--shard", "2/2", "--force") == 0
+    assert (out / lost).read_bytes() == segmented[lost]
+
+
+def test_segment_on_a_dask_local_cluster(shapes, segmented, tmp_path):
+    distributed = pytest.importorskip("distributed")
+    root, _ = shapes
+    out = tmp_path / "dask"
+    # a cold cache: preparation and labelling both run on the workers
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        assert _segment(root, out, tmp_path / "cache", "--executor", cluster.scheduler_address) == 0
+        assert {"prepare_row", "segment_file"} <= set(cluster.scheduler.task_prefixes)  # dask drops the _
+    assert _outputs(out) == segmented
+
+
+def test_executor_on_a_local_ray_instance(shapes, segmented, tmp_path, monkeypatch):
+    """abstract and segment with --executor ray on a Ray instance started here (2 CPUs): the
+    outputs of the local runs, byte for byte."""
     ray = pytest.importorskip("ray")
     root, reference = shapes
     sent = []
@@ -113,11 +207,14 @@ def test_executor_on_a_local_ray_instance(shapes, tmp_path, monkeypatch):
     try:
         assert main(["abstract", str(root / "in"), "--model", "chair", "-o", str(tmp_path / "abstract"),
                      "--cache", str(tmp_path / "cache"), "--executor", "ray"]) == 0
+        assert _segment(root, tmp_path / "seg", tmp_path / "cache-seg", "--executor", "ray") == 0
         assert ray.is_initialized()  # the caller's instance is left running
-        assert sent == [("_prepare_row", 5)]  # the five shapes prepared there
+        # abstract: 5 shapes prepared there; segment (its own cold cache): 5 prepared, 5 labelled
+        assert sent == [("_prepare_row", 5), ("_prepare_row", 5), ("_segment_file", 5)]
     finally:
         ray.shutdown()
     assert _outputs(tmp_path / "abstract") == reference
+    assert _outputs(tmp_path / "seg") == segmented
 
 
 def test_ray_addresses():

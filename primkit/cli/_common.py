@@ -211,9 +211,9 @@ def add_workers(p) -> None:
 
 def add_scale_out(p, shard: bool = True) -> None:
     """``--executor`` and (``shard``) ``--shard``, for the commands that map over files (prepare,
-    abstract; embed's abstraction step takes ``--executor`` only: its outputs are the collection's)."""
+    abstract, segment; embed's abstraction step takes ``--executor`` only: its outputs are the collection's)."""
     p.add_argument("--executor", default=None, metavar="ADDRESS",
-                   help="prepare on a cluster: a Dask scheduler "
+                   help="run the per-file work on a cluster (preparation; segment's labelling too): a Dask scheduler "
                         "(tcp://HOST:8786; dask: a local cluster) or Ray (ray: the cluster RAY_ADDRESS or `ray start` "
                         "names, else a local one; ray:auto, ray:HOST:6379, ray://HOST:10001); the results come back "
                         "and are written here, the workers need primkit and the files")

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ._common import (add_abstraction_options, add_force, add_output, add_png, check_outputs, collect, err, input_paths,
-                      output_names, report_errors)
+from ._common import (add_abstraction_options, add_force, add_output, add_png, add_scale_out, check_outputs, collect, err,
+                      input_paths, output_names, parse_shard_option, report_errors, shard_of)
 
 __all__ = ["register"]
 
@@ -122,6 +122,12 @@ def _voxel_truth(seg, archives):
 _SUMMARIES = {"mesh": "summary.csv", "voxels": "summary-voxels.csv", "points": "summary-points.csv"}
 
 
+def _summary_name(kind: str, shard) -> str:
+    """The summary file of a kind of shape; a shard's own (``summary.shard-2-of-8.csv``: its shapes' rows)."""
+    name = _SUMMARIES[kind]
+    return name if shard is None else name.replace(".csv", f".shard-{shard[0]}-of-{shard[1]}.csv")
+
+
 def _kind(path: Path) -> str:
     """``"mesh"``, ``"voxels"`` or ``"points"`` for a shape file, from its suffix (and for a PLY, from
     its header: a PLY without faces is a point cloud), without reading its geometry."""
@@ -146,38 +152,77 @@ def _kind(path: Path) -> str:
     return "mesh"
 
 
-def _segment_outputs(args, files, out: Path, evaluations: dict, sources) -> list:
-    """Every file ``segment`` writes (checked before any work): per shape its labels (``.seg``;
-    ``.voxlabels.npy`` for a voxel grid, ``.parts.npy`` for a point cloud), ``.parts.ply`` and
-    ``.cuboids.json``; the summaries, the label codes, the evaluations and the picture."""
+def _label_codes_text(segmenter) -> str:
+    """``labels.csv``: the 1-based code of each of the model's part names (``--semantic``)."""
+    from ..model.parts import label_codes
+
+    names, _ = label_codes(segmenter.part_names)
+    return "code,name\n" + "".join(f"{i + 1},{n}\n" for i, n in enumerate(names))
+
+
+def _written_by_another_shard(path: Path, codes: str, shard, force: bool) -> bool:
+    """Whether ``labels.csv`` is there with these very codes, written by another shard of the run
+    (they are the model's, the same for every shard: not a clash). Never without ``--shard``, nor
+    with ``--force``."""
+    if shard is None or force:
+        return False
+    try:
+        return path.read_text() == codes
+    except (OSError, UnicodeDecodeError):
+        return False
+
+
+def _segment_outputs(args, files, names, out: Path, evaluations: dict, sources, shard, codes) -> list:
+    """Every file ``segment`` writes (checked before any work): per shape of ``files`` (named
+    ``names``) its labels (``.seg``; ``.voxlabels.npy`` for a voxel grid, ``.parts.npy`` for a point
+    cloud), ``.parts.ply`` and ``.cuboids.json``; the summaries, the label codes (``codes``: None
+    when not written), the evaluations and the picture."""
     from ..io import check_suffix
 
     kinds = [_kind(f) for f in files]
     labels = {"mesh": ".seg", "voxels": ".voxlabels.npy", "points": ".parts.npy"}
     outputs = []
-    for name, kind in zip(output_names(files), kinds):
+    for name, kind in zip(names, kinds):
         outputs += [out / f"{name}{labels[kind]}", out / f"{name}.parts.ply", out / f"{name}.cuboids.json"]
-    outputs += [out / summary if kind in kinds else None for kind, summary in _SUMMARIES.items()]
-    outputs += [out / "labels.csv" if args.semantic else None]
+    outputs += [out / _summary_name(kind, shard) if kind in kinds else None for kind in _SUMMARIES]
+    outputs += [out / "labels.csv" if codes is not None else None]
     outputs += list(evaluations.values()) if sources else []
     return outputs + [None if args.png is None else check_suffix(args.png, ".png", "a picture")]
 
 
 def _cmd_segment(args) -> int:
     from ..io import atomic_output
+    from ..parallel import executor_from
     from ..segmentation import (PointSegmentation, Segmenter, VoxelSegmentation, evaluate, evaluate_voxels,
                                 read_ground_truth, write_summary)
 
     out = Path(args.output)
     sources = _ground_truth_files(args)
+    shard = parse_shard_option(args)
+    if shard is not None and sources:
+        err("--gt evaluates the whole collection (the paper's mapping is fitted over every shape): not with --shard")
+        return 2
+    if shard is not None and args.png:
+        err("--png draws the whole collection: not with --shard")
+        return 2
     archives = _voxel_archives(sources)
     evaluations = {"meshes": out / "evaluation.json", "voxels": out / "evaluation-voxels.json"}
     segmenter = Segmenter(args.model, up=args.up, front=args.front, align=args.align, refine=args.refine)
     files = collect(args.inputs)
+    # with --shard, this shard's outputs only, named as one run over all the inputs names them
+    mine, names = shard_of(args, files), shard_of(args, output_names(files))
+    if not mine:
+        print(f"shard {shard[0]}/{shard[1]}: none of the {len(files)} inputs is in it (nothing to do)")
+        return 0
+    codes = _label_codes_text(segmenter) if args.semantic else None
+    if codes is not None and _written_by_another_shard(out / "labels.csv", codes, shard, args.force):
+        codes = None
     # before any work: nothing written over an input (the shapes' own .seg labels, the --gt files)
-    check_outputs(args, _segment_outputs(args, files, out, evaluations, sources),
+    check_outputs(args, _segment_outputs(args, mine, names, out, evaluations, sources, shard, codes),
                   input_paths(files, _model_path(args.model), *(folder for folder, _ in sources)))
-    segs, errors = segmenter.segment_files(files, cache_dir=args.cache, workers=args.workers)
+    with executor_from(args.executor) as pool:
+        segs, errors = segmenter.segment_files(files, cache_dir=args.cache, workers=args.workers, executor=pool,
+                                               shard=shard)
     failed = list(errors)
     written = []
     for s in segs:
@@ -200,20 +245,18 @@ def _cmd_segment(args) -> int:
     clouds = [s for s in segs if isinstance(s, PointSegmentation)]
     meshes = [s for s in segs if not isinstance(s, (VoxelSegmentation, PointSegmentation))]
     kinds = {"mesh": meshes, "voxels": grids, "points": clouds}
-    summaries = [out / _SUMMARIES[k] for k, group in kinds.items() if group]
+    summaries = [out / _summary_name(k, shard) for k, group in kinds.items() if group]
     for path, group in zip(summaries, [g for g in kinds.values() if g]):
         write_summary(group, path, overwrite=args.force)
-    if args.semantic:
-        from ..model.parts import label_codes
-
-        names, _ = label_codes(segmenter.part_names)
+    if codes is not None and not _written_by_another_shard(out / "labels.csv", codes, shard, args.force):  # meanwhile
         with atomic_output(out / "labels.csv", overwrite=args.force) as tmp:
-            Path(tmp).write_text("code,name\n" + "".join(f"{i + 1},{n}\n" for i, n in enumerate(names)))
+            Path(tmp).write_text(codes)
     for s in written:
         s.cuboids.save_json(out / f"{s.name}.cuboids.json", overwrite=args.force)
     if args.png:
         _picture(segs, args.png)
-    print("summary: " + ", ".join(map(str, summaries)) + (f"; picture: {args.png}" if args.png else ""))
+    print(("summary" if shard is None else f"summary of shard {shard[0]}/{shard[1]}") + ": "
+          + ", ".join(map(str, summaries)) + (f"; picture: {args.png}" if args.png else ""))
 
     if sources and meshes:
         pairs, names = [], []
@@ -335,11 +378,19 @@ def _model_path(model):
 
 
 def register(sub) -> None:
-    p = sub.add_parser("segment", help="co-segment a collection: each face to its primitive, the same part index on every shape")
+    p = sub.add_parser(
+        "segment", help="co-segment a collection: each face to its primitive, the same part index on every shape",
+        description="Co-segment a collection: each face (voxel, point) to its primitive, the same part index on every "
+        "shape. With --shard K/N (job arrays) a shard writes its shapes' outputs, named as one run over all the inputs "
+        "names them, and its own summary (summary.shard-K-of-N.csv, its shapes' rows: the shards' rows together are "
+        "one run's); labels.csv (--semantic) is the same for every shard. --gt and --png need the whole collection "
+        "(the paper's mapping is fitted over every shape) and are refused with --shard: run once over all the inputs "
+        "for them. A shard killed half-way keeps each output it wrote whole; run it again with --force.")
     p.add_argument("inputs", nargs="+", help="mesh, voxel (.binvox) or point-cloud (.xyz, .npy, .ply) files, or folders")
     add_output(p, "output folder")
     add_abstraction_options(p)
     add_png(p)
+    add_scale_out(p)
     p.add_argument("--semantic", action="store_true", help="write the model's part names' codes (labels.csv) instead of indices")
     p.add_argument("--gt", action="append", metavar="PATH",
                    help="ground truth: a folder of .seg files for meshes (same stems), or for voxel grids a per-voxel "

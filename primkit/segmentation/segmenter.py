@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import io
+from .. import io, parallel
 from ..data import parallel_map
 from ..model.abstraction import abstract, abstract_shapes, load_model
 from .meshes import Segmentation, segment_mesh
@@ -71,31 +71,42 @@ class Segmenter:
     def part_names(self) -> list:
         return self.abstractor.part_names
 
-    def abstract_files(self, paths, *, cache_dir=None, workers=None, progress=True):
-        """Abstractions of shape files: ``(results, errors)`` (:func:`primkit.model.abstraction.abstract_shapes`)."""
+    def abstract_files(self, paths, *, cache_dir=None, workers=None, progress=True, executor=None, shard=None):
+        """Abstractions of shape files: ``(results, errors)`` (:func:`primkit.model.abstraction.abstract_shapes`;
+        ``executor`` prepares there, ``shard`` abstracts only that shard of the files)."""
         out = abstract_shapes(paths, self.abstractor, up=self.up, front=self.front, cache=cache_dir, workers=workers,
-                              progress=progress, **self.predict_options)
+                              progress=progress, executor=executor, shard=shard, **self.predict_options)
         return out.results, out.errors
 
-    def segment_files(self, paths, *, cache_dir=None, workers=None, progress=True):
+    def segment_files(self, paths, *, cache_dir=None, workers=None, progress=True, executor=None, shard=None):
         """Abstract and co-segment shape files.
 
         Returns ``(segmentations, errors)``: one :class:`Segmentation` (meshes),
         :class:`VoxelSegmentation` (voxel grids) or :class:`PointSegmentation` (point clouds) per usable file, in input order, and one line per
         file that could not be used (the batch goes on).
-        """
-        results, errors = self.abstract_files(paths, cache_dir=cache_dir, workers=workers, progress=progress)
-        return self.segment_results(results, workers=workers, progress=progress, errors=errors)
 
-    def segment_results(self, results, *, workers=None, progress=True, errors=()):
-        """Co-segment the source files of abstraction results (in parallel processes)."""
+        ``executor``: an executor (anything with ``concurrent.futures.Executor.map``) or an
+        address for :func:`primkit.parallel.executor_from` (a Dask scheduler, ``ray``): each file
+        is prepared there and read and labelled there; the segmentations come back here (the
+        network runs here, batched). ``shard=(k, n)``: only shard k of n of the files
+        (:func:`primkit.parallel.shard_indices`), named as one run over all of them names them.
+        """
+        with parallel.executor_from(executor) as pool:  # one connection for both steps
+            results, errors = self.abstract_files(paths, cache_dir=cache_dir, workers=workers, progress=progress,
+                                                  executor=pool, shard=shard)
+            return self.segment_results(results, workers=workers, progress=progress, errors=errors, executor=pool)
+
+    def segment_results(self, results, *, workers=None, progress=True, errors=(), executor=None):
+        """Co-segment the source files of abstraction results (in parallel processes, or on ``executor``)."""
         jobs = [(r.source, r.cuboids, r.name, self.part_names) for r in results]
         segs, errors = [], list(errors)
-        for seg, error in parallel_map(_segment_file, jobs, workers=workers, progress=progress, desc="segmenting"):
-            if error is not None:
-                errors.append(error)
-            else:
-                segs.append(seg)
+        with parallel.executor_from(executor) as pool:
+            for seg, error in parallel_map(_segment_file, jobs, workers=workers, progress=progress, desc="segmenting",
+                                           executor=pool):
+                if error is not None:
+                    errors.append(error)
+                else:
+                    segs.append(seg)
         return segs, errors
 
 
