@@ -149,7 +149,7 @@ class Trainer:
         self.tensors = shapes if isinstance(shapes, ShapeTensors) else ShapeTensors(shapes)
         width = 100 if encoder == "paper" else 64
         self.net = AbstractionNet(NetworkConfig(parts=PARTS, grid=self.tensors.resolution, encoder=encoder, fc_width=width)).to(device)
-        self.optimizer = torch.optim.Adam(self.net.parameters(), lr=1e-3)
+        self.optimizer = torch.optim.Adam(self.net.parameters(), lr=1e-3, fused=torch.device(device).type in ("cpu", "cuda"))  # as train()
         self.generator = torch.Generator().manual_seed(seed)
         self.baseline = MovingBaseline(0.9)
         self.placement = SlotPlacement(0.99)

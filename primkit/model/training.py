@@ -285,6 +285,14 @@ def _setup_distributed(device_kind: str):
     return dist.get_rank(), dist.get_world_size()
 
 
+def _adam(net, learning_rate: float, device) -> "torch.optim.Adam":
+    """Adam over the network's parameters; fused (one kernel for all of them) on CPU and CUDA: the
+    same update up to rounding, 3x faster than the per-parameter loop on CPU (0.28 against 0.92 ms
+    for the paper's network)."""
+    fused = torch.device(device).type in ("cpu", "cuda")
+    return torch.optim.Adam(net.parameters(), lr=learning_rate, fused=fused or None)
+
+
 def _optimizer_tensors(optimizer) -> tuple[dict, dict]:
     """Adam's state as flat tensors plus JSON-ready scalars (for safetensors checkpoints)."""
     state = optimizer.state_dict()
@@ -309,6 +317,13 @@ def _restore_optimizer(optimizer, tensors: dict, scalars: dict) -> None:
                 entry[name[len(prefix):]] = value
         state["state"][int(pid)] = entry
     optimizer.load_state_dict(state)
+    # moments are saved contiguous; a fused step reads them with its parameter's strides, so they
+    # take the parameter's memory layout back (the conv weights are channels-last)
+    for group in optimizer.param_groups:
+        for p in group["params"]:
+            for key, value in optimizer.state.get(p, {}).items():
+                if torch.is_tensor(value) and value.shape == p.shape and value.stride() != p.stride():
+                    optimizer.state[p][key] = torch.empty_like(p).copy_(value)
 
 
 def _save_checkpoint(path, net, optimizer, generator, baseline, iteration, history, config, extra) -> bool:
@@ -494,7 +509,7 @@ def train(
     net = AbstractionNet(NetworkConfig(parts=config.parts, grid=shapes.resolution, encoder=config.encoder, fc_width=config.fc_width))
     net.set_head_scales(config.stage1_shape_scale, 1.0)
     net.to(device)
-    optimizer = torch.optim.Adam(net.parameters(), lr=config.learning_rate)
+    optimizer = _adam(net, config.learning_rate, device)
     generator = torch.Generator().manual_seed(config.seed * 1000 + rank)
     baseline = MovingBaseline(config.baseline_momentum)
     placement = SlotPlacement(config.placement_momentum)
@@ -506,7 +521,7 @@ def train(
             state = {k[len("model."):]: v for k, v in weights.items() if k.startswith("model.")}
             net.load_state_dict(state)  # carries the head scales of the stage it stopped in
             net.to(device)
-            optimizer = torch.optim.Adam(net.parameters(), lr=config.learning_rate)
+            optimizer = _adam(net, config.learning_rate, device)
             _restore_optimizer(optimizer, {k: v.to(device) for k, v in weights.items() if k.startswith("optimizer.")},
                                ck["optimizer"])
             generator.set_state(weights["rng.batches"])
