@@ -1,6 +1,6 @@
 """Benchmark: preparing shapes (read, occupancy, distance grid, samples) and the alternatives.
 
-    python benchmarks/bench_prepare.py [--quick] [--collection N] [--workers W]
+    python benchmarks/bench_prepare.py [--quick] [--collection N] [--workers W] [--before REV]
 
 What it measures, all in one run, on the same meshes:
 
@@ -24,7 +24,10 @@ median and the 90th percentile over meshes. Nothing here asserts a time: it prin
 from __future__ import annotations
 
 import argparse
+import json
+import os
 import platform
+import subprocess
 import sys
 import tempfile
 import time
@@ -203,32 +206,87 @@ def _binvox_mesh_path(grid, settings):
     return data._from_surface(v, f, occ, surface, settings, frame, name="shape", source="", kind="voxels")
 
 
-def bench_binvox(paths, repeats: int) -> None:
-    from primkit import data, io
+_AT_REVISION = """
+import json, sys, time
+from primkit import data, io
+paths, repeats = json.loads(sys.argv[1]), int(sys.argv[2])
+settings = data.PrepareSettings(resolution=32)
+data.prepare(io.read_shape(paths[0]), settings)  # warm-up: imports
+out = []
+for p in paths:
+    best = float("inf")
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        data.prepare(io.read_shape(p), settings)
+        best = min(best, time.perf_counter() - t0)
+    out.append(best)
+print(json.dumps(out))
+"""
+
+
+def time_at_revision(rev: str, paths, repeats: int) -> list | None:
+    """Read + prepare times of ``paths`` with primkit as it was at git revision ``rev`` (exported
+    with ``git archive`` to a temporary folder, run in a fresh process with this interpreter), so
+    that "faster than before" is measured in the same run, on the same machine and files."""
+    root = Path(__file__).resolve().parents[1]
+    with tempfile.TemporaryDirectory(prefix="primkit-at-rev-") as tmp:
+        archive = subprocess.run(["git", "-C", str(root), "archive", rev, "primkit"], capture_output=True)
+        if archive.returncode:
+            print(f"(--before {rev}: {archive.stderr.decode().strip()})")
+            return None
+        subprocess.run(["tar", "-x", "-C", tmp], input=archive.stdout, check=True)
+        env = dict(os.environ, PYTHONPATH=tmp)
+        run = subprocess.run([sys.executable, "-c", _AT_REVISION, json.dumps([str(p) for p in paths]), str(repeats)],
+                             capture_output=True, text=True, env=env, cwd=tmp)
+        if run.returncode:
+            print(f"(--before {rev}: {run.stderr.strip().splitlines()[-1] if run.stderr.strip() else 'failed'})")
+            return None
+        return json.loads(run.stdout.strip().splitlines()[-1])
+
+
+def bench_binvox(paths, repeats: int, before: str | None = None) -> None:
+    from primkit import data, geometry, io
 
     settings = data.PrepareSettings(resolution=RESOLUTION)
-    reads, preps, olds, errs = [], [], [], []
+    reads, preps, olds, errs, fts_fast, fts_scipy = [], [], [], [], [], []
     for p in paths:
         grid, t_read = best_of(repeats, io.read_shape, p)
         fast, t_prep = best_of(repeats, data.prepare, grid, settings)
         old, t_old = best_of(repeats, _binvox_mesh_path, grid, settings)
+        _, t_fast = best_of(repeats, geometry.voxel_closest_points, fast.solid)
+        _, t_scipy = best_of(repeats, geometry.voxel_closest_points, fast.solid, "scipy")
         reads.append(t_read)
         preps.append(t_prep)
         olds.append(t_old)
+        fts_fast.append(t_fast)
+        fts_scipy.append(t_scipy)
         errs.append(float(np.abs(fast.distance - old.distance).max()))
     r, q, o = np.array(reads), np.array(preps), np.array(olds)
+    a, b = np.array(fts_fast), np.array(fts_scipy)
+    rows = [
+        ["read (io.read_shape)", len(r), ms(np.median(r)), ms(np.percentile(r, 90)), ms(r.max())],
+        ["prepare: from the grid (primkit)", len(q), ms(np.median(q)), ms(np.percentile(q, 90)), ms(q.max())],
+        ["  its closest points: compiled transform at the centres", len(a), ms(np.median(a)), ms(np.percentile(a, 90)), ms(a.max())],
+        ["  the same by SciPy's transform of the whole lattice", len(b), ms(np.median(b)), ms(np.percentile(b, 90)), ms(b.max())],
+        ["prepare: through the boundary mesh", len(o), ms(np.median(o)), ms(np.percentile(o, 90)), ms(o.max())],
+        ["read + prepare (primkit)", len(q), ms(np.median(r + q)), ms(np.percentile(r + q, 90)), ms((r + q).max())],
+    ]
+    note = ""
+    if before:
+        then = time_at_revision(before, paths, repeats)
+        if then is not None:
+            t = np.array(then)
+            rows.append([f"read + prepare, primkit at {before}", len(t), ms(np.median(t)), ms(np.percentile(t, 90)), ms(t.max())])
+            note = (f"\nmedian per-shape ratio, primkit at {before} / now (read + prepare): {np.median(t / (r + q)):.1f}x "
+                    "(that revision run from a git archive in a fresh process, same files, same run).")
     table(
         f"1b. ShapeNetVox32 binvox chairs at {RESOLUTION}^3 (ms per shape)",
         ["step", "n", "median", "p90", "max"],
-        [
-            ["read (io.read_shape)", len(r), ms(np.median(r)), ms(np.percentile(r, 90)), ms(r.max())],
-            ["prepare: from the grid (primkit)", len(q), ms(np.median(q)), ms(np.percentile(q, 90)), ms(q.max())],
-            ["prepare: through the boundary mesh (before)", len(o), ms(np.median(o)), ms(np.percentile(o, 90)), ms(o.max())],
-            ["read + prepare (primkit)", len(q), ms(np.median(r + q)), ms(np.percentile(r + q, 90)), ms((r + q).max())],
-        ],
-        f"median per-shape ratio, boundary mesh / grid: {np.median(o / q):.1f}x; largest distance difference between the\n"
-        f"two {max(errs):.1e} (both exact; float32 storage). Grid path: rotate/recentre, fill cavities, exact closest points by\n"
-        "a distance transform of the doubled lattice, samples on the voxel squares (primkit.geometry.voxels).",
+        rows,
+        f"median per-shape ratio, boundary mesh / grid: {np.median(o / q):.1f}x; compiled / SciPy transform: {np.median(b / a):.1f}x;\n"
+        f"largest distance difference between the grid and mesh paths {max(errs):.1e} (both exact; float32 storage).\n"
+        "Grid path: rotate/recentre, fill cavities, exact closest points by a feature transform of the doubled lattice,\n"
+        "samples on the voxel squares (primkit.geometry.voxels)." + note,
     )
 
 
@@ -505,6 +563,9 @@ def main(argv=None) -> int:
     parser.add_argument("--repeats", type=int, default=None, help="runs per mesh, fastest kept (default 2; quick 1)")
     parser.add_argument("--collection", type=int, default=None, help="ShapeNetVox32 chairs for prepare_collection (default 500; quick 50)")
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--before", default=None, metavar="REV",
+                        help="also time binvox preparation with primkit at this git revision (e.g. 7f3df5b, before issue 20)")
+    parser.add_argument("--only", choices=("binvox",), default=None, help="run section 1b alone")
     args = parser.parse_args(argv)
     quick = args.quick
     repeats = args.repeats or (1 if quick else 2)
@@ -518,17 +579,24 @@ def main(argv=None) -> int:
     print(f"# bench_prepare: primkit {primkit.__version__}, Python {platform.python_version()}, "
           f"NumPy {np.__version__}, {platform.machine()}, {'quick' if quick else 'full'} run")
     print(f"# {load_line()} at start")
+    warm_up()
+    t_start = time.perf_counter()
+    if args.only == "binvox":
+        binvox = binvox_inputs(n_binvox)
+        if binvox:
+            bench_binvox(binvox, repeats, args.before)
+        else:
+            print("\n(no ShapeNetVox32 folder: nothing to time)")
+        print(f"\n# {load_line()} at end; benchmark took {time.perf_counter() - t_start:.0f} s")
+        return 0
     what, items = mesh_inputs(quick)
     print(f"# inputs: {what}")
-    warm_up()
-
-    t_start = time.perf_counter()
     records = bench_meshes(items, repeats)
     report_meshes(records)
 
     binvox = binvox_inputs(max(n_binvox, n_collection))
     if binvox:
-        bench_binvox(binvox[:n_binvox], repeats)
+        bench_binvox(binvox[:n_binvox], repeats, args.before)
     else:
         print("\n(no ShapeNetVox32 folder: binvox sections skipped)")
 

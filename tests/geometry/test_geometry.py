@@ -256,3 +256,21 @@ def test_lookup_outside_the_grid_keeps_growing(meshes):
     pts_t = torch.tensor(pts[None], requires_grad=True)
     lookup_distance_sq(torch.as_tensor(grid.closest, dtype=torch.float64)[None], pts_t).sum().backward()
     assert (pts_t.grad.norm(dim=-1) > 1).all()
+
+
+def test_fill_voxels_is_binary_fill_holes():
+    """Cavities filled by one labelling of the empty cells, against SciPy's flood by dilations:
+    a hollow box (its inside filled), a box open on one face (nothing filled), random grids."""
+    from scipy import ndimage
+
+    hollow = np.zeros((12, 12, 12), bool)
+    hollow[2:10, 2:10, 2:10] = True
+    hollow[4:8, 4:8, 4:8] = False
+    opened = hollow.copy()
+    opened[5:7, 5:7, 2:4] = False  # a tunnel from the cavity to the outside
+    rng = np.random.default_rng(4)
+    grids = [hollow, opened, np.zeros((5, 5, 5), bool), np.ones((5, 5, 5), bool)]
+    grids += [rng.random((20, 20, 20)) < p for p in (0.2, 0.5, 0.8)]
+    for occ in grids:
+        assert np.array_equal(geometry.fill_voxels(occ), ndimage.binary_fill_holes(occ))
+    assert geometry.fill_voxels(hollow).sum() == 8**3 and geometry.fill_voxels(opened).sum() == opened.sum()

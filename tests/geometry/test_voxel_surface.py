@@ -69,3 +69,23 @@ def test_prepared_voxels_match_the_mesh_path(shared_data):
         d2, _, _ = igl.point_mesh_squared_distance(prep.points.astype(np.float64), v, f)
         assert np.sqrt(d2).max() < 1e-6
         assert prep.occupancy.sum() == prep.solid.sum() == geometry.fill_voxels(io.read_voxels(folder / "model.binvox").occupancy).sum()
+
+
+def _more_grids():
+    rng = np.random.default_rng(8)
+    full = np.ones((6, 6, 6), bool)  # the surface is the grid's outer boundary alone
+    one = np.zeros((5, 5, 5), bool)
+    one[4, 0, 2] = True  # one voxel in a corner: far centres, many ties
+    return _grids() + [rng.random((32, 32, 32)) < p for p in (0.002, 0.1, 0.6, 0.97)] + [full, one]
+
+
+def test_compiled_transform_gives_scipys_points():
+    """The transform at the voxel centres (Numba) against SciPy's transform of the whole lattice:
+    the same nearest node everywhere, ties included, on grids with far centres and many ties."""
+    pytest.importorskip("numba")
+    for occ in _more_grids():
+        fast = geometry.voxel_closest_points(occ)
+        reference = geometry.voxel_closest_points(occ, engine="scipy")
+        assert np.array_equal(fast, reference)
+    with pytest.raises(ValueError, match="engine"):
+        geometry.voxel_closest_points(np.ones((4, 4, 4), bool), engine="edt")
