@@ -275,10 +275,6 @@ class AbstractionNet(nn.Module):
         # (shape_scale, existence_scale); float64 so that repeated rescaling stays exact enough.
         self.register_buffer("head_scales", torch.ones(2, dtype=torch.float64))
         self.reset_parameters()
-        # conv weights stored channels-last (NDHWC): oneDNN's 3D convolutions with 4-64 channels
-        # run their backward pass 1.2-1.5x faster so (benchmarks/bench_abstractor.py); values are
-        # the same, saved files are written contiguous (modelfile.save_model)
-        self.encoder.to(memory_format=torch.channels_last_3d)
 
     # ------------------------------------------------------------------ initialisation
     def reset_parameters(self) -> None:
