@@ -1,6 +1,6 @@
 """Benchmark: ``primkit abstract`` over a collection of ShapeNetVox32 chairs from a cold cache.
 
-    python benchmarks/bench_abstract_collection.py [--shapes 847] [--workers W] [--quick]
+    python benchmarks/bench_abstract_collection.py [--shapes 847] [--workers W] [--quick] [--before REV]
 
 Each way in a fresh process, from an empty cache, the bundled chair model, in one run:
 
@@ -10,6 +10,9 @@ Each way in a fresh process, from an empty cache, the bundled chair model, in on
   mesh machinery: BVH closest points, voxeliser, triangle samples; what ``prepare`` did before)
   and pruning one shape at a time (``primitives.prune_covered``).
 
+* with ``--before REV``: the command of primkit as it was at git revision ``REV`` (``git archive``
+  into a temporary folder, run in a fresh process with this interpreter, its own bundled model).
+
 Shapes per second of the whole command (``abstract_shapes`` + writing each shape's JSON and PLY),
 and the part of it spent preparing. Nothing here asserts a time: it prints and exits 0.
 """
@@ -17,6 +20,8 @@ and the part of it spent preparing. Nothing here asserts a time: it prints and e
 from __future__ import annotations
 
 import argparse
+import os
+import subprocess
 import sys
 import tempfile
 import time
@@ -77,11 +82,52 @@ def run_abstract(files: list, workers, first: bool) -> dict:
     return {"code": code, "seconds": seconds, "written": written, "lookup": lookup, "threads": torch.get_num_threads()}
 
 
+_AT_REVISION = """
+import contextlib, io, json, sys, tempfile, time
+from pathlib import Path
+from primkit.cli import main
+files, workers = json.loads(sys.argv[1]), sys.argv[2]
+tmp = Path(tempfile.mkdtemp(prefix="bench_abstract_rev."))
+args = ["abstract", *files, "--model", "chair", "-o", str(tmp / "out"), "--cache", str(tmp / "cache")]
+if workers != "0":
+    args += ["--workers", workers]
+t0 = time.perf_counter()
+with contextlib.redirect_stdout(io.StringIO()):
+    code = main(args)
+print(json.dumps({"code": code, "seconds": time.perf_counter() - t0, "written": len(list((tmp / "out").glob("*.json")))}))
+"""
+
+
+def run_at_revision(rev: str, files: list, workers) -> dict | None:
+    """``primkit abstract`` of primkit at git revision ``rev``, cold cache, in a fresh process."""
+    import shutil
+
+    root = Path(__file__).resolve().parents[1]
+    tmp = Path(tempfile.mkdtemp(prefix="primkit-at-rev-"))
+    try:
+        archive = subprocess.run(["git", "-C", str(root), "archive", rev, "primkit"], capture_output=True)
+        if archive.returncode:
+            print(f"  (--before {rev}: {archive.stderr.decode().strip()})")
+            return None
+        subprocess.run(["tar", "-x", "-C", str(tmp)], input=archive.stdout, check=True)
+        import json
+
+        run = subprocess.run([sys.executable, "-c", _AT_REVISION, json.dumps(files), str(workers or 0)],
+                             capture_output=True, text=True, env=dict(os.environ, PYTHONPATH=str(tmp)), cwd=tmp)
+        if run.returncode:
+            print(f"  (--before {rev}: {(run.stderr.strip().splitlines() or ['failed'])[-1]})")
+            return None
+        return json.loads(run.stdout.strip().splitlines()[-1])
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--shapes", type=int, default=847)
     ap.add_argument("--workers", type=int, default=None)
     ap.add_argument("--quick", action="store_true", help="60 shapes")
+    ap.add_argument("--before", default=None, metavar="REV", help="also run primkit abstract as it was at this git revision")
     args = ap.parse_args(argv)
     if args.quick:
         args.shapes = 60
@@ -98,8 +144,16 @@ def main(argv=None) -> int:
         rates[label] = r["written"] / r["seconds"]
         rows.append([label, r["code"], r["written"], f"{r['seconds']:.1f}", f"{rates[label]:.1f}"])
         print(f"  {label}: {r['seconds']:.1f} s; {load_line()}", flush=True)
-    table("primkit abstract, cold cache", ["way", "exit", "shapes", "seconds", "shapes/s"], rows,
-          note=f"today's / first: {rates[rows[1][0]] / rates[rows[0][0]]:.2f}x shapes per second; {load_line()}")
+    note = f"today's / first: {rates[rows[1][0]] / rates[rows[0][0]]:.2f}x shapes per second"
+    if args.before:
+        r = run_at_revision(args.before, files, args.workers)
+        if r is not None:
+            label = f"primkit at {args.before}"
+            rates[label] = r["written"] / r["seconds"]
+            rows.append([label, r["code"], r["written"], f"{r['seconds']:.1f}", f"{rates[label]:.1f}"])
+            print(f"  {label}: {r['seconds']:.1f} s; {load_line()}", flush=True)
+            note += f"; today's / primkit at {args.before}: {rates[rows[1][0]] / rates[label]:.2f}x"
+    table("primkit abstract, cold cache", ["way", "exit", "shapes", "seconds", "shapes/s"], rows, note=f"{note}; {load_line()}")
     return 0
 
 

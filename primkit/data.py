@@ -543,6 +543,21 @@ def _row_crc(arrays: dict) -> int:
     return crc
 
 
+def _save_rows(path: Path, rows: list) -> None:
+    """An ``.npy`` file of the rows stacked (what ``np.save(path, np.stack(rows))`` writes, byte for
+    byte) without building the stacked array: the header for the whole shape, then each row."""
+    first = np.asarray(rows[0])
+    for r in rows:
+        if r.shape != first.shape or r.dtype != first.dtype:
+            raise ValueError(f"{path.name}: rows of {r.dtype} {r.shape} and {first.dtype} {first.shape}")
+    header = {"descr": np.lib.format.dtype_to_descr(first.dtype), "fortran_order": False,
+              "shape": (len(rows),) + first.shape}
+    with open(path, "wb") as fh:
+        np.lib.format.write_array_header_1_0(fh, header)
+        for r in rows:
+            fh.write(np.ascontiguousarray(r).data)
+
+
 class CacheSegment:
     """A block of cached shapes: one ``.npy`` file per array (rows = shapes), memory-mapped, and an
     ``index.json`` (format, settings, each row's key, checksum, frame and kind).
@@ -591,9 +606,10 @@ class CacheSegment:
             seg.arrays[name] = a
         return seg
 
-    @classmethod
-    def from_rows(cls, settings: PrepareSettings, entries: list, compact: bool = False) -> "CacheSegment":
-        """A segment in memory of ``entries``: ``(key, row)`` with rows of :func:`_encode_row`."""
+    @staticmethod
+    def _rows_and_lists(entries: list, compact: bool) -> tuple:
+        """The index rows of ``entries`` (``(key, row)`` with rows of :func:`_encode_row`) and, per
+        array, the list of its row arrays."""
         rows, extra = [], {"solid": [], "labels": []}
         for key, rec in entries:
             arrays = rec["arrays"]
@@ -604,28 +620,52 @@ class CacheSegment:
                     extra[opt].append(arrays[opt])
             rows.append(row)
         names = [n for n in _ROW_ARRAYS if n != "near" or compact]
-        arrays = {name: np.stack([rec["arrays"][name] for _, rec in entries]) for name in names}
-        arrays.update({name: np.stack(items) for name, items in extra.items() if items})
+        lists = {name: [rec["arrays"][name] for _, rec in entries] for name in names}
+        lists.update({name: items for name, items in extra.items() if items})
+        return rows, lists
+
+    @classmethod
+    def from_rows(cls, settings: PrepareSettings, entries: list, compact: bool = False) -> "CacheSegment":
+        """A segment in memory of ``entries``: ``(key, row)`` with rows of :func:`_encode_row`."""
+        rows, lists = cls._rows_and_lists(entries, compact)
+        arrays = {name: np.stack(items) for name, items in lists.items()}
         return cls(arrays, rows, settings.key(), settings.resolution, settings.samples, compact=compact)
+
+    @classmethod
+    def write(cls, root, settings: PrepareSettings, entries: list, compact: bool = False) -> "CacheSegment":
+        """:meth:`from_rows` + :meth:`save` without the stacked copy: each array's rows are streamed
+        to its ``.npy`` file. Stacking a segment of 256 float32 chairs (130 MB) cost as much as
+        writing it (``benchmarks/bench_abstract_collection.py``). Returns the segment memory-mapped."""
+        rows, lists = cls._rows_and_lists(entries, compact)
+        return cls._write_folder(root, lists, rows, settings.key(), settings.resolution, settings.samples, compact)
 
     def save(self, root) -> "CacheSegment":
         """Write this segment under ``root`` (a hidden folder renamed into place: a killed write
         leaves no partial segment) and return it opened from there, memory-mapped."""
+        return self._write_folder(root, self.arrays, self.rows, self.settings_key, self.resolution, self.samples,
+                                  self.compact)
+
+    @classmethod
+    def _write_folder(cls, root, arrays: dict, rows: list, settings_key: str, resolution: int, samples: int,
+                      compact: bool) -> "CacheSegment":
+        """``arrays``: name -> a stacked array or a list of equal row arrays (streamed)."""
         root = Path(root)
         # named by its keys and a random tag: unique, so that two runs writing the same shapes at
         # once (shards, a re-run after a kill) each keep theirs, and a repair never meets the
         # damaged segment it replaces
         token = secrets.token_hex(4)
-        name = f"{hashlib.sha256(chr(10).join(self.keys()).encode()).hexdigest()[:16]}-{token}"
+        name = f"{hashlib.sha256(chr(10).join(r['key'] for r in rows).encode()).hexdigest()[:16]}-{token}"
         final = root / name
         tmp = root / f".{name}.{token}.tmp"
         tmp.mkdir(parents=True)
         try:
-            for array, values in self.arrays.items():
-                np.save(tmp / f"{array}.npy", values)
-            index = {"format": CACHE_FORMAT, "codes": "compact" if self.compact else "float32",
-                     "settings": self.settings_key, "resolution": self.resolution, "samples": self.samples,
-                     "rows": self.rows}
+            for array, values in arrays.items():
+                if isinstance(values, np.ndarray):
+                    np.save(tmp / f"{array}.npy", values)
+                else:
+                    _save_rows(tmp / f"{array}.npy", values)
+            index = {"format": CACHE_FORMAT, "codes": "compact" if compact else "float32",
+                     "settings": settings_key, "resolution": resolution, "samples": samples, "rows": rows}
             (tmp / "index.json").write_text(json.dumps(index))
             os.rename(tmp, final)
         except BaseException:
@@ -969,12 +1009,15 @@ def prepare_collection(
         nonlocal unwritable
         if not pending:
             return
-        segment = CacheSegment.from_rows(settings, [(key, rec) for _, key, rec in pending], compact)
+        entries_ = [(key, rec) for _, key, rec in pending]
+        segment = None
         if unwritable is None:
             try:
-                segment = segment.save(root)
+                segment = CacheSegment.write(root, settings, entries_, compact)
             except OSError as exc:  # read-only, full, not a folder: the shapes stay in memory
                 unwritable = exc.strerror or str(exc)
+        if segment is None:
+            segment = CacheSegment.from_rows(settings, entries_, compact)
         for j, (_, key, _) in enumerate(pending):
             for path in misses[key]:
                 entries[path] = (segment, j)

@@ -238,3 +238,22 @@ def test_shapenet_voxels_prepare(shared_data):
         vox = io.read_voxels(folder / "model.binvox")
         assert prep.solid.sum() >= vox.occupancy.sum()
         assert prep.solid.sum() == data.geometry.fill_voxels(vox.occupancy).sum()
+
+
+@pytest.mark.parametrize("compact", [False, True], ids=["float32", "compact"])
+def test_a_segment_streamed_to_disk_is_the_stacked_one(tmp_path, compact):
+    """CacheSegment.write streams rows to the files; the same bytes as stacking then saving."""
+    settings = data.PrepareSettings(samples=500)
+    rng = np.random.default_rng(2)
+    entries = []
+    for i in range(5):
+        occ = rng.random((32, 32, 32)) < 0.02
+        occ[10:20, 10:22, 8:14] = True
+        entries.append((f"k{i}", data._encode_row(data.prepare(io.VoxelGrid(occ, np.zeros(3), 1.0), settings), compact)))
+    streamed = data.CacheSegment.write(tmp_path / "a", settings, entries, compact)
+    stacked = data.CacheSegment.from_rows(settings, entries, compact).save(tmp_path / "b")
+    files = sorted(p.name for p in stacked.folder.iterdir())
+    assert files == sorted(p.name for p in streamed.folder.iterdir())
+    for name in files:
+        assert (streamed.folder / name).read_bytes() == (stacked.folder / name).read_bytes(), name
+    assert all(streamed.verify(j) for j in range(len(entries)))
