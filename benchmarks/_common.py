@@ -77,3 +77,33 @@ def run_isolated(target, *args):
 def load_line() -> str:
     one, five, _ = os.getloadavg()
     return f"load average {one:.2f} (1 min), {five:.2f} (5 min) on {os.cpu_count()} cores"
+
+
+def run_at_revision(rev: str, script: str, *args: str) -> tuple[dict | list | None, str]:
+    """Run ``script`` (Python source printing one JSON line last) with primkit as it was at git
+    revision ``rev``: the revision's ``primkit/`` exported by ``git archive`` into a temporary
+    folder first on ``PYTHONPATH``, a fresh process of this interpreter, ``args`` as its argv.
+
+    So that "faster than before" is measured in the same run, on the same machine and files.
+    Returns ``(parsed JSON, "")``, or ``(None, why)`` when the revision or the run fails.
+    """
+    import json
+    import shutil
+    import subprocess
+    import sys
+    import tempfile
+
+    root = Path(__file__).resolve().parents[1]
+    tmp = tempfile.mkdtemp(prefix="primkit-at-rev-")
+    try:
+        archive = subprocess.run(["git", "-C", str(root), "archive", rev, "primkit"], capture_output=True)
+        if archive.returncode:
+            return None, archive.stderr.decode().strip()
+        subprocess.run(["tar", "-x", "-C", tmp], input=archive.stdout, check=True)
+        run = subprocess.run([sys.executable, "-c", script, *args], capture_output=True, text=True,
+                             env=dict(os.environ, PYTHONPATH=tmp), cwd=tmp)
+        if run.returncode:
+            return None, (run.stderr.strip().splitlines() or ["failed"])[-1]
+        return json.loads(run.stdout.strip().splitlines()[-1]), ""
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)

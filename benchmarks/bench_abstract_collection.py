@@ -20,15 +20,13 @@ and the part of it spent preparing. Nothing here asserts a time: it prints and e
 from __future__ import annotations
 
 import argparse
-import os
-import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import load_line, run_isolated, table  # noqa: E402
+from _common import load_line, run_at_revision, run_isolated, table  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "shapenetvox32" / "03001627"
 
@@ -98,28 +96,14 @@ print(json.dumps({"code": code, "seconds": time.perf_counter() - t0, "written": 
 """
 
 
-def run_at_revision(rev: str, files: list, workers) -> dict | None:
+def abstract_at_revision(rev: str, files: list, workers) -> dict | None:
     """``primkit abstract`` of primkit at git revision ``rev``, cold cache, in a fresh process."""
-    import shutil
+    import json
 
-    root = Path(__file__).resolve().parents[1]
-    tmp = Path(tempfile.mkdtemp(prefix="primkit-at-rev-"))
-    try:
-        archive = subprocess.run(["git", "-C", str(root), "archive", rev, "primkit"], capture_output=True)
-        if archive.returncode:
-            print(f"  (--before {rev}: {archive.stderr.decode().strip()})")
-            return None
-        subprocess.run(["tar", "-x", "-C", str(tmp)], input=archive.stdout, check=True)
-        import json
-
-        run = subprocess.run([sys.executable, "-c", _AT_REVISION, json.dumps(files), str(workers or 0)],
-                             capture_output=True, text=True, env=dict(os.environ, PYTHONPATH=str(tmp)), cwd=tmp)
-        if run.returncode:
-            print(f"  (--before {rev}: {(run.stderr.strip().splitlines() or ['failed'])[-1]})")
-            return None
-        return json.loads(run.stdout.strip().splitlines()[-1])
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
+    out, why = run_at_revision(rev, _AT_REVISION, json.dumps(files), str(workers or 0))
+    if out is None:
+        print(f"  (--before {rev}: {why})")
+    return out
 
 
 def main(argv=None) -> int:
@@ -146,7 +130,7 @@ def main(argv=None) -> int:
         print(f"  {label}: {r['seconds']:.1f} s; {load_line()}", flush=True)
     note = f"today's / first: {rates[rows[1][0]] / rates[rows[0][0]]:.2f}x shapes per second"
     if args.before:
-        r = run_at_revision(args.before, files, args.workers)
+        r = abstract_at_revision(args.before, files, args.workers)
         if r is not None:
             label = f"primkit at {args.before}"
             rates[label] = r["written"] / r["seconds"]

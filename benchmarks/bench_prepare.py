@@ -25,9 +25,7 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import platform
-import subprocess
 import sys
 import tempfile
 import time
@@ -36,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import load_line, maxrss_kib, run_isolated, table  # noqa: E402
+from _common import load_line, maxrss_kib, run_at_revision, run_isolated, table  # noqa: E402
 
 RESOLUTION = 32
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
@@ -225,23 +223,11 @@ print(json.dumps(out))
 
 
 def time_at_revision(rev: str, paths, repeats: int) -> list | None:
-    """Read + prepare times of ``paths`` with primkit as it was at git revision ``rev`` (exported
-    with ``git archive`` to a temporary folder, run in a fresh process with this interpreter), so
-    that "faster than before" is measured in the same run, on the same machine and files."""
-    root = Path(__file__).resolve().parents[1]
-    with tempfile.TemporaryDirectory(prefix="primkit-at-rev-") as tmp:
-        archive = subprocess.run(["git", "-C", str(root), "archive", rev, "primkit"], capture_output=True)
-        if archive.returncode:
-            print(f"(--before {rev}: {archive.stderr.decode().strip()})")
-            return None
-        subprocess.run(["tar", "-x", "-C", tmp], input=archive.stdout, check=True)
-        env = dict(os.environ, PYTHONPATH=tmp)
-        run = subprocess.run([sys.executable, "-c", _AT_REVISION, json.dumps([str(p) for p in paths]), str(repeats)],
-                             capture_output=True, text=True, env=env, cwd=tmp)
-        if run.returncode:
-            print(f"(--before {rev}: {run.stderr.strip().splitlines()[-1] if run.stderr.strip() else 'failed'})")
-            return None
-        return json.loads(run.stdout.strip().splitlines()[-1])
+    """Read + prepare times of ``paths`` with primkit as it was at git revision ``rev``."""
+    out, why = run_at_revision(rev, _AT_REVISION, json.dumps([str(p) for p in paths]), str(repeats))
+    if out is None:
+        print(f"(--before {rev}: {why})")
+    return out
 
 
 def bench_binvox(paths, repeats: int, before: str | None = None) -> None:
