@@ -642,13 +642,13 @@ class CacheSegment:
     def save(self, root) -> "CacheSegment":
         """Write this segment under ``root`` (a hidden folder renamed into place: a killed write
         leaves no partial segment) and return it opened from there, memory-mapped."""
-        return self._write_folder(root, self.arrays, self.rows, self.settings_key, self.resolution, self.samples,
-                                  self.compact)
+        rows = {name: list(values) for name, values in self.arrays.items()}  # views of the rows
+        return self._write_folder(root, rows, self.rows, self.settings_key, self.resolution, self.samples, self.compact)
 
     @classmethod
     def _write_folder(cls, root, arrays: dict, rows: list, settings_key: str, resolution: int, samples: int,
                       compact: bool) -> "CacheSegment":
-        """``arrays``: name -> a stacked array or a list of equal row arrays (streamed)."""
+        """``arrays``: name -> the list of its (equal) row arrays, streamed to ``<name>.npy``."""
         root = Path(root)
         # named by its keys and a random tag: unique, so that two runs writing the same shapes at
         # once (shards, a re-run after a kill) each keep theirs, and a repair never meets the
@@ -660,10 +660,7 @@ class CacheSegment:
         tmp.mkdir(parents=True)
         try:
             for array, values in arrays.items():
-                if isinstance(values, np.ndarray):
-                    np.save(tmp / f"{array}.npy", values)
-                else:
-                    _save_rows(tmp / f"{array}.npy", values)
+                _save_rows(tmp / f"{array}.npy", values)
             index = {"format": CACHE_FORMAT, "codes": "compact" if compact else "float32",
                      "settings": settings_key, "resolution": resolution, "samples": samples, "rows": rows}
             (tmp / "index.json").write_text(json.dumps(index))

@@ -1,5 +1,7 @@
 """Preparation of meshes, voxel grids and point clouds, and the content-and-settings keyed cache."""
 
+from io import BytesIO
+
 import numpy as np
 import pytest
 
@@ -242,7 +244,8 @@ def test_shapenet_voxels_prepare(shared_data):
 
 @pytest.mark.parametrize("compact", [False, True], ids=["float32", "compact"])
 def test_a_segment_streamed_to_disk_is_the_stacked_one(tmp_path, compact):
-    """CacheSegment.write streams rows to the files; the same bytes as stacking then saving."""
+    """CacheSegment.write streams rows to the files; the same bytes as stacking then saving, and as
+    NumPy's own np.save of the stacked arrays."""
     settings = data.PrepareSettings(samples=500)
     rng = np.random.default_rng(2)
     entries = []
@@ -251,7 +254,12 @@ def test_a_segment_streamed_to_disk_is_the_stacked_one(tmp_path, compact):
         occ[10:20, 10:22, 8:14] = True
         entries.append((f"k{i}", data._encode_row(data.prepare(io.VoxelGrid(occ, np.zeros(3), 1.0), settings), compact)))
     streamed = data.CacheSegment.write(tmp_path / "a", settings, entries, compact)
-    stacked = data.CacheSegment.from_rows(settings, entries, compact).save(tmp_path / "b")
+    in_memory = data.CacheSegment.from_rows(settings, entries, compact)
+    for name, values in in_memory.arrays.items():
+        buffer = BytesIO()
+        np.save(buffer, values)
+        assert (streamed.folder / f"{name}.npy").read_bytes() == buffer.getvalue(), name
+    stacked = in_memory.save(tmp_path / "b")
     files = sorted(p.name for p in stacked.folder.iterdir())
     assert files == sorted(p.name for p in streamed.folder.iterdir())
     for name in files:

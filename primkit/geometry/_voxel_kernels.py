@@ -106,7 +106,7 @@ def odd_feature_transform(nodes):
     g2 = np.empty((R, L, R), np.int64)  # (ox, z, oy)
     s2 = np.empty((R, L, R), np.int64)
     f = np.empty(L, np.int64)
-    scratch = np.empty(2 * L, np.int64)
+    scratch = np.empty(L, np.int64)
     val = np.empty(R, np.int64)
     idx = np.empty(R, np.int64)
     for ox in range(R):

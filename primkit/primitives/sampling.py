@@ -205,10 +205,10 @@ def prune_covered_many(cuboids_list, threshold: float = 0.6, samples_per_cuboid:
     if k <= 0:
         raise ValueError(f"`samples_per_cuboid` must be positive, got {k}")
     out = list(sets)
-    todo = [i for i, c in enumerate(sets) if c.existence.sum() > 1]
-    by_count: dict = {}
-    for i in todo:
-        by_count.setdefault(sets[i].count, []).append(i)
+    by_count: dict = {}  # slot count -> the sets with something to prune
+    for i, c in enumerate(sets):
+        if c.existence.sum() > 1:
+            by_count.setdefault(c.count, []).append(i)
     for m, members in by_count.items():
         unit = np.random.default_rng(seed).uniform(-1.0, 1.0, size=(m, k, 3))  # as sample_volume draws them
         g = len(members)
