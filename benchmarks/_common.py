@@ -79,6 +79,30 @@ def load_line() -> str:
     return f"load average {one:.2f} (1 min), {five:.2f} (5 min) on {os.cpu_count()} cores"
 
 
+def _run_script(script: str, args, pythonpath: str, cwd: str) -> tuple[dict | list | None, str]:
+    import json
+    import subprocess
+    import sys
+
+    run = subprocess.run([sys.executable, "-c", script, *args], capture_output=True, text=True,
+                         env=dict(os.environ, PYTHONPATH=pythonpath), cwd=cwd)
+    if run.returncode:
+        return None, (run.stderr.strip().splitlines() or ["failed"])[-1]
+    return json.loads(run.stdout.strip().splitlines()[-1]), ""
+
+
+def run_fresh(script: str, *args: str) -> tuple[dict | list | None, str]:
+    """Run ``script`` (Python source printing one JSON line last) with this checkout's primkit in a
+    fresh process of this interpreter: the twin of :func:`run_at_revision` for today's code, so
+    that both sides of a comparison start the same way. Returns ``(parsed JSON, "")`` or
+    ``(None, why)``."""
+    import tempfile
+
+    root = str(Path(__file__).resolve().parents[1])
+    with tempfile.TemporaryDirectory(prefix="primkit-fresh-") as tmp:
+        return _run_script(script, args, root, tmp)
+
+
 def run_at_revision(rev: str, script: str, *args: str) -> tuple[dict | list | None, str]:
     """Run ``script`` (Python source printing one JSON line last) with primkit as it was at git
     revision ``rev``: the revision's ``primkit/`` exported by ``git archive`` into a temporary
@@ -87,10 +111,8 @@ def run_at_revision(rev: str, script: str, *args: str) -> tuple[dict | list | No
     So that "faster than before" is measured in the same run, on the same machine and files.
     Returns ``(parsed JSON, "")``, or ``(None, why)`` when the revision or the run fails.
     """
-    import json
     import shutil
     import subprocess
-    import sys
     import tempfile
 
     root = Path(__file__).resolve().parents[1]
@@ -100,10 +122,6 @@ def run_at_revision(rev: str, script: str, *args: str) -> tuple[dict | list | No
         if archive.returncode:
             return None, archive.stderr.decode().strip()
         subprocess.run(["tar", "-x", "-C", tmp], input=archive.stdout, check=True)
-        run = subprocess.run([sys.executable, "-c", script, *args], capture_output=True, text=True,
-                             env=dict(os.environ, PYTHONPATH=tmp), cwd=tmp)
-        if run.returncode:
-            return None, (run.stderr.strip().splitlines() or ["failed"])[-1]
-        return json.loads(run.stdout.strip().splitlines()[-1]), ""
+        return _run_script(script, args, tmp, tmp)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)

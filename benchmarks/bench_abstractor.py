@@ -1,6 +1,6 @@
 """Benchmark: training iterations per second and inference shapes per second of the abstractor.
 
-    python benchmarks/bench_abstractor.py [--quick] [--iterations N] [--device cpu|cuda|all]
+    python benchmarks/bench_abstractor.py [--quick] [--iterations N] [--device cpu|cuda|all] [--before REV]
 
 What it measures, all in one run:
 
@@ -9,6 +9,9 @@ What it measures, all in one run:
    backward, Adam step; stage 1 (every part present) and stage 2 (existence sampled, REINFORCE
    term), for the paper's encoder (stride-2 convs, fc 100) and the released one (conv + batch norm
    + max-pool). Projected time for the paper's 20k + 30k iterations.
+1c. ``primkit.model.training.train`` itself, end to end, in fresh processes: iterations per second of
+   today's code and, with ``--before REV``, of primkit as it was at REV (``git archive``), runs
+   alternating; and whether the losses of the first iterations are the same.
 2. The straightforward alternative, in the same run and on the same batches: the same losses
    computed one cuboid at a time in a Python loop (running minimum for coverage, one consistency
    term per cuboid); checked to give the same values, then timed alone and inside a whole step.
@@ -36,7 +39,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import load_line, maxrss_kib, run_isolated, table  # noqa: E402
+from _common import load_line, maxrss_kib, run_at_revision, run_fresh, run_isolated, table  # noqa: E402
 
 BATCH = 32
 PARTS = 20
@@ -337,6 +340,69 @@ def bench_training(shapes, device: str, iterations: int, warmup: int) -> None:
     )
 
 
+#: one run of primkit.model.training.train in a fresh process: argv stage-1 and stage-2 iterations and
+#: the recipe ("paper": the defaults, REINFORCE; "shapenet": the bundled ShapeNet models' local
+#: existence gradient). Written against the API that train() has had since before issue 20, so that
+#: the same script times an older revision (run_at_revision) and today's code (run_fresh).
+_TRAIN_RUN = """
+import json, sys
+from dataclasses import replace
+import torch
+from primkit import data, io, synthetic
+from primkit.model.training import ShapeTensors, TrainConfig, train
+s1, s2, recipe = int(sys.argv[1]), int(sys.argv[2]), sys.argv[3]
+shapes = [data.prepare(io.Mesh(s.vertices, s.faces), name=f"chair_{i:02d}")
+          for i, s in enumerate(synthetic.generate("chair", 16, seed=0))]
+config = TrainConfig(stage1_iterations=s1, stage2_iterations=s2, checkpoint_every=10**9, log_every=1)
+if recipe == "shapenet":
+    config = replace(config, existence_gradient="local", parsimony=4e-5)
+r = train(ShapeTensors(shapes), None, config, device="cpu", progress=False)
+print(json.dumps({"seconds": r.seconds, "threads": torch.get_num_threads(),
+                  "losses": [e["total"] for e in r.history]}))
+"""
+
+
+def bench_train_function(before: str | None, rounds: int, s1: int, s2: int) -> None:
+    """``train()`` itself, end to end, today's and (``--before REV``) as it was at REV.
+
+    Each run is a fresh process on the same 16 procedural chairs and seed; today's and REV's runs
+    alternate, ``rounds`` times, so that a change in the machine's load touches both. The losses of
+    the first iterations are compared too: the same losses per step, within floating-point noise.
+    """
+    variants = [("today's", None)] + ([(f"primkit at {before}", before)] if before else [])
+    rows, rates, losses = [], {}, {}
+    for recipe in ("paper", "shapenet"):
+        for r in range(rounds):
+            for label, rev in variants:
+                out, why = run_fresh(_TRAIN_RUN, str(s1), str(s2), recipe) if rev is None else \
+                    run_at_revision(rev, _TRAIN_RUN, str(s1), str(s2), recipe)
+                if out is None:
+                    print(f"  ({label}, {recipe}: {why})")
+                    continue
+                rates.setdefault((recipe, label), []).append((s1 + s2) / out["seconds"])
+                losses.setdefault((recipe, label), out["losses"])
+                print(f"  {recipe}, {label}, round {r + 1}: {(s1 + s2) / out['seconds']:.1f} it/s, "
+                      f"{out['threads']} threads; {load_line()}", flush=True)
+        for label, _ in variants:
+            got = rates.get((recipe, label))
+            if got:
+                rows.append([f"{recipe}: {label}", f"{med(got):.1f}", " ".join(f"{x:.1f}" for x in got)])
+        if before and (recipe, "today's") in rates and (recipe, variants[1][0]) in rates:
+            a, b = losses[(recipe, "today's")], losses[(recipe, variants[1][0])]
+            same = next((i for i, (x, y) in enumerate(zip(a, b)) if x != y), len(a))
+            rel = [abs(x - y) / abs(y) for x, y in zip(a[:10], b[:10])]
+            ratio = med(rates[(recipe, "today's")]) / med(rates[(recipe, variants[1][0])])
+            rows.append([f"{recipe}: today's / {before}", f"{ratio:.2f}x",
+                         f"losses identical for the first {same} iterations; largest relative difference in the first 10: {max(rel):.1e}"])
+    table(
+        f"1c. train() end to end on cpu (batch 32, 20 parts; {s1} + {s2} iterations; fresh process per run)",
+        ["run", "median it/s", "each round"],
+        rows,
+        "it/s = iterations / TrainResult.seconds (the loop alone: data and network built before it starts);\n"
+        "torch threads as train() chooses them (today: the cores free; before issue 20: torch's default).",
+    )
+
+
 def _memory_job(shapes, encoder: str, loss: str, device: str, iterations: int) -> dict:
     """Runs in a fresh process: build everything, then train ``iterations`` steps (stage 2)."""
     import torch
@@ -575,7 +641,11 @@ def main(argv=None) -> int:
     parser.add_argument("--shapes", type=int, default=16, help="prepared procedural chairs to draw batches from")
     parser.add_argument("--shared", action=argparse.BooleanOptionalAction, default=True,
                         help="also time training with one core kept busy by another process (default on)")
-    parser.add_argument("--only", choices=("training", "shared", "inference"), default=None, help="run one section")
+    parser.add_argument("--only", choices=("training", "train", "shared", "inference"), default=None,
+                        help="run one section (train: section 1c alone)")
+    parser.add_argument("--before", default=None, metavar="REV",
+                        help="section 1c also runs train() as it was at this git revision (e.g. 7f3df5b, before issue 20)")
+    parser.add_argument("--rounds", type=int, default=None, help="section 1c: alternating runs per side (default 3; quick 1)")
     args = parser.parse_args(argv)
     quick = args.quick
     iterations = args.iterations or (5 if quick else 30)
@@ -610,6 +680,9 @@ def main(argv=None) -> int:
         if args.only in (None, "training"):
             bench_training(shapes, device, iterations, warmup)
             bench_training_memory(shapes, device, max(4, iterations // 3))
+        if device == "cpu" and args.only in (None, "train"):
+            rounds = args.rounds or (1 if quick else 3)
+            bench_train_function(args.before, rounds, *((20, 20) if quick else (150, 250)))
         if device == "cpu" and args.shared and args.only in (None, "shared"):
             bench_shared_machine(shapes, iterations, warmup)
         if args.only in (None, "inference"):
