@@ -154,14 +154,22 @@ class Abstractor:
     def predict_canonical(self, occupancy: np.ndarray, batch_size: int = 64) -> dict:
         """Raw network output for ``(s, R, R, R)`` occupancy grids, as NumPy arrays
         (``half_extents (s, m, 3)``, ``quaternions (s, m, 4)``, ``translations (s, m, 3)``,
-        ``existence (s, m)``)."""
+        ``existence (s, m)``).
+
+        On the CPU each shape goes through the network on its own: oneDNN's convolutions choose
+        their kernels by batch size, and on some CPUs a shape's output then changed with the batch
+        it came in by up to 2e-7 (so a Dask run's files differed from a local run's, and a shape
+        deformed onto itself moved). Alone, a shape's output is the same whatever else is asked and
+        however many threads run; it costs about 0.2 ms a shape. On CUDA shapes go ``batch_size``
+        at a time."""
         import torch
 
         occupancy = np.asarray(occupancy)
         out = {"half_extents": [], "quaternions": [], "translations": [], "existence": []}
+        step = batch_size if torch.device(self.device).type == "cuda" else 1
         with torch.no_grad():
-            for i in range(0, len(occupancy), batch_size):
-                x = torch.from_numpy(occupancy[i : i + batch_size].astype(np.float32)).to(self.device)
+            for i in range(0, len(occupancy), step):
+                x = torch.from_numpy(occupancy[i : i + step].astype(np.float32)).to(self.device)
                 pred = self.network(x)
                 for key in out:
                     out[key].append(getattr(pred, key).double().cpu().numpy())
