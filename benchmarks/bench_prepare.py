@@ -357,19 +357,28 @@ def bench_distances(paths, bf_cells: int, repeats: int) -> None:
 
     centres = geometry.grid_centres(RESOLUTION).reshape(-1, 3)
     sel = np.sort(np.random.default_rng(0).choice(len(centres), bf_cells, replace=False))
-    res = {k: {"t": [], "max": [], "mean": []} for k in ("primkit", "igl", "brute", "edt")}
-    faces_seen = []
+    from primkit import data, io
+
+    keys = ("primkit", "open3d", "igl", "prepare", "brute", "edt")
+    res = {k: {"t": [], "max": [], "mean": []} for k in keys}
+    faces_seen, ratios = [], []
     for path in paths:
         v, f = canonical_mesh(path)
         faces_seen.append(len(f))
         (ref_sq, _, _), t_igl = best_of(repeats, igl.point_mesh_squared_distance, centres, v, f)
         ref = np.sqrt(ref_sq)
         grid, t_pk = best_of(repeats, geometry.distance_grid, v, f, RESOLUTION)
+        old, t_o3d = best_of(repeats, geometry.distance_grid, v, f, RESOLUTION, engine="open3d")
+        mesh = io.read_mesh(path)
+        _, t_prep = best_of(repeats, data.prepare, mesh)
+        ratios.append(t_prep / t_igl)
         bf_sq, t_bf = timed(brute_force_distance_sq, centres[sel], v, f)
         edt, t_edt = timed(edt_distance, v, f)
         for key, t, err in (
             ("igl", t_igl, np.zeros(1)),
             ("primkit", t_pk, np.abs(grid.distance.ravel().astype(np.float64) - ref)),
+            ("open3d", t_o3d, np.abs(old.distance.ravel().astype(np.float64) - ref)),
+            ("prepare", t_prep, np.abs(grid.distance.ravel().astype(np.float64) - ref)),
             ("brute", t_bf * len(centres) / bf_cells, np.abs(np.sqrt(bf_sq) - ref[sel])),
             ("edt", t_edt, np.abs(edt.ravel() - ref)),
         ):
@@ -377,21 +386,29 @@ def bench_distances(paths, bf_cells: int, repeats: int) -> None:
             res[key]["max"].append(err.max())
             res[key]["mean"].append(err.mean())
     names = {
-        "primkit": "primkit.geometry.distance_grid (Open3D BVH + float64)",
+        "primkit": "primkit.geometry.distance_grid (compiled, bounded search)",
+        "open3d": "  the same, engine='open3d' (Open3D BVH + float64; before)",
         "igl": "igl.point_mesh_squared_distance (AABB; reference)",
+        "prepare": "primkit.data.prepare, whole (read excluded)",
         "brute": f"brute force NumPy, all triangles (extrapolated from {bf_cells} cells)",
         "edt": "scipy EDT of 256^3 voxels from 2M samples, interpolated",
     }
     rows = []
-    for key in ("primkit", "igl", "brute", "edt"):
+    for key in keys:
         r = res[key]
         rows.append([names[key], ms(np.median(r["t"])), ms(np.max(r["t"])), f"{np.max(r['max']):.1e}", f"{np.mean(r['mean']):.1e}"])
+    grid_ratio = np.median(np.divide(res["primkit"]["t"], res["igl"]["t"]))
+    old_ratio = np.median(np.divide(res["open3d"]["t"], res["igl"]["t"]))
+    mid = [r for r, n in zip(ratios, faces_seen) if 10000 <= n <= 20000]
+    mid = f"; on the {len(mid)} meshes of 10k-20k faces {np.median(mid):.2f}" if mid else ""
     table(
         f"2. distance grid at {RESOLUTION}^3 on {len(paths)} meshes ({min(faces_seen)}-{max(faces_seen)} faces)",
         ["method", "median ms", "max ms", "max |err|", "mean |err|"],
         rows,
         "errors: distance at the cell centres against libigl's exact distances, in units of the unit cube\n"
-        "(a cell is 1/32 = 3.1e-2); primkit stores float32.",
+        "(a cell is 1/32 = 3.1e-2); primkit stores float32. Median per-mesh ratios to libigl's time: distance grid\n"
+        f"{grid_ratio:.2f} (engine='open3d' {old_ratio:.2f}); whole preparation {np.median(ratios):.2f} "
+        f"(range {min(ratios):.2f}-{max(ratios):.2f}){mid}.",
     )
 
 
@@ -423,7 +440,7 @@ def bench_occupancy(paths, repeats: int) -> None:
         f"3. solid occupancy at {RESOLUTION}^3 on {len(paths)} meshes ({min(faces_seen)}-{max(faces_seen)} faces)",
         ["method", "median ms", "p90 ms", "cells differing (total)", "meshes differing"],
         [
-            ["primkit occupancy_grid (surface cells + samples per region)", ms(np.median(t_pk)), ms(np.percentile(t_pk, 90)), int(diffs.sum()), int((diffs > 0).sum())],
+            ["primkit occupancy_grid (winding number at every cell)", ms(np.median(t_pk)), ms(np.percentile(t_pk, 90)), int(diffs.sum()), int((diffs > 0).sum())],
             ["  + its surface_voxels input", ms(np.median(np.add(t_pk, t_surf))), ms(np.percentile(np.add(t_pk, t_surf), 90)), "", ""],
             ["igl.fast_winding_number at all 32768 cells", ms(np.median(t_all)), ms(np.percentile(t_all, 90)), "reference", ""],
         ],

@@ -7,10 +7,11 @@ the one grid convention written there: ``grid[i, j, k]`` along X, Y, Z, cell cen
 
 Which library does what, and why:
 
-* **Closest points** come from Open3D's ``RaycastingScene`` (Embree BVH, multi-threaded); the point
-  on the found triangle is then recomputed in float64. libigl's AABB (``point_mesh_squared_distance``)
-  measured the same speed (61 against 63 ms a mesh in ``benchmarks/bench_prepare.py``); either is
-  fine, Open3D was kept because it also gives the surface voxels.
+* **Closest points** of the distance grid come from primkit's compiled search
+  (:mod:`~primkit.geometry._mesh_kernels`, Numba), exact in float64: a grid's cells are searched in
+  order, each search bounded by the previous cell's triangle, which took about half the time of
+  libigl's AABB (``point_mesh_squared_distance``) and of Open3D's ``RaycastingScene`` (Embree BVH),
+  which stays as ``engine="open3d"`` and the fallback without Numba (``benchmarks/bench_prepare.py``).
 * **Occupancy** is the generalised winding number (libigl ``fast_winding_number``), which is robust
   on open and self-intersecting meshes where ray parity (Open3D's ``compute_occupancy``) is not.
 * **Surface voxels** (cells a triangle passes through) are Open3D's exact triangle-box voxeliser.

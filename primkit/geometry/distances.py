@@ -67,35 +67,68 @@ def _raycasting_scene(vertices, faces):
     return scene
 
 
-def distance_grid(vertices: np.ndarray, faces: np.ndarray, resolution: int = 32) -> DistanceGrid:
+def _kernel_threads() -> int:
+    """Threads for the compiled closest-point search: ``OMP_NUM_THREADS`` where set (primkit's worker
+    processes set it to 1), else the cores this process may run on."""
+    import os
+
+    try:
+        return max(1, int(os.environ["OMP_NUM_THREADS"]))
+    except (KeyError, ValueError):
+        return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
+def distance_grid(vertices: np.ndarray, faces: np.ndarray, resolution: int = 32, engine: str = "auto") -> DistanceGrid:
     """Distance to the surface and closest surface point at every cell centre of the canonical grid.
 
-    Open3D's BVH finds the closest triangle of every cell (in float32); the closest point on that
-    triangle is then recomputed in float64 by :func:`closest_points_on_triangles`, so the stored
-    distances are exact point-to-triangle distances up to float32 storage.
+    Exact: each cell's closest point is the nearest point of the nearest triangle, in float64, stored
+    in float32. ``benchmarks/bench_prepare.py`` (section 2) compares both engines with libigl's exact
+    ``point_mesh_squared_distance``.
 
-    We tried answering only a band of cells near the surface with the BVH and finishing far cells
-    from the band's closest triangles: on finely tessellated meshes (triangles much smaller than a
-    cell) it was off by up to 1.5e-3 of the unit cube, so every cell is queried.
+    We tried answering only a band of cells near the surface exactly and finishing far cells from
+    the band's closest triangles: off by up to 1.5e-3 (and, from the nearest band cell's triangles
+    alone, 5e-2) of the unit cube on finely tessellated meshes, so every cell is searched exactly.
 
     Parameters
     ----------
     vertices : (n, 3) float
         Canonical-frame vertices.
     faces : (f, 3) int
+    engine : {"auto", "open3d"}
+        ``"auto"``: primkit's compiled search (:mod:`primkit.geometry._mesh_kernels`, Numba: a
+        median-split tree searched cell after cell, each search bounded by the previous cell's
+        triangle; about half of libigl's time), else Open3D. ``"open3d"``: Open3D's BVH
+        (``RaycastingScene``, float32) finds each cell's triangle and the point on it is recomputed
+        in float64 by :func:`closest_points_on_triangles`. On the benchmark's PSB and COSEG meshes
+        both give the same distances (to 3e-8; only a tie between equally near triangles may pick
+        another closest point), but on a random soup of intersecting triangles Open3D's query missed
+        the nearest triangle by up to 0.12 (``tests/geometry/test_mesh_kernels.py``).
 
     Returns
     -------
     DistanceGrid
     """
-    import open3d as o3d
-
+    if engine not in ("auto", "open3d"):
+        raise ValueError(f"engine must be 'auto' or 'open3d', got {engine!r}")
     vertices = np.asarray(vertices, np.float64)
     faces = np.asarray(faces, np.int64)
+    if faces.ndim != 2 or faces.shape[1] != 3 or len(faces) == 0:
+        raise ValueError(f"a distance grid needs (f, 3) faces, f > 0; got shape {faces.shape}")
     centres = grid_centres(resolution).reshape(-1, 3)
-    result = _raycasting_scene(vertices, faces).compute_closest_points(o3d.core.Tensor(centres.astype(np.float32)))
-    t = faces[result["primitive_ids"].numpy().astype(np.int64)]
-    closest = closest_points_on_triangles(centres, vertices[t[:, 0]], vertices[t[:, 1]], vertices[t[:, 2]])
+    closest = None
+    if engine == "auto":
+        try:
+            from ._mesh_kernels import grid_closest_points
+        except ImportError:  # no Numba: Open3D, the same distances
+            pass
+        else:
+            closest = grid_closest_points(vertices, faces, resolution, threads=_kernel_threads())[0].reshape(-1, 3)
+    if closest is None:
+        import open3d as o3d
+
+        result = _raycasting_scene(vertices, faces).compute_closest_points(o3d.core.Tensor(centres.astype(np.float32)))
+        t = faces[result["primitive_ids"].numpy().astype(np.int64)]
+        closest = closest_points_on_triangles(centres, vertices[t[:, 0]], vertices[t[:, 1]], vertices[t[:, 2]])
     distance = np.linalg.norm(closest - centres, axis=1)
     shape = (resolution,) * 3
     return DistanceGrid(distance.reshape(shape).astype(np.float32), closest.reshape(shape + (3,)).astype(np.float32))
