@@ -79,28 +79,28 @@ def load_line() -> str:
     return f"load average {one:.2f} (1 min), {five:.2f} (5 min) on {os.cpu_count()} cores"
 
 
-def _run_script(script: str, args, pythonpath: str, cwd: str) -> tuple[dict | list | None, str]:
+def _run_script(script: str, args, pythonpath: str, cwd: str, env: dict | None = None) -> tuple[dict | list | None, str]:
     import json
     import subprocess
     import sys
 
     run = subprocess.run([sys.executable, "-c", script, *args], capture_output=True, text=True,
-                         env=dict(os.environ, PYTHONPATH=pythonpath), cwd=cwd)
+                         env=dict(os.environ, **(env or {}), PYTHONPATH=pythonpath), cwd=cwd)
     if run.returncode:
         return None, (run.stderr.strip().splitlines() or ["failed"])[-1]
     return json.loads(run.stdout.strip().splitlines()[-1]), ""
 
 
-def run_fresh(script: str, *args: str) -> tuple[dict | list | None, str]:
+def run_fresh(script: str, *args: str, env: dict | None = None) -> tuple[dict | list | None, str]:
     """Run ``script`` (Python source printing one JSON line last) with this checkout's primkit in a
     fresh process of this interpreter: the twin of :func:`run_at_revision` for today's code, so
-    that both sides of a comparison start the same way. Returns ``(parsed JSON, "")`` or
-    ``(None, why)``."""
+    that both sides of a comparison start the same way; ``env`` adds environment variables.
+    Returns ``(parsed JSON, "")`` or ``(None, why)``."""
     import tempfile
 
     root = str(Path(__file__).resolve().parents[1])
     with tempfile.TemporaryDirectory(prefix="primkit-fresh-") as tmp:
-        return _run_script(script, args, root, tmp)
+        return _run_script(script, args, root, tmp, env)
 
 
 def run_at_revision(rev: str, script: str, *args: str) -> tuple[dict | list | None, str]:

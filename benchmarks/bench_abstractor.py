@@ -394,6 +394,14 @@ def bench_train_function(before: str | None, rounds: int, s1: int, s2: int) -> N
             ratio = med(rates[(recipe, "today's")]) / med(rates[(recipe, variants[1][0])])
             rows.append([f"{recipe}: today's / {before}", f"{ratio:.2f}x",
                          f"losses identical for the first {same} iterations; largest relative difference in the first 10: {max(rel):.1e}"])
+            # the noise floor: today's code with one thread, whose sums round differently
+            one, why = run_fresh(_TRAIN_RUN, str(s1), str(s2), recipe, env={"PRIMKIT_THREADS": "1"})
+            if one is not None:
+                c = one["losses"]
+                same1 = next((i for i, (x, y) in enumerate(zip(a, c)) if x != y), len(a))
+                rel1 = [abs(x - y) / abs(y) for x, y in zip(a[:10], c[:10])]
+                rows.append([f"{recipe}: today's, 1 thread / 2", "", f"(float noise alone) losses identical for the first {same1} "
+                             f"iterations; largest relative difference in the first 10: {max(rel1):.1e}"])
     table(
         f"1c. train() end to end on cpu (batch 32, 20 parts; {s1} + {s2} iterations; fresh process per run)",
         ["run", "median it/s", "each round"],

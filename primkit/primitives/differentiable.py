@@ -110,14 +110,22 @@ def _sample_surface_from_uv_torch(
     opts = {"dtype": half_extents.dtype, "device": half_extents.device}
     fixed_t = torch.as_tensor(fixed, **opts)
     spread_t = torch.as_tensor(spread, **opts)
-    unit = fixed_t + torch.einsum("bmkc,kcd->bmkd", uv.to(**opts), spread_t)  # (B, m, k, 3)
-    local = unit * half_extents[:, :, None, :]
-    rot = quaternion_to_matrix_torch(quaternions)
-    points = torch.einsum("bmij,bmkj->bmki", rot, local) + translations[:, :, None, :]
+    u, v = uv.to(**opts).unbind(-1)  # (B, m, k) each
+    # Element-wise products and sums, not einsum: a (k, 2, 3) or (3, 3) contraction per cuboid
+    # became a batched matrix product of tiny matrices, slower on CPU than these few passes over
+    # (B, m, k) rows (bench_abstractor.py). The one-hot `spread` makes `unit` the same values.
+    unit = fixed_t + u[..., None] * spread_t[:, 0] + v[..., None] * spread_t[:, 1]  # (B, m, k, 3)
+    lx, ly, lz = (unit * half_extents[:, :, None, :]).unbind(-1)
+    rot = quaternion_to_matrix_torch(quaternions)  # (B, m, 3, 3)
+    r = rot[..., None].unbind(-3)  # r[i]: (B, m, 3, 1), row i of R
+    t = translations[..., None].unbind(-2)  # (B, m, 1) each
+    points = torch.stack([r[i][:, :, 0] * lx + r[i][:, :, 1] * ly + r[i][:, :, 2] * lz + t[i] for i in range(3)], dim=-1)
     pairs = face_area_pairs()
     areas = 4.0 * half_extents[..., pairs[:, 0]] * half_extents[..., pairs[:, 1]]  # (B, m, 3)
-    axis = torch.as_tensor(face // 2, device=half_extents.device)
-    weights = areas[..., axis] / (k // 6)
+    # faces come k / 6 samples at a time in the order 0..5, so axis face // 2 covers k / 3 samples
+    # each, in order: an expansion, whose backward is a sum (indexing's backward is a scatter)
+    b, m = areas.shape[:2]
+    weights = areas[..., None].expand(b, m, 3, k // 3).reshape(b, m, k) / (k // 6)
     return points, weights
 
 
