@@ -518,7 +518,7 @@ def _collection_job(files: list[str], workers: int) -> dict:
         parent_peak = maxrss_kib()
         child_peak = maxrss_kib(children=True)
         _, t_warm = timed(data.prepare_collection, files, cache_dir=cache, workers=workers, progress=False)
-        size = sum(p.stat().st_size for p in Path(cache).rglob("*.npz"))
+        size = sum(p.stat().st_size for p in Path(cache).rglob("*") if p.is_file())  # segments (.npy) and their index
     return {
         "ok": len(coll), "errors": coll.errors[:3], "n_errors": len(coll.errors), "cold": t_cold, "warm": t_warm,
         "base": base, "parent_peak": parent_peak, "child_peak": child_peak, "bytes": size,
