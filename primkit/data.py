@@ -962,7 +962,7 @@ def prepare_collection(
         ``concurrent.futures.Executor.map``) or an address for :func:`primkit.parallel.executor_from`
         (a Dask scheduler ``tcp://HOST:PORT``, ``ray``). The workers need primkit and the files,
         not the cache: prepared rows come back here and are written by this process.
-    shard : (k, n), optional
+    shard : (k, n) or primkit.parallel.Selection, optional
         Only shard k of n of the files (:func:`primkit.parallel.shard_indices`: every n-th of the
         list, from the k-th); names are given over all the files, so the shards of one
         collection name their shapes as one run would.

@@ -321,11 +321,25 @@ def parse_shard(text) -> tuple[int, int] | None:
 def shard_indices(count: int, shard) -> list:
     """The positions of shard ``(k, n)`` among ``count`` sorted inputs: every n-th from k - 1, so
     that the shards of one collection are disjoint, together hold every input, and are the same
-    on every machine for the same inputs. All of them for None."""
+    on every machine for the same inputs. All of them for None. A :class:`Selection` is its own
+    list of positions (what is left of a shard to do)."""
     if shard is None:
         return list(range(count))
+    if isinstance(shard, Selection):
+        return [i for i in shard.positions if 0 <= i < count]
     k, n = shard
     return list(range(k - 1, count, n))
+
+
+class Selection:
+    """Chosen positions among sorted inputs, passed where a shard ``(k, n)`` goes: the inputs are
+    still named as the whole list names them (``primkit abstract --skip-done``)."""
+
+    def __init__(self, positions):
+        self.positions = sorted(int(i) for i in positions)
+
+    def __repr__(self) -> str:
+        return f"Selection({self.positions})"
 
 
 class ExecutorError(RuntimeError):

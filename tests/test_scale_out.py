@@ -235,3 +235,35 @@ def test_a_missing_engine_is_one_line(shapes, tmp_path, monkeypatch, capsys):
         err = [line for line in capsys.readouterr().err.splitlines() if not line.startswith("primkit: note:")]
         assert len(err) == 1 and words in err[0] and address in err[0], err
     assert not (tmp_path / "out").exists()
+
+
+def test_skip_done_reruns_only_what_is_missing(shapes, tmp_path, capsys):
+    """A killed shard's rerun with --skip-done: no --force needed, the missing outputs (a whole pair,
+    and the other half of a pair cut in two) are written under the names of one run, the rest left."""
+    root, reference = shapes
+    out = tmp_path / "out"
+    cache = tmp_path / "cache"
+    args = ["abstract", str(root / "in"), "--model", "chair", "-o", str(out), "--cache", str(cache), "--workers", "1"]
+    assert main(args + ["--shard", "1/2"]) == 0
+    first = sorted(_outputs(out))
+    assert first
+    # the worker "died": one pair lost, one cut in two; the untouched ones keep their times
+    lost = first[0].split(".cuboids")[0]
+    half = first[-1].split(".cuboids")[0]
+    for p in out.glob(f"{lost}.cuboids.*"):
+        p.unlink()
+    (out / f"{half}.cuboids.ply").unlink()
+    kept = {p.name: p.stat().st_mtime_ns for p in out.iterdir()}
+    capsys.readouterr()
+    assert main(args + ["--shard", "1/2", "--skip-done"]) == 0
+    assert sorted(_outputs(out)) == first
+    assert "1 of 3 input(s) already done" in capsys.readouterr().err
+    assert all(out.joinpath(n).stat().st_mtime_ns == t for n, t in kept.items() if not n.startswith(half))
+    # then the second shard, and a rerun of everything that finds it all done
+    assert main(args + ["--shard", "2/2", "--skip-done"]) == 0
+    assert sorted(_outputs(out)) == sorted(reference)
+    capsys.readouterr()
+    assert main(args + ["--skip-done"]) == 0
+    assert "5 of 5 input(s) already done" in capsys.readouterr().err
+    # without --skip-done a rerun still refuses to overwrite
+    assert main(args) != 0

@@ -112,6 +112,27 @@ def _picture_path(path):
     return None if path is None else check_suffix(path, ".png", "a picture")
 
 
+def _not_done(args, files, names, folder, options):
+    """``--skip-done``: the names of this shard's inputs still to do, and the options that select
+    only them, so that a rerun after a lost worker or a killed job does only what is missing.
+
+    Done means both outputs exist. An input with one of its two is redone, its file replaced (the
+    run was cut between them). The selection goes where the shard went, so the inputs keep the
+    names the whole list gives them."""
+    from ..parallel import Selection, shard_indices
+
+    keep = shard_indices(len(files), parse_shard_option(args))
+    paths = {i: [folder / f"{names[i]}.cuboids{ext}" for ext in (".json", ".ply")] for i in keep}
+    todo = [i for i in keep if not all(p.is_file() for p in paths[i])]
+    print(f"--skip-done: {len(keep) - len(todo)} of {len(keep)} input(s) already done", file=sys.stderr)
+    for i in todo:
+        for part in paths[i]:
+            if part.is_file():  # half of a pair: replaced
+                part.unlink()
+    args.shard = None
+    return [names[i] for i in todo], dict(options, shard=Selection(todo))
+
+
 def _cmd_abstract(args) -> int:
     from ..model.bundled import resolve_model
     from ..model.modelfile import read_metadata
@@ -131,10 +152,14 @@ def _cmd_abstract(args) -> int:
         err("--png draws the whole collection: not with --shard")
         return 2
     # with --shard, this shard's outputs only, named as one run over all the inputs names them
-    outputs = [folder / f"{name}.cuboids{ext}" for name in shard_of(args, output_names(files)) for ext in (".json", ".ply")]
+    names = output_names(files)
+    options = abstraction_options(args)
+    if args.skip_done:
+        names, options = _not_done(args, files, names, folder, options)
+    outputs = [folder / f"{name}.cuboids{ext}" for name in shard_of(args, names) for ext in (".json", ".ply")]
     check_outputs(args, outputs + [_picture_path(args.png)], input_paths(files, model_path))
     out = abstract_shapes(files, model, existence_threshold=args.threshold,
-                          prune_threshold=None if args.prune <= 0 else args.prune, **abstraction_options(args))
+                          prune_threshold=None if args.prune <= 0 else args.prune, **options)
     failed = list(out.errors)
     for r in out.results:
         j, m = r.save(args.output, overwrite=args.force)
@@ -316,6 +341,9 @@ def build_parser() -> argparse.ArgumentParser:
     add_png(p)
     p.add_argument("--threshold", type=float, default=0.5, help="existence probability above which a part exists")
     p.add_argument("--prune", type=float, default=0.6, help="drop parts more than this fraction inside others (0: off)")
+    p.add_argument("--skip-done", action="store_true",
+                   help="leave out inputs whose two outputs already exist (a rerun of a shard after a lost worker "
+                        "does only what is missing; an input with one of its two outputs is redone)")
     add_force(p)
     p.set_defaults(func=_cmd_abstract)
 
