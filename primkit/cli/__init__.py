@@ -113,8 +113,9 @@ def _picture_path(path):
 
 
 def _not_done(args, files, names, folder, options):
-    """``--skip-done``: the names of this shard's inputs still to do, and the options that select
-    only them, so that a rerun after a lost worker or a killed job does only what is missing.
+    """``--skip-done``: the names of this shard's inputs still to do, and ``options`` selecting only
+    them (in place of the shard), so that a rerun after a lost worker or a killed job does only
+    what is missing.
 
     Done means both outputs exist. An input with one of its two is redone, its file replaced (the
     run was cut between them). The selection goes where the shard went, so the inputs keep the
@@ -129,7 +130,6 @@ def _not_done(args, files, names, folder, options):
         for part in paths[i]:
             if part.is_file():  # half of a pair: replaced
                 part.unlink()
-    args.shard = None
     return [names[i] for i in todo], dict(options, shard=Selection(todo))
 
 
@@ -152,11 +152,12 @@ def _cmd_abstract(args) -> int:
         err("--png draws the whole collection: not with --shard")
         return 2
     # with --shard, this shard's outputs only, named as one run over all the inputs names them
-    names = output_names(files)
     options = abstraction_options(args)
     if args.skip_done:
-        names, options = _not_done(args, files, names, folder, options)
-    outputs = [folder / f"{name}.cuboids{ext}" for name in shard_of(args, names) for ext in (".json", ".ply")]
+        names, options = _not_done(args, files, output_names(files), folder, options)
+    else:
+        names = shard_of(args, output_names(files))
+    outputs = [folder / f"{name}.cuboids{ext}" for name in names for ext in (".json", ".ply")]
     check_outputs(args, outputs + [_picture_path(args.png)], input_paths(files, model_path))
     out = abstract_shapes(files, model, existence_threshold=args.threshold,
                           prune_threshold=None if args.prune <= 0 else args.prune, **options)

@@ -19,7 +19,9 @@ The tree: a complete binary tree over leaves of eight triangles in heap order (n
 children ``2i`` and ``2i + 1``); each node's triangles are split at the median of their centroids
 along the axis they spread most (quickselect), at the count its heap layout gives each subtree, and
 boxes are computed bottom-up. It builds in a few milliseconds; median splits made the search 1.2-1.5x
-faster than the same tree over a Morton order of the centroids.
+faster than the same tree over a Morton order of the centroids. In a leaf each triangle's own box
+is tested before its exact distance: 20% faster on one thread (364 against 458 ms over six PSB
+and COSEG meshes); testing its plane as well gained nothing.
 
 Closest point on a triangle: the Voronoi-region method (Ericson, "Real-Time Collision Detection",
 5.1.5), in float64; triangles of zero area (repeated or collinear corners) take the nearest point of

@@ -69,7 +69,8 @@ def _raycasting_scene(vertices, faces):
 
 def _kernel_threads() -> int:
     """Threads for the compiled closest-point search: ``OMP_NUM_THREADS`` where set (primkit's worker
-    processes set it to 1), else the cores this process may run on."""
+    processes set it to 1), else the cores this process may run on. (Read here, not through
+    :mod:`primkit.parallel`: ``primkit.geometry`` imports nothing else of primkit.)"""
     import os
 
     try:
