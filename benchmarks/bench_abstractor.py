@@ -362,6 +362,13 @@ print(json.dumps({"seconds": r.seconds, "threads": torch.get_num_threads(),
 """
 
 
+def _loss_agreement(a: list, b: list) -> str:
+    """How alike two runs' per-iteration losses are: identical for how many, then how far apart."""
+    same = next((i for i, (x, y) in enumerate(zip(a, b)) if x != y), len(a))
+    rel = max(abs(x - y) / abs(y) for x, y in zip(a[:10], b[:10]))
+    return f"losses identical for the first {same} iterations; largest relative difference in the first 10: {rel:.1e}"
+
+
 def bench_train_function(before: str | None, rounds: int, s1: int, s2: int) -> None:
     """``train()`` itself, end to end, today's and (``--before REV``) as it was at REV.
 
@@ -388,20 +395,13 @@ def bench_train_function(before: str | None, rounds: int, s1: int, s2: int) -> N
             if got:
                 rows.append([f"{recipe}: {label}", f"{med(got):.1f}", " ".join(f"{x:.1f}" for x in got)])
         if before and (recipe, "today's") in rates and (recipe, variants[1][0]) in rates:
-            a, b = losses[(recipe, "today's")], losses[(recipe, variants[1][0])]
-            same = next((i for i, (x, y) in enumerate(zip(a, b)) if x != y), len(a))
-            rel = [abs(x - y) / abs(y) for x, y in zip(a[:10], b[:10])]
+            today = losses[(recipe, "today's")]
             ratio = med(rates[(recipe, "today's")]) / med(rates[(recipe, variants[1][0])])
-            rows.append([f"{recipe}: today's / {before}", f"{ratio:.2f}x",
-                         f"losses identical for the first {same} iterations; largest relative difference in the first 10: {max(rel):.1e}"])
+            rows.append([f"{recipe}: today's / {before}", f"{ratio:.2f}x", _loss_agreement(today, losses[(recipe, variants[1][0])])])
             # the noise floor: today's code with one thread, whose sums round differently
             one, why = run_fresh(_TRAIN_RUN, str(s1), str(s2), recipe, env={"PRIMKIT_THREADS": "1"})
             if one is not None:
-                c = one["losses"]
-                same1 = next((i for i, (x, y) in enumerate(zip(a, c)) if x != y), len(a))
-                rel1 = [abs(x - y) / abs(y) for x, y in zip(a[:10], c[:10])]
-                rows.append([f"{recipe}: today's, 1 thread / 2", "", f"(float noise alone) losses identical for the first {same1} "
-                             f"iterations; largest relative difference in the first 10: {max(rel1):.1e}"])
+                rows.append([f"{recipe}: today's, 1 thread / 2", "", "(float noise alone) " + _loss_agreement(today, one["losses"])])
     table(
         f"1c. train() end to end on cpu (batch 32, 20 parts; {s1} + {s2} iterations; fresh process per run)",
         ["run", "median it/s", "each round"],
@@ -593,7 +593,7 @@ def bench_inference(shapes, device: str, count: int, files: int, repeats: int) -
             ab.predict([s], **kw)
 
     cases = [
-        ("network only (predict_canonical, batches of 64)", lambda: ab.predict_canonical(occupancy)),
+        ("network only (predict_canonical; on the CPU one shape at a time)", lambda: ab.predict_canonical(occupancy)),
         ("predict, batched, no pruning", lambda: ab.predict(many, prune_threshold=None)),
         ("predict, batched, with pruning (default)", lambda: ab.predict(many)),
         ("predict, one shape at a time, no pruning", lambda: one_by_one(prune_threshold=None)),
