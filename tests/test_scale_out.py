@@ -267,3 +267,47 @@ def test_skip_done_reruns_only_what_is_missing(shapes, tmp_path, capsys):
     assert "5 of 5 input(s) already done" in capsys.readouterr().err
     # without --skip-done a rerun still refuses to overwrite
     assert main(args) != 0
+
+
+def test_segment_skip_done_redoes_only_what_a_cut_run_left(shapes, segmented, tmp_path, capsys):
+    """A shard cut short, rerun with --skip-done: a shape with all its files stays untouched, a
+    shape lost whole or in part (a missing cuboids file, a missing summary row) is redone, and the
+    summary is rewritten with every row of the shard, in input order, without --force."""
+    root, _ = shapes
+    out = tmp_path / "out"
+    cache = root / "cache-one"
+    assert _segment(root, out, cache, "--shard", "1/2") == 0
+    full = _outputs(out)
+    summary = "summary.shard-1-of-2.csv"
+    header, rows = _rows(full[summary])
+    first, second, third = list(rows)
+    for p in out.glob(f"{first}.*"):  # lost whole
+        p.unlink()
+    (out / f"{second}.cuboids.json").unlink()  # cut before its cuboids
+    lines = full[summary].decode().splitlines(keepends=True)  # and the third's row never written
+    (out / summary).write_text("".join(line for line in lines if not line.startswith(f"{third},")))
+    capsys.readouterr()
+    assert _segment(root, out, cache, "--shard", "1/2", "--skip-done") == 0
+    assert "0 of 3 input(s) already done" in capsys.readouterr().err
+    got = _outputs(out)
+    assert sorted(got) == sorted(full)
+    assert _rows(got[summary]) == (header, rows) and list(_rows(got[summary])[1]) == [first, second, third]
+    for name, content in full.items():
+        if name.endswith((".seg", ".parts.ply")) or name in ("labels.csv", summary):
+            assert got[name] == content, name
+    # a rerun finds it all done and writes nothing
+    times = {n: (out / n).stat().st_mtime_ns for n in got}
+    capsys.readouterr()
+    assert _segment(root, out, cache, "--shard", "1/2", "--skip-done") == 0
+    assert "3 of 3 input(s) already done" in capsys.readouterr().err
+    assert {n: (out / n).stat().st_mtime_ns for n in got} == times
+    # one shape lost again: only it is redone, the others' files keep their times
+    (out / f"{second}.seg").unlink()
+    kept = {n: (out / n).stat().st_mtime_ns for n in got if not n.startswith(second) and n != summary}
+    assert _segment(root, out, cache, "--shard", "1/2", "--skip-done") == 0
+    assert "2 of 3 input(s) already done" in capsys.readouterr().err
+    assert _outputs(out) == got and all((out / n).stat().st_mtime_ns == t for n, t in kept.items())
+    # the whole collection needs one run without --skip-done for --gt and --png
+    assert _segment(root, out, cache, "--skip-done", "--png", str(tmp_path / "seg.png")) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--png" in err[0] and "--skip-done" in err[0]

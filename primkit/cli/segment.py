@@ -4,6 +4,7 @@ and ``primkit name-parts`` (name a model's part indices from a few labelled shap
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -160,16 +161,52 @@ def _label_codes_text(segmenter) -> str:
     return "code,name\n" + "".join(f"{i + 1},{n}\n" for i, n in enumerate(names))
 
 
-def _written_by_another_shard(path: Path, codes: str, shard, force: bool) -> bool:
-    """Whether ``labels.csv`` is there with these very codes, written by another shard of the run
-    (they are the model's, the same for every shard: not a clash). Never without ``--shard``, nor
-    with ``--force``."""
-    if shard is None or force:
+def _written_before(path: Path, codes: str, expected: bool, force: bool) -> bool:
+    """Whether ``labels.csv`` is there with these very codes, written by another shard of the run or
+    by the run that ``--skip-done`` goes on with (``expected``: they are the model's, the same for
+    every shard: not a clash). Never otherwise, nor with ``--force``."""
+    if not expected or force:
         return False
     try:
         return path.read_text() == codes
     except (OSError, UnicodeDecodeError):
         return False
+
+
+_LABEL_SUFFIXES = {"mesh": ".seg", "voxels": ".voxlabels.npy", "points": ".parts.npy"}
+
+
+def _shape_outputs(out: Path, name: str, kind: str) -> list[Path]:
+    """A shape's three files, in the order they are written (its ``.cuboids.json`` last)."""
+    return [out / f"{name}{_LABEL_SUFFIXES[kind]}", out / f"{name}.parts.ply", out / f"{name}.cuboids.json"]
+
+
+def _not_done(files, names, out: Path, shard, part_names):
+    """``--skip-done``: this shard's inputs still to do, and the summary rows of those that are done.
+
+    Done means its three files exist and its row is in this shard's summary of its kind, written
+    by the same model (same columns): a run is cut after the shapes' labels and meshes, before the
+    summaries, or before the cuboids. An input that is not done has what it left removed, and is
+    redone; the summary is rewritten with the kept rows (``(kinds, todo positions, {kind: rows})``)."""
+    from ..parallel import shard_indices
+    from ..segmentation import read_summary, summary_header
+
+    keep = shard_indices(len(files), shard)
+    kinds = {i: _kind(files[i]) for i in keep}
+    summaries = {}
+    for kind in set(kinds.values()):
+        header, rows = read_summary(out / _summary_name(kind, shard))
+        summaries[kind] = rows if header == summary_header(kind, part_names) else {}
+    todo = [i for i in keep if not (all(p.is_file() for p in _shape_outputs(out, names[i], kinds[i]))
+                                    and names[i] in summaries[kinds[i]])]
+    print(f"--skip-done: {len(keep) - len(todo)} of {len(keep)} input(s) already done", file=sys.stderr)
+    for i in todo:
+        for path in _shape_outputs(out, names[i], kinds[i]):
+            if path.is_file():  # what a cut run left of it: redone
+                path.unlink()
+    done = set(keep) - set(todo)
+    kept = {kind: {names[i]: rows[names[i]] for i in sorted(done) if kinds[i] == kind} for kind, rows in summaries.items()}
+    return todo, kept
 
 
 def _segment_outputs(args, files, names, out: Path, evaluations: dict, sources, shard, codes) -> list:
@@ -180,11 +217,11 @@ def _segment_outputs(args, files, names, out: Path, evaluations: dict, sources, 
     from ..io import check_suffix
 
     kinds = [_kind(f) for f in files]
-    labels = {"mesh": ".seg", "voxels": ".voxlabels.npy", "points": ".parts.npy"}
     outputs = []
     for name, kind in zip(names, kinds):
-        outputs += [out / f"{name}{labels[kind]}", out / f"{name}.parts.ply", out / f"{name}.cuboids.json"]
-    outputs += [out / _summary_name(kind, shard) if kind in kinds else None for kind in _SUMMARIES]
+        outputs += _shape_outputs(out, name, kind)
+    # with --skip-done a summary is rewritten with the rows it keeps: not checked here
+    outputs += [out / _summary_name(kind, shard) if kind in kinds and not args.skip_done else None for kind in _SUMMARIES]
     outputs += [out / "labels.csv" if codes is not None else None]
     outputs += list(evaluations.values()) if sources else []
     return outputs + [None if args.png is None else check_suffix(args.png, ".png", "a picture")]
@@ -205,6 +242,9 @@ def _cmd_segment(args) -> int:
     if shard is not None and args.png:
         err("--png draws the whole collection: not with --shard")
         return 2
+    if args.skip_done and (sources or args.png):
+        err(f"{'--gt evaluates' if sources else '--png draws'} the whole collection: not with --skip-done")
+        return 2
     archives = _voxel_archives(sources)
     evaluations = {"meshes": out / "evaluation.json", "voxels": out / "evaluation-voxels.json"}
     segmenter = Segmenter(args.model, up=args.up, front=args.front, align=args.align, refine=args.refine)
@@ -214,15 +254,26 @@ def _cmd_segment(args) -> int:
     if not mine:
         print(f"shard {shard[0]}/{shard[1]}: none of the {len(files)} inputs is in it (nothing to do)")
         return 0
+    order, kept, selection = names, {}, shard
+    if args.skip_done:
+        from ..parallel import Selection
+
+        every = output_names(files)
+        todo, kept = _not_done(files, every, out, shard, segmenter.part_names)
+        if not todo:
+            print("nothing to do: every input's outputs are there")
+            return 0
+        # the rest goes where the shard went, named as one run over all the inputs names them
+        mine, names, selection = [files[i] for i in todo], [every[i] for i in todo], Selection(todo)
     codes = _label_codes_text(segmenter) if args.semantic else None
-    if codes is not None and _written_by_another_shard(out / "labels.csv", codes, shard, args.force):
+    if codes is not None and _written_before(out / "labels.csv", codes, shard is not None or args.skip_done, args.force):
         codes = None
     # before any work: nothing written over an input (the shapes' own .seg labels, the --gt files)
     check_outputs(args, _segment_outputs(args, mine, names, out, evaluations, sources, shard, codes),
                   input_paths(files, _model_path(args.model), *(folder for folder, _ in sources)))
     with executor_from(args.executor) as pool:
         segs, errors = segmenter.segment_files(files, cache_dir=args.cache, workers=args.workers, executor=pool,
-                                               shard=shard)
+                                               shard=selection)
     failed = list(errors)
     written = []
     for s in segs:
@@ -246,9 +297,9 @@ def _cmd_segment(args) -> int:
     meshes = [s for s in segs if not isinstance(s, (VoxelSegmentation, PointSegmentation))]
     kinds = {"mesh": meshes, "voxels": grids, "points": clouds}
     summaries = [out / _summary_name(k, shard) for k, group in kinds.items() if group]
-    for path, group in zip(summaries, [g for g in kinds.values() if g]):
-        write_summary(group, path, overwrite=args.force)
-    if codes is not None and not _written_by_another_shard(out / "labels.csv", codes, shard, args.force):  # meanwhile
+    for kind, path in zip([k for k, g in kinds.items() if g], summaries):
+        write_summary(kinds[kind], path, overwrite=args.force or args.skip_done, keep=kept.get(kind), order=order)
+    if codes is not None and not _written_before(out / "labels.csv", codes, shard is not None, args.force):  # meanwhile
         with atomic_output(out / "labels.csv", overwrite=args.force) as tmp:
             Path(tmp).write_text(codes)
     for s in written:
@@ -385,12 +436,17 @@ def register(sub) -> None:
         "names them, and its own summary (summary.shard-K-of-N.csv, its shapes' rows: the shards' rows together are "
         "one run's); labels.csv (--semantic) is the same for every shard. --gt and --png need the whole collection "
         "(the paper's mapping is fitted over every shape) and are refused with --shard: run once over all the inputs "
-        "for them. A shard killed half-way keeps each output it wrote whole; run it again with --force.")
+        "for them. A shard killed half-way keeps each output it wrote whole; run it again with --skip-done to do only "
+        "what it left, or with --force to redo it all.")
     p.add_argument("inputs", nargs="+", help="mesh, voxel (.binvox) or point-cloud (.xyz, .npy, .ply) files, or folders")
     add_output(p, "output folder")
     add_abstraction_options(p)
     add_png(p)
     add_scale_out(p)
+    p.add_argument("--skip-done", action="store_true",
+                   help="leave out the inputs whose outputs are there (its three files, and its row in the summary "
+                   "this run writes), e.g. when rerunning a shard after a lost worker or a killed job; the rest is "
+                   "redone (what a cut run left of it replaced) and the summary rewritten with every row")
     p.add_argument("--semantic", action="store_true", help="write the model's part names' codes (labels.csv) instead of indices")
     p.add_argument("--gt", action="append", metavar="PATH",
                    help="ground truth: a folder of .seg files for meshes (same stems), or for voxel grids a per-voxel "

@@ -20,7 +20,7 @@ from . import meshes, points, segmenter, voxels
 from .meshes import (PROTOCOLS, GroundTruth, Segmentation, accuracy, evaluate, face_labels, label_iou, majority_mapping,
                      name_mapping, parse_label_names, point_labels, read_ground_truth, segment_mesh, vertex_labels)
 from .points import PointSegmentation, segment_points
-from .segmenter import Segmenter, segment, write_summary
+from .segmenter import Segmenter, read_summary, segment, summary_header, write_summary
 from .voxels import (PARTNET_LABEL_NAMES, VOXEL_PROTOCOLS, VoxelGroundTruth, VoxelLabelArchive, VoxelSegmentation,
                      evaluate_voxels, label_voxels, segment_voxels, voxel_centres)
 

@@ -16,7 +16,7 @@ from .meshes import Segmentation, segment_mesh
 from .points import PointSegmentation, segment_points
 from .voxels import VoxelSegmentation, segment_voxels
 
-__all__ = ["Segmenter", "segment", "write_summary"]
+__all__ = ["Segmenter", "segment", "write_summary", "read_summary", "summary_header"]
 
 
 def _segment_file(job):
@@ -133,7 +133,28 @@ def segment(shape, model="chair", **options) -> Segmentation | VoxelSegmentation
                         part_names=abstractor.part_names)
 
 
-def write_summary(segmentations, path, *, overwrite: bool = False) -> Path:
+def summary_header(kind: str, part_names) -> list[str]:
+    """The columns of a summary (:func:`write_summary`) of shapes of ``kind`` (``"mesh"``,
+    ``"voxels"`` or ``"points"``) segmented by a model with these part names."""
+    element = {"mesh": "faces", "voxels": "voxels", "points": "points"}[kind]
+    unit = "area" if kind == "mesh" else element
+    return ["shape", element, "parts_present", f"{unit}_total"] + [f"{unit}_{k}_{n}" for k, n in enumerate(part_names)]
+
+
+def read_summary(path) -> tuple[list[str], dict[str, list[str]]]:
+    """A summary written by :func:`write_summary`: its header and its rows by shape name (the row
+    without the name). An absent or unreadable file reads as no columns and no rows."""
+    try:
+        with open(path, newline="") as fh:
+            table = list(csv.reader(fh))
+    except (OSError, UnicodeDecodeError, csv.Error):
+        return [], {}
+    if not table:
+        return [], {}
+    return table[0], {row[0]: row[1:] for row in table[1:] if row}
+
+
+def write_summary(segmentations, path, *, overwrite: bool = False, keep=None, order=None) -> Path:
     """One CSV row per shape: its elements, the parts present (indices holding any), and how much
     of the shape each part index holds, with the same columns for the whole collection.
 
@@ -141,6 +162,10 @@ def write_summary(segmentations, path, *, overwrite: bool = False) -> Path:
     ``area_<k>_<name>``). Voxel grids (:class:`VoxelSegmentation`): ``voxels``, then voxel counts
     (``voxels_<k>_<name>``). Point clouds (:class:`PointSegmentation`): ``points``, then point
     counts. One kind per file.
+
+    ``keep``: rows of an earlier summary of the same columns (:func:`read_summary`), written with
+    these (``primkit segment --skip-done``: the shapes it left as they were); ``order``: shape
+    names in the order the rows are written (by default the kept rows, then the new ones).
     """
     if not segmentations:
         raise ValueError("no segmentations to summarise")
@@ -150,17 +175,22 @@ def write_summary(segmentations, path, *, overwrite: bool = False) -> Path:
     voxels = isinstance(segmentations[0], (VoxelSegmentation, PointSegmentation))  # counted, not measured
     names = segmentations[0].part_names
     count = segmentations[0].cuboids.count
-    kind = {VoxelSegmentation: "voxels", PointSegmentation: "points"}.get(type(segmentations[0]), "faces")
-    unit = kind if voxels else "area"
-    header = ["shape", kind, "parts_present", f"{unit}_total"] + [f"{unit}_{k}_{names[k]}" for k in range(count)]
+    kind = {VoxelSegmentation: "voxels", PointSegmentation: "points"}.get(type(segmentations[0]), "mesh")
+    header = summary_header(kind, names[:count])
+    rows = dict(keep or {})
+    for s in segmentations:
+        amounts = s.part_sizes() if voxels else s.part_areas()
+        elements = len(s.points) if kind == "points" else int(np.count_nonzero(s.labels >= 0)) if voxels \
+            else len(s.faces)
+        present = " ".join(str(k) for k in np.flatnonzero(amounts > 0))
+        rows[s.name] = [elements, present, f"{amounts.sum():.6g}"] + [f"{a:.6g}" for a in amounts]
+    if order is not None:
+        position = {name: i for i, name in enumerate(order)}
+        rows = dict(sorted(rows.items(), key=lambda item: position.get(item[0], len(position))))
     with io.atomic_output(path, overwrite=overwrite) as tmp:
         with open(tmp, "w", newline="") as fh:
             writer = csv.writer(fh)
             writer.writerow(header)
-            for s in segmentations:
-                amounts = s.part_sizes() if voxels else s.part_areas()
-                elements = len(s.points) if kind == "points" else int(np.count_nonzero(s.labels >= 0)) if voxels \
-                    else len(s.faces)
-                present = " ".join(str(k) for k in np.flatnonzero(amounts > 0))
-                writer.writerow([s.name, elements, present, f"{amounts.sum():.6g}"] + [f"{a:.6g}" for a in amounts])
+            for name, row in rows.items():
+                writer.writerow([name] + row)
     return Path(path)
