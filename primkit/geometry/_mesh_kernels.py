@@ -1,7 +1,10 @@
-"""Compiled kernel of :func:`primkit.geometry.distance_grid` (Numba; imported on first use).
+"""Compiled kernels of :func:`primkit.geometry.distance_grid` and :func:`primkit.geometry.occupancy_grid`
+(Numba; imported on first use).
 
-``grid_closest_points(vertices, faces, resolution)`` is the exact closest point of a triangle soup to every
-cell centre of the canonical grid, which is all that preparation reads from a mesh's distances.
+``grid_closest_points(vertices, faces, resolution)`` is the exact closest point of a triangle soup
+to every cell centre of the canonical grid (or, given the surface cells, exact near the surface
+and propagated beyond); ``winding_numbers(vertices, faces, points)`` the generalised winding number
+at points. Both search one tree, built once per mesh (:func:`tree_of` keeps the last one).
 
 Why not a library: Open3D's Embree BVH and libigl's AABB answer each query point on its own, from
 the root with no bound, and took 55-85 ms for the 32,768 centres of a 10k-20k-face mesh; then the
@@ -13,7 +16,10 @@ still exhaustive below the bound (a branch and bound over the whole tree), so th
 the same distances as libigl's exact AABB (equal to the last bit on the PSB and COSEG meshes
 tried; tested). A tie between equally near triangles goes to the first in the tree's order, whatever
 the order of the search, so the result does not depend on the bound it started from nor on the
-number of threads.
+number of threads. Even with the answer known in advance it tests 30-50 triangles a cell far from
+the surface (those whose boxes reach into the ball of that radius), so far cells are instead taken
+from their neighbours (:func:`grid_closest_points`); bounding the search to within 2e-3 of the
+nearest instead saved only a quarter of the time.
 
 The tree: a complete binary tree over leaves of eight triangles in heap order (node ``i`` has
 children ``2i`` and ``2i + 1``); each node's triangles are split at the median of their centroids
@@ -26,12 +32,21 @@ and COSEG meshes); testing its plane as well gained nothing.
 Closest point on a triangle: the Voronoi-region method (Ericson, "Real-Time Collision Detection",
 5.1.5), in float64; triangles of zero area (repeated or collinear corners) take the nearest point of
 their three edges.
+
+Winding numbers: libigl's ``fast_winding_number`` builds its own octree and expansions on every
+call (9-13 ms of its 15-27 ms on 10k-20k faces, however few points are asked); here the tree of the
+distances serves, with a first-order far field (a node's area vector at its area-weighted centroid,
+Barill et al. 2018) and exact solid angles (Van Oosterom and Strackee 1983) in the leaves near the
+point. At every cell that is slower than libigl's; :func:`primkit.geometry.occupancy_grid` asks it
+at a few thousand cells only.
 """
+
+import math
 
 import numba
 import numpy as np
 
-__all__ = ["grid_closest_points"]
+__all__ = ["grid_closest_points", "winding_numbers", "kernel_threads"]
 
 LEAF = 8
 
@@ -209,11 +224,56 @@ def _box_d2(lo, hi, node, px, py, pz):
 
 
 @numba.njit(cache=True, nogil=True)
-def _query_slab(tri, tlo, thi, lo, hi, size, resolution, i, out, out_tri, prev):
-    """Closest points of the cells ``[i, :, :]``, each search bounded by the triangle of the cell
-    before it (rows are walked in a zigzag so that consecutive cells are neighbours)."""
+def _search(tri, tlo, thi, lo, hi, size, px, py, pz, t, stack, stack_d):
+    """Exact closest point of the soup to p: a branch and bound over the whole tree, bounded from
+    the start by the exact distance to triangle ``t``. Returns (x, y, z, triangle)."""
     n = tri.shape[0]
     half = size // 2
+    bx, by, bz, best = _triangle(px, py, pz, tri[t, 0], tri[t, 1], tri[t, 2], tri[t, 3], tri[t, 4],
+                                 tri[t, 5], tri[t, 6], tri[t, 7], tri[t, 8])
+    best_t = t
+    sp = 0
+    d = _box_d2(lo, hi, 1, px, py, pz)
+    if d <= best:
+        stack[0] = 1
+        stack_d[0] = d
+        sp = 1
+    while sp > 0:
+        sp -= 1
+        node = stack[sp]
+        if stack_d[sp] > best:
+            continue
+        if node >= half:
+            first = (node - half) * LEAF
+            for t in range(first, min(n, first + LEAF)):
+                if _box_d2(tlo, thi, t, px, py, pz) > best:  # the triangle's own box first
+                    continue
+                qx, qy, qz, e = _triangle(px, py, pz, tri[t, 0], tri[t, 1], tri[t, 2], tri[t, 3],
+                                          tri[t, 4], tri[t, 5], tri[t, 6], tri[t, 7], tri[t, 8])
+                if e < best or (e == best and t < best_t):
+                    bx, by, bz, best, best_t = qx, qy, qz, e, t
+            continue
+        left, right = 2 * node, 2 * node + 1
+        dl = _box_d2(lo, hi, left, px, py, pz)
+        dr = _box_d2(lo, hi, right, px, py, pz)
+        if dl > dr:  # push the farther first, so the nearer is searched first
+            left, right, dl, dr = right, left, dr, dl
+        if dr <= best:
+            stack[sp] = right
+            stack_d[sp] = dr
+            sp += 1
+        if dl <= best:
+            stack[sp] = left
+            stack_d[sp] = dl
+            sp += 1
+    return bx, by, bz, best_t
+
+
+@numba.njit(cache=True, nogil=True)
+def _query_slab(tri, tlo, thi, lo, hi, size, resolution, i, exact, out, out_tri, prev):
+    """Closest points of the cells ``[i, :, :]`` marked in ``exact``, each search bounded by the
+    triangle of the cell before it (rows are walked in a zigzag so that consecutive cells are
+    neighbours)."""
     stack = np.empty(64 * 2, np.int64)
     stack_d = np.empty(64 * 2, np.float64)
     h = 1.0 / resolution
@@ -222,86 +282,276 @@ def _query_slab(tri, tlo, thi, lo, hi, size, resolution, i, out, out_tri, prev):
         py = -0.5 + (j + 0.5) * h
         for kk in range(resolution):
             k = kk if j % 2 == 0 else resolution - 1 - kk
+            if not exact[j, k]:
+                continue
             pz = -0.5 + (k + 0.5) * h
-            t = prev
-            bx, by, bz, best = _triangle(px, py, pz, tri[t, 0], tri[t, 1], tri[t, 2], tri[t, 3], tri[t, 4],
-                                         tri[t, 5], tri[t, 6], tri[t, 7], tri[t, 8])
-            best_t = t
-            sp = 0
-            d = _box_d2(lo, hi, 1, px, py, pz)
-            if d <= best:
-                stack[0] = 1
-                stack_d[0] = d
-                sp = 1
-            while sp > 0:
-                sp -= 1
-                node = stack[sp]
-                if stack_d[sp] > best:
-                    continue
-                if node >= half:
-                    first = (node - half) * LEAF
-                    for t in range(first, min(n, first + LEAF)):
-                        if _box_d2(tlo, thi, t, px, py, pz) > best:  # the triangle's own box first
-                            continue
-                        qx, qy, qz, e = _triangle(px, py, pz, tri[t, 0], tri[t, 1], tri[t, 2], tri[t, 3],
-                                                  tri[t, 4], tri[t, 5], tri[t, 6], tri[t, 7], tri[t, 8])
-                        if e < best or (e == best and t < best_t):
-                            bx, by, bz, best, best_t = qx, qy, qz, e, t
-                    continue
-                left, right = 2 * node, 2 * node + 1
-                dl = _box_d2(lo, hi, left, px, py, pz)
-                dr = _box_d2(lo, hi, right, px, py, pz)
-                if dl > dr:  # push the farther first, so the nearer is searched first
-                    left, right, dl, dr = right, left, dr, dl
-                if dr <= best:
-                    stack[sp] = right
-                    stack_d[sp] = dr
-                    sp += 1
-                if dl <= best:
-                    stack[sp] = left
-                    stack_d[sp] = dl
-                    sp += 1
+            bx, by, bz, t = _search(tri, tlo, thi, lo, hi, size, px, py, pz, prev, stack, stack_d)
             out[j, k, 0] = bx
             out[j, k, 1] = by
             out[j, k, 2] = bz
-            out_tri[j, k] = best_t
-            prev = best_t
+            out_tri[j, k] = t
+            prev = t
     return prev
 
 
 @numba.njit(cache=True, nogil=True)
-def _query_slabs(tri, tlo, thi, lo, hi, size, resolution, slabs, out, out_tri):
+def _edge_neighbours(faces):
+    """For each triangle (rows of vertex indices), the triangles across its three edges (-1: none);
+    at an edge of more than two triangles, the first other one. Through each vertex's list of
+    triangles (a counting sort), not a sort of the edges: 1 ms against 4 for 15k triangles."""
+    n = faces.shape[0]
+    top = faces.max() + 1
+    start = np.zeros(top + 1, np.int64)
+    for t in range(n):
+        for e in range(3):
+            start[faces[t, e] + 1] += 1
+    for q in range(top):
+        start[q + 1] += start[q]
+    fill = start[:-1].copy()
+    around = np.empty(3 * n, np.int64)
+    for t in range(n):
+        for e in range(3):
+            v = faces[t, e]
+            around[fill[v]] = t
+            fill[v] += 1
+    adjacent = np.full((n, 3), -1, np.int64)
+    for t in range(n):
+        for e in range(3):
+            a, b = faces[t, e], faces[t, (e + 1) % 3]
+            for q in range(start[a], start[a + 1]):
+                u = around[q]
+                if u == t:
+                    continue
+                if faces[u, 0] == b or faces[u, 1] == b or faces[u, 2] == b:
+                    adjacent[t, e] = u
+                    break
+    return adjacent
+
+
+@numba.njit(cache=True, nogil=True)
+def _far_order(closest, nearest, exact, resolution, buckets_per_cell):
+    """The far cells (not ``exact``) in order of their distance to the closest point of their nearest
+    surface cell (``nearest``: its flat index), by a counting sort of that distance in steps of
+    ``1 / buckets_per_cell`` of a cell (index order within a step); and every cell's rank in that
+    order (-1 for the exact ones). Returns (cells (m, 3), rank (R, R, R))."""
+    n = resolution ** 3
+    h = 1.0 / resolution
+    key = np.empty(n, np.int64)
+    top = 0
+    far = 0
+    for c in range(n):
+        if exact[c]:
+            key[c] = -1
+            continue
+        i, j, k = c // (resolution * resolution), (c // resolution) % resolution, c % resolution
+        q = nearest[c]
+        dx = -0.5 + (i + 0.5) * h - closest[q, 0]
+        dy = -0.5 + (j + 0.5) * h - closest[q, 1]
+        dz = -0.5 + (k + 0.5) * h - closest[q, 2]
+        key[c] = int(math.sqrt(dx * dx + dy * dy + dz * dz) * resolution * buckets_per_cell)
+        top = max(top, key[c])
+        far += 1
+    start = np.zeros(top + 2, np.int64)
+    for c in range(n):
+        if key[c] >= 0:
+            start[key[c] + 1] += 1
+    for q in range(top + 1):
+        start[q + 1] += start[q]
+    cells = np.empty((far, 3), np.int64)
+    rank = np.full(n, -1, np.int64)
+    for c in range(n):
+        if key[c] < 0:
+            continue
+        r = start[key[c]]
+        start[key[c]] += 1
+        rank[c] = r
+        cells[r, 0], cells[r, 1], cells[r, 2] = c // (resolution * resolution), (c // resolution) % resolution, c % resolution
+    return cells, rank.reshape((resolution, resolution, resolution))
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _foot_inside(tri, t, px, py, pz, d2):
+    """Whether the closest point of triangle t to p, at squared distance ``d2``, is inside the
+    triangle (as far as the plane's distance tells): then no triangle across an edge is nearer on a
+    surface that does not fold back towards p."""
+    ax, ay, az = tri[t, 0], tri[t, 1], tri[t, 2]
+    ux, uy, uz = tri[t, 3] - ax, tri[t, 4] - ay, tri[t, 5] - az
+    vx, vy, vz = tri[t, 6] - ax, tri[t, 7] - ay, tri[t, 8] - az
+    nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+    nn = nx * nx + ny * ny + nz * nz
+    if not nn > 0.0:
+        return False
+    h = (px - ax) * nx + (py - ay) * ny + (pz - az) * nz
+    return d2 - h * h / nn <= 1e-9 * d2
+
+
+@numba.njit(cache=True, nogil=True)
+def _propagate(tri, tlo, thi, lo, hi, size, resolution, cells, rank, adjacent, out, out_tri):
+    """The cells ``cells`` (in this order, each ranked later than the cells it reads) from the
+    triangles of their 26 neighbours ranked before them: the nearest of those triangles, exactly,
+    then, while its closest point lies on its border, across its edges (``adjacent``) to a nearer
+    triangle (the foot of a cell lies a little aside of its neighbours'). A cell with no such
+    neighbour is searched exactly. ``rank``, ``out`` and ``out_tri`` are flat: (R^3,), (R^3, 3), (R^3,)."""
+    stack = np.empty(64 * 2, np.int64)
+    stack_d = np.empty(64 * 2, np.float64)
+    h = 1.0 / resolution
+    plane = resolution * resolution
+    candidates = np.empty(27, np.int64)
+    for c in range(cells.shape[0]):
+        i, j, k = cells[c, 0], cells[c, 1], cells[c, 2]
+        own = rank[i * plane + j * resolution + k]
+        count = 0
+        for a in range(max(i - 1, 0), min(i + 2, resolution)):
+            for b in range(max(j - 1, 0), min(j + 2, resolution)):
+                row = a * plane + b * resolution
+                for e in range(max(k - 1, 0), min(k + 2, resolution)):
+                    if rank[row + e] >= own:
+                        continue
+                    t = out_tri[row + e]
+                    new = True
+                    for q in range(count - 1, -1, -1):  # the last one first: neighbours share
+                        if candidates[q] == t:
+                            new = False
+                            break
+                    if new:
+                        candidates[count] = t
+                        count += 1
+        px, py, pz = -0.5 + (i + 0.5) * h, -0.5 + (j + 0.5) * h, -0.5 + (k + 0.5) * h
+        if count == 0:
+            bx, by, bz, best_t = _search(tri, tlo, thi, lo, hi, size, px, py, pz, 0, stack, stack_d)
+        else:
+            best, best_t, bx, by, bz = np.inf, -1, 0.0, 0.0, 0.0
+            for q in range(count):
+                t = candidates[q]
+                qx, qy, qz, d = _triangle(px, py, pz, tri[t, 0], tri[t, 1], tri[t, 2], tri[t, 3], tri[t, 4],
+                                          tri[t, 5], tri[t, 6], tri[t, 7], tri[t, 8])
+                if d < best or (d == best and t < best_t):
+                    bx, by, bz, best, best_t = qx, qy, qz, d, t
+            for _ in range(16):  # downhill across edges
+                if _foot_inside(tri, best_t, px, py, pz, best):
+                    break
+                came = best_t
+                for e in range(3):
+                    t = adjacent[came, e]
+                    if t < 0:
+                        continue
+                    qx, qy, qz, d = _triangle(px, py, pz, tri[t, 0], tri[t, 1], tri[t, 2], tri[t, 3], tri[t, 4],
+                                              tri[t, 5], tri[t, 6], tri[t, 7], tri[t, 8])
+                    if d < best or (d == best and t < best_t):
+                        bx, by, bz, best, best_t = qx, qy, qz, d, t
+                if best_t == came:
+                    break
+        q = i * plane + j * resolution + k
+        out[q, 0] = bx
+        out[q, 1] = by
+        out[q, 2] = bz
+        out_tri[q] = best_t
+
+
+@numba.njit(cache=True, nogil=True)
+def _query_slabs(tri, tlo, thi, lo, hi, size, resolution, slabs, exact, out, out_tri):
     """The slabs ``slabs`` one after the other (the search of a slab's first cell is bounded by the
     triangle of the slab before)."""
     prev = 0
     for i in slabs:
-        prev = _query_slab(tri, tlo, thi, lo, hi, size, resolution, i, out[i], out_tri[i], prev)
+        prev = _query_slab(tri, tlo, thi, lo, hi, size, resolution, i, exact[i], out[i], out_tri[i], prev)
+
+
+@numba.njit(cache=True, nogil=True)
+def _centroids(v, f):
+    """The corners' mean of each triangle, summed as NumPy's ``v[f].mean(axis=1)`` sums them."""
+    out = np.empty((f.shape[0], 3))
+    for t in range(f.shape[0]):
+        for ax in range(3):
+            out[t, ax] = (v[f[t, 0], ax] + v[f[t, 1], ax] + v[f[t, 2], ax]) / 3.0
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _tree_arrays(v, f, size):
+    """The tree of :func:`build_tree`, all in compiled code (no GIL held: it is built while Open3D's
+    voxeliser, which holds the GIL, finds the surface cells)."""
+    n = f.shape[0]
+    order = _build_order(_centroids(v, f), size)
+    tri = np.empty((n, 9))
+    tlo = np.empty((n, 3))
+    thi = np.empty((n, 3))
+    for t in range(n):
+        for corner in range(3):
+            for ax in range(3):
+                tri[t, 3 * corner + ax] = v[f[order[t], corner], ax]
+        for ax in range(3):
+            tlo[t, ax] = min(tri[t, ax], tri[t, 3 + ax], tri[t, 6 + ax])
+            thi[t, ax] = max(tri[t, ax], tri[t, 3 + ax], tri[t, 6 + ax])
+    lo, hi = _boxes(tri, -(-n // LEAF), size)
+    return tri, tlo, thi, order, lo, hi
 
 
 def build_tree(vertices: np.ndarray, faces: np.ndarray):
     """(triangles (f, 9) float64 in tree order, their boxes' lo and hi (f, 3), their face indices,
     the nodes' lo and hi (size, 3), size)."""
-    v = np.asarray(vertices, np.float64)
-    f = np.asarray(faces, np.int64)
-    corners = v[f]  # (f, 3, 3)
-    a, b, c = corners[:, 0], corners[:, 1], corners[:, 2]
-    # the corners' mean, as corners.mean(axis=1) sums them (a + b, then + c) but 4x faster
-    centroids = (a + b + c) / 3.0
+    v = np.ascontiguousarray(vertices, np.float64)
+    f = np.ascontiguousarray(faces, np.int64)
     leaves = -(-len(f) // LEAF)
     size = 2 * (1 << max(0, int(np.ceil(np.log2(max(leaves, 1))))))
-    order = _build_order(np.ascontiguousarray(centroids), size)
-    tri = np.ascontiguousarray(corners[order].reshape(-1, 9))
-    lo, hi = _boxes(tri, leaves, size)
-    a, b, c = a[order], b[order], c[order]
-    # (reductions over the middle axis of (f, 3, 3) took 3 ms of a 7 ms build)
-    return tri, np.minimum(np.minimum(a, b), c), np.maximum(np.maximum(a, b), c), order, lo, hi, size
+    return (*_tree_arrays(v, f, size), size)
 
 
-def grid_closest_points(vertices: np.ndarray, faces: np.ndarray, resolution: int, threads: int = 1):
-    """Exact closest surface point of every cell centre (module notes).
+def kernel_threads() -> int:
+    """Threads for the compiled searches: ``OMP_NUM_THREADS`` where set (primkit's worker processes
+    set it to 1), else the cores this process may run on. (Read here, not through
+    :mod:`primkit.parallel`: ``primkit.geometry`` imports nothing else of primkit.)"""
+    import os
 
-    ``threads`` > 1 splits the slabs ``[i, :, :]`` among Python threads (the kernel releases the
-    GIL); no thread pool of Numba's own, so that it is safe in forked worker processes.
+    try:
+        return max(1, int(os.environ["OMP_NUM_THREADS"]))
+    except (KeyError, ValueError):
+        return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+
+
+_last_tree = (None, None)
+
+
+def tree_of(vertices: np.ndarray, faces: np.ndarray):
+    """:func:`build_tree`, kept for the last mesh asked (preparation asks twice: the winding numbers,
+    then the distances). The mesh is recognised by a digest of its arrays, not by identity, so an
+    array changed in place gets a new tree."""
+    import hashlib
+
+    v = np.ascontiguousarray(vertices, np.float64)
+    f = np.ascontiguousarray(faces, np.int64)
+    digest = hashlib.sha1()  # 0.5 ms for a 15k-face mesh, a third of blake2b's here (SHA extensions)
+    for a in (v, f):
+        digest.update(str(a.shape).encode())
+        digest.update(memoryview(a).cast("B"))
+    global _last_tree
+    key, tree = _last_tree
+    if key != digest.digest():
+        tree = build_tree(v, f)
+        _last_tree = (digest.digest(), tree)
+    return tree
+
+
+def grid_closest_points(vertices: np.ndarray, faces: np.ndarray, resolution: int, threads: int = 1,
+                        surface: np.ndarray | None = None, exact_within: float | None = None):
+    """Closest surface point of every cell centre (module notes).
+
+    Every cell is searched exactly unless ``surface`` (the cells the surface passes through) and
+    ``exact_within`` are given: then only the cells whose centres lie within ``exact_within`` cells
+    of a surface cell's centre are (and the middle slab, below). The others go in order of their
+    distance to the closest point of their nearest surface cell (in steps of 1/64 of a cell), each
+    taking the nearest of the triangles its neighbours before it found, then stepping across edges
+    to a nearer triangle (:func:`_propagate`): exact distances to real triangles, so never nearer
+    than the truth. Ordered by the distance to surface cells' centres instead (a coarser key, with
+    many ties), a cell was sometimes served before the neighbour that had found its nearer part:
+    errors up to 9.5e-3 on 360 ShapeNet chairs' voxel meshes, against 4.7e-3 now (8 cells above
+    2.5e-3).
+
+    ``threads`` > 1 splits the slabs ``[i, :, :]`` of the exact search among Python threads (the
+    kernel releases the GIL), and the far cells into the two sides of the middle slab ``[R // 2]``,
+    which is searched exactly so that they never touch: each side's cells go in one order on one
+    thread or two alike, so no result depends on the number of threads. No thread pool of Numba's
+    own, so that it is safe in forked worker processes.
 
     Returns
     -------
@@ -309,17 +559,191 @@ def grid_closest_points(vertices: np.ndarray, faces: np.ndarray, resolution: int
     face : (R, R, R) int64
         The face it lies on.
     """
-    tri, tlo, thi, order, lo, hi, size = build_tree(vertices, faces)
-    out = np.empty((resolution, resolution, resolution, 3), np.float64)
-    out_tri = np.empty((resolution, resolution, resolution), np.int64)
+    tri, tlo, thi, order, lo, hi, size = tree_of(vertices, faces)
+    shape = (resolution,) * 3
+    out = np.empty(shape + (3,), np.float64)
+    out_tri = np.full(shape, -1, np.int64)
+    exact = np.ones(shape, bool)
+    nearest = None
+    if exact_within is not None and surface is not None and np.any(surface):
+        from scipy import ndimage
+
+        # cells (in cells) to the nearest surface cell's centre, and which cell that is
+        distance, nearest = ndimage.distance_transform_edt(~np.asarray(surface, bool), return_indices=True)
+        exact = distance <= exact_within
+        # and the middle slab, so that the far cells on either side of it never touch and are
+        # found on two threads at once (the same cells, in the same order, on one thread or two)
+        exact[resolution // 2] = True
     threads = max(1, min(int(threads), resolution))
     # slabs dealt in runs of 4 so that each thread's consecutive slabs are neighbours
     parts = [np.array([i for i in range(resolution) if (i // 4) % threads == t], np.int64) for t in range(threads)]
     if threads == 1:
-        _query_slabs(tri, tlo, thi, lo, hi, size, resolution, parts[0], out, out_tri)
+        _query_slabs(tri, tlo, thi, lo, hi, size, resolution, parts[0], exact, out, out_tri)
     else:
         from concurrent.futures import ThreadPoolExecutor
 
         with ThreadPoolExecutor(threads) as pool:
-            list(pool.map(lambda p: _query_slabs(tri, tlo, thi, lo, hi, size, resolution, p, out, out_tri), parts))
+            list(pool.map(lambda p: _query_slabs(tri, tlo, thi, lo, hi, size, resolution, p, exact, out, out_tri), parts))
+    if nearest is not None and not exact.all():
+        # far cells in order of the distance to the closest point of their nearest surface cell (an
+        # upper bound of their own, near it): a cell reads the cells before it
+        flat = np.ravel_multi_index(tuple(nearest), shape).ravel()
+        cells, rank = _far_order(out.reshape(-1, 3), flat, exact.ravel(), resolution, 64)
+        adjacent = _edge_neighbours(np.ascontiguousarray(np.asarray(faces, np.int64)[order]))
+        # the two sides of the exact middle slab: a far cell reads only its own side's far cells (a
+        # seam of far cells between the threads cut the propagation: 9e-3 errors along it)
+        middle = resolution // 2
+        sides = [np.ascontiguousarray(cells[cells[:, 0] < middle]), np.ascontiguousarray(cells[cells[:, 0] > middle])]
+        flat_rank, flat_out, flat_tri = rank.reshape(-1), out.reshape(-1, 3), out_tri.reshape(-1)
+
+        def run(side):
+            _propagate(tri, tlo, thi, lo, hi, size, resolution, side, flat_rank, adjacent, flat_out, flat_tri)
+
+        if threads == 1:
+            for side in sides:
+                run(side)
+        else:
+            from concurrent.futures import ThreadPoolExecutor
+
+            with ThreadPoolExecutor(2) as pool:
+                list(pool.map(run, sides))
     return out, order[out_tri]
+
+
+# ------------------------------------------------------------------ winding numbers
+
+
+@numba.njit(cache=True, nogil=True)
+def _moments(tri, leaves, size):
+    """Per node of the tree: the sum of its triangles' area vectors (normal x area), their
+    area-weighted centroid, and the radius of a ball about that centroid holding its corners."""
+    half = size // 2
+    n = tri.shape[0]
+    normal = np.zeros((size, 3))
+    centre = np.zeros((size, 3))
+    area = np.zeros(size)
+    radius = np.zeros(size)
+    for leaf in range(leaves):
+        node = half + leaf
+        for t in range(leaf * LEAF, min(n, (leaf + 1) * LEAF)):
+            ux, uy, uz = tri[t, 3] - tri[t, 0], tri[t, 4] - tri[t, 1], tri[t, 5] - tri[t, 2]
+            vx, vy, vz = tri[t, 6] - tri[t, 0], tri[t, 7] - tri[t, 1], tri[t, 8] - tri[t, 2]
+            nx, ny, nz = 0.5 * (uy * vz - uz * vy), 0.5 * (uz * vx - ux * vz), 0.5 * (ux * vy - uy * vx)
+            a = math.sqrt(nx * nx + ny * ny + nz * nz)
+            normal[node, 0] += nx
+            normal[node, 1] += ny
+            normal[node, 2] += nz
+            area[node] += a
+            for ax in range(3):
+                centre[node, ax] += a * (tri[t, ax] + tri[t, 3 + ax] + tri[t, 6 + ax]) / 3.0
+        for ax in range(3):
+            centre[node, ax] = centre[node, ax] / area[node] if area[node] > 0 else tri[leaf * LEAF, ax]
+        r = 0.0
+        for t in range(leaf * LEAF, min(n, (leaf + 1) * LEAF)):
+            for corner in range(3):
+                dx = tri[t, 3 * corner] - centre[node, 0]
+                dy = tri[t, 3 * corner + 1] - centre[node, 1]
+                dz = tri[t, 3 * corner + 2] - centre[node, 2]
+                r = max(r, math.sqrt(dx * dx + dy * dy + dz * dz))
+        radius[node] = r
+    used = np.zeros(size, np.bool_)
+    used[half:half + leaves] = True
+    for node in range(half - 1, 0, -1):
+        left, right = 2 * node, 2 * node + 1
+        used[node] = used[left] or used[right]
+        if not used[right]:
+            normal[node], centre[node], area[node], radius[node] = normal[left], centre[left], area[left], radius[left]
+            continue
+        area[node] = area[left] + area[right]
+        for ax in range(3):
+            normal[node, ax] = normal[left, ax] + normal[right, ax]
+            if area[node] > 0:
+                centre[node, ax] = (area[left] * centre[left, ax] + area[right] * centre[right, ax]) / area[node]
+            else:
+                centre[node, ax] = centre[left, ax]
+        r = 0.0
+        for child in (left, right):
+            dx = centre[child, 0] - centre[node, 0]
+            dy = centre[child, 1] - centre[node, 1]
+            dz = centre[child, 2] - centre[node, 2]
+            r = max(r, math.sqrt(dx * dx + dy * dy + dz * dz) + radius[child])
+        radius[node] = r
+    return normal, centre, radius, used
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _solid_angle(tri, t, qx, qy, qz):
+    """Signed solid angle of triangle t seen from q (Van Oosterom and Strackee, 1983)."""
+    ax, ay, az = tri[t, 0] - qx, tri[t, 1] - qy, tri[t, 2] - qz
+    bx, by, bz = tri[t, 3] - qx, tri[t, 4] - qy, tri[t, 5] - qz
+    cx, cy, cz = tri[t, 6] - qx, tri[t, 7] - qy, tri[t, 8] - qz
+    la = math.sqrt(ax * ax + ay * ay + az * az)
+    lb = math.sqrt(bx * bx + by * by + bz * bz)
+    lc = math.sqrt(cx * cx + cy * cy + cz * cz)
+    num = ax * (by * cz - bz * cy) + ay * (bz * cx - bx * cz) + az * (bx * cy - by * cx)
+    den = la * lb * lc + (ax * bx + ay * by + az * bz) * lc + (ax * cx + ay * cy + az * cz) * lb \
+        + (bx * cx + by * cy + bz * cz) * la
+    return 2.0 * math.atan2(num, den)
+
+
+@numba.njit(cache=True, nogil=True)
+def _winding(tri, normal, centre, radius, used, size, points, beta, out):
+    """Generalised winding number at each point: a node whose ball lies farther than ``beta``
+    radii counts as one dipole (its area vector at its centroid); leaves nearer are summed exactly."""
+    half = size // 2
+    n = tri.shape[0]
+    stack = np.empty(128, np.int64)
+    quarter = 1.0 / (4.0 * math.pi)
+    for i in range(points.shape[0]):
+        qx, qy, qz = points[i, 0], points[i, 1], points[i, 2]
+        w = 0.0
+        stack[0] = 1
+        sp = 1
+        while sp > 0:
+            sp -= 1
+            node = stack[sp]
+            if not used[node]:
+                continue
+            dx, dy, dz = centre[node, 0] - qx, centre[node, 1] - qy, centre[node, 2] - qz
+            d2 = dx * dx + dy * dy + dz * dz
+            if d2 > (beta * radius[node]) ** 2:
+                w += (normal[node, 0] * dx + normal[node, 1] * dy + normal[node, 2] * dz) / (d2 * math.sqrt(d2))
+                continue
+            if node >= half:
+                first = (node - half) * LEAF
+                for t in range(first, min(n, first + LEAF)):
+                    w += _solid_angle(tri, t, qx, qy, qz)
+                continue
+            stack[sp] = 2 * node
+            stack[sp + 1] = 2 * node + 1
+            sp += 2
+        out[i] = w * quarter
+
+
+def winding_numbers(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray, threads: int = 1,
+                    beta: float = 2.0) -> np.ndarray:
+    """Generalised winding number (Jacobson et al. 2013) of the triangle soup at each point, by the
+    tree's dipole approximation (Barill et al. 2018, first order): a node whose triangles all lie
+    within ``1 / beta`` of its distance counts as its area vector at its centroid, the nearer leaves
+    as the exact sum of their solid angles.
+
+    Returns
+    -------
+    (n,) float64
+    """
+    tri, _, _, _, _, _, size = tree_of(vertices, faces)
+    leaves = -(-len(tri) // LEAF)
+    normal, centre, radius, used = _moments(tri, leaves, size)
+    pts = np.ascontiguousarray(points, np.float64)
+    out = np.empty(len(pts), np.float64)
+    threads = max(1, min(int(threads), len(pts) // 256 + 1))
+    if threads == 1:
+        _winding(tri, normal, centre, radius, used, size, pts, beta, out)
+    else:
+        from concurrent.futures import ThreadPoolExecutor
+
+        cuts = np.linspace(0, len(pts), threads + 1).astype(int)
+        with ThreadPoolExecutor(threads) as pool:
+            list(pool.map(lambda c: _winding(tri, normal, centre, radius, used, size, pts[c[0]:c[1]], beta,
+                                             out[c[0]:c[1]]), zip(cuts[:-1], cuts[1:])))
+    return out

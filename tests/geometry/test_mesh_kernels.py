@@ -96,7 +96,7 @@ def test_a_soup_with_degenerate_and_repeated_faces():
     f[:10, 1] = f[:10, 0]  # repeated corner
     f = np.concatenate([f, f[10:20]])  # duplicated faces
     res = 12
-    grid = geometry.distance_grid(v, f, res)
+    grid = geometry.distance_grid(v, f, res, exact_within=None)
     centres = geometry.grid_centres(res).reshape(-1, 3)
     a, b, c = (v[f[:, i]] for i in range(3))
     ref = triangle_distance(centres[:, None], a[None], b[None], c[None]).min(axis=1)
@@ -108,7 +108,7 @@ def test_a_soup_with_degenerate_and_repeated_faces():
 
 def test_both_engines_agree_on_a_chair(chair):
     v, f = chair
-    auto = geometry.distance_grid(v, f, 32)
+    auto = geometry.distance_grid(v, f, 32, exact_within=None)
     o3d = geometry.distance_grid(v, f, 32, engine="open3d")
     np.testing.assert_allclose(auto.distance, o3d.distance, rtol=0, atol=1e-6)
     with pytest.raises(ValueError, match="engine"):
@@ -134,3 +134,109 @@ def test_real_meshes_equal_libigl_at_32():
         d2, _, _ = igl.point_mesh_squared_distance(centres, v, m.faces)
         err = np.abs(np.linalg.norm(closest.reshape(-1, 3) - centres, axis=1) - np.sqrt(d2)).max()
         assert err < 1e-12, f"{path.name}: {err:.1e}"
+
+
+def test_far_cells_do_not_depend_on_threads(chair):
+    """The far cells come after the exact ones, on one thread in one order."""
+    import trimesh
+
+    box = trimesh.creation.box((0.8, 0.4, 0.6))
+    for v, f in (chair, (np.asarray(box.vertices), np.asarray(box.faces))):
+        surface = geometry.surface_voxels(v, f, 20)
+        one = kernels.grid_closest_points(v, f, 20, threads=1, surface=surface, exact_within=2.0)
+        other = kernels.grid_closest_points(v, f, 20, threads=2, surface=surface, exact_within=2.0)
+        assert np.array_equal(one[0], other[0]) and np.array_equal(one[1], other[1])
+        exact = kernels.grid_closest_points(v, f, 20)
+        assert not np.array_equal(one[1], exact[1]) or len(f) == 12  # the chair's far cells took other faces
+
+
+def test_winding_numbers_against_libigls_exact_sum():
+    """With every node opened (beta huge) the sum of solid angles is exact: libigl's
+    ``winding_number`` (no approximation) to 1e-10. With the default beta = 2, within 0.05 of it off
+    the surface of a closed mesh, where it is 0 or 1."""
+    import trimesh
+
+    rng = np.random.default_rng(4)
+    v = rng.uniform(-0.45, 0.45, size=(50, 3))
+    f = rng.integers(0, 50, size=(70, 3))
+    pts = rng.uniform(-0.6, 0.6, size=(500, 3))
+    ref = igl.winding_number(v, f, pts)
+    np.testing.assert_allclose(kernels.winding_numbers(v, f, pts, beta=1e9), ref, rtol=0, atol=1e-10)
+    sphere = trimesh.creation.icosphere(4)
+    v, f = np.asarray(sphere.vertices) * 0.4, np.asarray(sphere.faces)
+    r = np.linalg.norm(pts, axis=1)
+    away = np.abs(r - 0.4) > 0.02
+    for threads in (1, 2):
+        w = kernels.winding_numbers(v, f, pts[away], threads=threads)
+        np.testing.assert_allclose(w, (r[away] < 0.4).astype(float), rtol=0, atol=0.05)
+    np.testing.assert_allclose(kernels.winding_numbers(v, f, pts), igl.winding_number(v, f, pts), rtol=0, atol=0.1)
+
+
+def _open_and_messy():
+    """An open box (a face missing), an inside-out box inside a box, and a random soup: meshes whose
+    winding number is not 0 or 1 everywhere off the surface."""
+    import trimesh
+
+    box = trimesh.creation.box((0.8, 0.8, 0.8))
+    keep = box.face_normals[:, 0] < 0.5
+    shapes = [(np.asarray(box.vertices), np.asarray(box.faces)[keep])]
+    inner = np.asarray(box.vertices) * 0.5
+    shapes.append((np.concatenate([box.vertices, inner]), np.concatenate([box.faces, box.faces[:, ::-1] + 8])))
+    rng = np.random.default_rng(5)
+    shapes.append((rng.uniform(-0.45, 0.45, size=(40, 3)), rng.integers(0, 40, size=(30, 3))))
+    return shapes
+
+
+def test_region_sampled_occupancy_equals_every_cell():
+    """primkit's occupancy (winding numbers at the surface cells and a few cells per free region)
+    against the exact winding number at every cell, on meshes that are not closed."""
+    for v, f in _open_and_messy():
+        for res in (16, 24):
+            got = geometry.occupancy_grid(v, f, res)
+            exact = np.abs(igl.winding_number(v, f, geometry.grid_centres(res).reshape(-1, 3))) > 0.5
+            assert (got.ravel() != exact).sum() <= 2, (len(f), res, (got.ravel() != exact).sum())
+            assert np.array_equal(got, geometry.occupancy_grid(v, f, res, engine="igl")) or len(f) == 30
+
+
+@pytest.mark.skipif(not DATA.is_dir(), reason="../shared/data (PSB and COSEG meshes) is not here")
+def test_real_meshes_occupancy_and_far_cells():
+    """On real meshes: the occupancy equals libigl's at every cell, and the far cells are within the
+    declared 3e-3 of libigl's exact distances (never nearer)."""
+    centres = geometry.grid_centres(32).reshape(-1, 3)
+    for path in _real_meshes():
+        m = io.read_mesh(path)
+        v = geometry.canonical_frame(m.vertices).to_canonical(m.vertices)
+        surface = geometry.surface_voxels(v, m.faces, 32)
+        assert np.array_equal(geometry.occupancy_grid(v, m.faces, 32, surface=surface),
+                              geometry.occupancy_grid(v, m.faces, 32, engine="igl")), path.name
+        grid = geometry.distance_grid(v, m.faces, 32, surface=surface)
+        d2, _, _ = igl.point_mesh_squared_distance(centres, v, m.faces)
+        err = grid.distance.ravel().astype(float) - np.sqrt(d2)
+        assert -1e-6 < err.min() and err.max() < 3e-3, f"{path.name}: {err.min():.1e} {err.max():.1e}"
+
+
+def test_the_kept_tree_follows_the_mesh_not_the_array():
+    """The tree kept between the occupancy and the distances is recognised by the mesh's values: a
+    vertex array changed in place gets a new one."""
+    import trimesh
+
+    sphere = trimesh.creation.icosphere(3)
+    v, f = np.asarray(sphere.vertices) * 0.4, np.asarray(sphere.faces)
+    first = kernels.grid_closest_points(v, f, 12)[0]
+    assert kernels.tree_of(v, f) is kernels.tree_of(v.copy(), f.copy())
+    v *= 0.5
+    np.testing.assert_allclose(np.linalg.norm(kernels.grid_closest_points(v, f, 12)[0], axis=-1), 0.2, atol=2e-3)
+    assert not np.allclose(first, kernels.grid_closest_points(v, f, 12)[0])
+
+
+def test_edge_neighbours_of_a_closed_mesh():
+    """Each triangle of a closed manifold mesh has three, across its own edges, and is theirs."""
+    import trimesh
+
+    f = np.asarray(trimesh.creation.icosphere(2).faces)
+    adjacent = kernels._edge_neighbours(f)
+    assert (adjacent >= 0).all()
+    for t in range(len(f)):
+        for e in range(3):
+            u = adjacent[t, e]
+            assert {f[t, e], f[t, (e + 1) % 3]} <= set(f[u]) and t in adjacent[u]

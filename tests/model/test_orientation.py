@@ -27,15 +27,21 @@ def test_describe_rotation_names_the_input_axes():
 
 @pytest.mark.parametrize("which", [3, 11, 20])
 def test_rotated_shape_matches_preparing_the_rotated_mesh(prepared_chairs, chairs, which):
-    """Turning prepared arrays must give what an exact preparation of the turned mesh gives."""
+    """Turning prepared arrays must give what a preparation of the turned mesh gives: the exact
+    distances near the surface, within the far cells' declared 3e-3 of them (never nearer) beyond."""
     shape, mesh = prepared_chairs[0], chairs[0]
     a = orientation.AXIS_ROTATIONS[which]
     turned = orientation.rotate_prepared(shape, a)
     v = turned.frame.to_canonical(mesh.vertices)  # the input mesh in the turned canonical frame
     assert np.allclose(v, shape.frame.to_canonical(mesh.vertices) @ a.T)
-    reference = geometry.distance_grid(v, mesh.faces, shape.resolution)
+    reference = geometry.distance_grid(v, mesh.faces, shape.resolution, exact_within=None)
     dist = np.linalg.norm(turned.closest - geometry.grid_centres(shape.resolution), axis=-1)
-    assert np.abs(dist - reference.distance).max() < 1e-5
+    error = dist - reference.distance
+    assert error.min() > -1e-5 and error.max() < 3e-3
+    from scipy import ndimage
+
+    near = ndimage.distance_transform_edt(~geometry.surface_voxels(v, mesh.faces, shape.resolution)) <= 2
+    assert np.abs(error[near]).max() < 1e-5
     solid = geometry.occupancy_grid(v, mesh.faces, shape.resolution)
     assert (solid == turned.solid).mean() > 0.999
     # samples stay on the surface: their distance to the exact grid's nearest cell point is tiny
