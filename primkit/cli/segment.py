@@ -187,7 +187,7 @@ def _not_done(files, names, out: Path, shard, part_names):
     Done means its three files exist and its row is in this shard's summary of its kind, written
     by the same model (same columns): a run is cut after the shapes' labels and meshes, before the
     summaries, or before the cuboids. An input that is not done has what it left removed, and is
-    redone; the summary is rewritten with the kept rows (``(kinds, todo positions, {kind: rows})``)."""
+    redone. Returns the positions to do and, per kind, the summary rows to keep (``{kind: {name: row}}``)."""
     from ..parallel import shard_indices
     from ..segmentation import read_summary, summary_header
 

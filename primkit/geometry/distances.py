@@ -84,10 +84,10 @@ def distance_grid(vertices: np.ndarray, faces: np.ndarray, resolution: int = 32,
       53 PSB and COSEG meshes (the median of their largest errors 1.1e-3;
       ``benchmarks/bench_prepare.py``, section 2), and at most 4.7e-3 on 360 ShapeNet chairs'
       voxel-boundary meshes, where 8 cells of the 360 grids were off by more than 2.5e-3 (the median
-      of the shapes' largest errors 1.1e-3). Training the paper's network on
-      300 of those chairs prepared either way gave the same losses and held-out scores within the
-      spread of three seeds (section 6: every difference under 1.7 standard errors). The whole
-      grid took 0.59 of the exact search's time (0.30 of libigl's; section 2). ``exact_within=None`` searches every cell
+      of the shapes' largest errors 1.1e-3). Training the paper's network on 300 of those chairs
+      prepared either way gave the same losses and held-out scores within the spread of three seeds
+      (section 6: every difference under 1.7 standard errors). The whole grid took 0.59 of the
+      exact search's time (0.30 of libigl's; section 2). ``exact_within=None`` searches every cell
       exactly (libigl's ``point_mesh_squared_distance`` gives the same distances).
 
     Parameters

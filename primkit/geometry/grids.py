@@ -109,8 +109,8 @@ def occupancy_grid(
         else:
             if surface is None:
                 surface = surface_voxels(vertices, faces, resolution)
-            occupancy = _region_sampled(vertices, faces, centres, np.asarray(surface, bool),
-                                        lambda v, f, p: winding_numbers(v, f, p, threads=kernel_threads()))
+            occupancy = _region_sampled(vertices, faces, centres, np.asarray(surface, bool), winding_numbers,
+                                        kernel_threads())
     if occupancy is None:
         import igl
 
@@ -120,7 +120,8 @@ def occupancy_grid(
     return occupancy
 
 
-def _region_sampled(vertices, faces, centres, surface, winding_numbers, samples: int = 8, margin: float = 0.25):
+def _region_sampled(vertices, faces, centres, surface, winding_numbers, threads: int, samples: int = 8,
+                    margin: float = 0.25):
     """Occupancy from winding numbers at the surface cells and at ``samples`` cells of each
     6-connected region of the others (``occupancy_grid``)."""
     from scipy import ndimage
@@ -133,7 +134,7 @@ def _region_sampled(vertices, faces, centres, surface, winding_numbers, samples:
              for r in range(1, regions + 1)]
     asked = np.concatenate([order[: start[1]]] + picks)  # the surface cells (label 0), then the samples
     inside = np.zeros(flat.size, bool)
-    w = np.abs(winding_numbers(vertices, faces, centres[asked]))
+    w = np.abs(winding_numbers(vertices, faces, centres[asked], threads=threads))
     inside[asked] = w > 0.5
     offset = start[1]
     unsure = []
@@ -147,7 +148,7 @@ def _region_sampled(vertices, faces, centres, surface, winding_numbers, samples:
             unsure.append(members)
     if unsure:  # an open mesh: its winding number varies over the region, so every cell is asked
         cells = np.concatenate(unsure)
-        inside[cells] = np.abs(winding_numbers(vertices, faces, centres[cells])) > 0.5
+        inside[cells] = np.abs(winding_numbers(vertices, faces, centres[cells], threads=threads)) > 0.5
     return inside.reshape(surface.shape)
 
 
