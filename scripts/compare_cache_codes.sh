@@ -12,7 +12,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 out=$1; shapes=${2:-600}; seeds=${3:-5}; s1=${4:-1500}; s2=${5:-1000}
 mkdir -p "$out"
-ls ../shared/data/shapenetvox32/03001627 | head -n "$shapes" | sed "s#^#$PWD/../shared/data/shapenetvox32/03001627/#; s#\$#/model.binvox#" > "$out/files.txt"
+ls ../shared/data/shapenetvox32/03001627 | sed -n "1,${shapes}p" | sed "s#^#$PWD/../shared/data/shapenetvox32/03001627/#; s#\$#/model.binvox#" > "$out/files.txt"
 run() {  # name codes seed
   PRIMKIT_THREADS=1 OMP_NUM_THREADS=1 PRIMKIT_CACHE_CODES=$2 .venv/bin/primkit train $(cat "$out/files.txt") \
     -o "$out/$1.safetensors" --preset chair --stage1 "$s1" --stage2 "$s2" --seed "$3" \
