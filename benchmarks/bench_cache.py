@@ -4,8 +4,8 @@
 
 In one run, on the same prepared ShapeNetVox32 chairs (procedural chairs without ``../shared``):
 
-1. Bytes per shape: the cache of today (``primkit.data.CACHE_FORMAT`` 2: segments of float32
-   arrays, the default, or of compact codes, ``PRIMKIT_CACHE_CODES=compact``) against the first
+1. Bytes per shape: the cache of today (``primkit.data.CACHE_FORMAT`` 2: segments of compact
+   codes, the default, or of float32 arrays, ``PRIMKIT_CACHE_CODES=exact``) against the first
    format, one ``.npz`` of float32 arrays per shape (``PreparedShape.save``, what the cache held
    before), written from the same shapes.
 2. Training's start on N shapes, each in a fresh process: the first format's way (load every
@@ -139,7 +139,7 @@ def main(argv=None) -> int:
     table("Bytes per shape", ["format", "KiB per shape", "ratio", f"all {n}"],
           [["first: one .npz of float32 arrays", f"{first / 1024:.1f}", "1.00", f"{first * n / 2**20:.0f} MiB"]]
           + [[f"today: segments of {what}", f"{b / 1024:.1f}", f"{b / first:.3f}", f"{b * n / 2**20:.0f} MiB"]
-             for what, b in (("float32 (default)", size(float_segments)), ("compact codes", size(compact_segments)))],
+             for what, b in (("float32", size(float_segments)), ("compact codes (default)", size(compact_segments)))],
           note=f"cold preparation of the {n} shapes into the cache: {prep:.1f} s ({n / prep:.1f} shapes/s)")
 
     rows = []

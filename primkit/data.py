@@ -518,9 +518,9 @@ _ROW_ARRAYS = ("occupancy", "near", "closest", "points")
 
 
 def compact_by_default() -> bool:
-    """Whether the cache stores compact codes unless told (``PRIMKIT_CACHE_CODES=compact``); the
-    default is the exact float32 values."""
-    return os.environ.get("PRIMKIT_CACHE_CODES", "exact").lower() == "compact"
+    """Whether the cache stores compact codes unless told: the default; ``PRIMKIT_CACHE_CODES=exact``
+    (or ``float32``) stores the exact float32 values instead."""
+    return os.environ.get("PRIMKIT_CACHE_CODES", "compact").lower() not in ("exact", "float32")
 
 
 def _encode_row(shape: PreparedShape, compact: bool) -> dict:
@@ -953,8 +953,8 @@ def prepare_collection(
 
     The cache (``<cache>/v2``, :data:`CACHE_FORMAT`) holds segments of up to
     :data:`SEGMENT_SHAPES` shapes, memory-mapped when read, so that a collection of any size opens
-    at once and training can hold only its batch in memory. ``compact`` (default
-    ``PRIMKIT_CACHE_CODES=compact``, else float32) stores the codes of
+    at once and training can hold only its batch in memory. ``compact`` (default: yes,
+    unless ``PRIMKIT_CACHE_CODES=exact``, which stores float32 values) stores the codes of
     :mod:`primkit.geometry.quantize`: a quarter of the first format's bytes, within the accuracy
     declared there. Every entry is checked before it is trusted (its CRC-32); a
     damaged one is a miss, prepared again and said once. A cache that cannot be written keeps the

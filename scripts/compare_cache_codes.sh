@@ -6,7 +6,7 @@
 #
 # The first SHAPES ShapeNetVox32 chairs of ../shared/data (sorted), the chair preset with the given
 # schedule, every 10th file held out. The two runs of a seed go side by side, one thread each
-# (about 3.5 min a pair on 2 cores at the defaults). Figures of 2026-12-02 are in the README's
+# (about 5.5 min a pair on 2 cores at the defaults). Figures of 2026-12-02 are in the README's
 # cache paragraph.
 set -euo pipefail
 cd "$(dirname "$0")/.."
