@@ -448,10 +448,15 @@ def bench_training_memory(shapes, device: str, iterations: int) -> None:
     )
 
 
-def bench_shared_machine(shapes, iterations: int, warmup: int) -> None:
+def bench_shared_machine(shapes, iterations: int, warmup: int, rounds: int = 3) -> None:
     """Training steps with one core kept busy by another process (a Python busy loop): torch's
     default thread count against primkit's thread policy (:class:`primkit.parallel.ThreadGovernor`),
-    each against the same count on the machine as it is without that process."""
+    each against the same count on the machine as it is without that process.
+
+    The first steps of a fresh network are slower than later ones (measured 83 ms against 60 ms
+    on one thread), and this machine's speed drifts from minute to minute, so the trainer first
+    runs 20 untimed steps, and quiet and busy measurements then alternate for ``rounds`` rounds;
+    the table gives the medians over rounds and each round's ratio."""
     import subprocess
 
     import torch
@@ -460,6 +465,7 @@ def bench_shared_machine(shapes, iterations: int, warmup: int) -> None:
 
     default = torch.get_num_threads()
     trainer = Trainer(shapes, "paper", "cpu", existence_gradient="local", placement_weight=0.01)
+    time_steps(trainer, True, 1, max(warmup, 20))
 
     def steps(n_threads):
         torch.set_num_threads(n_threads)
@@ -473,29 +479,47 @@ def bench_shared_machine(shapes, iterations: int, warmup: int) -> None:
         governor.close()
         return governor.threads
 
-    chosen_quiet = policy()
-    quiet = {n: steps(n) for n in sorted({default, 1, chosen_quiet})}
-    quiet_load = load_line()
-    spinner = subprocess.Popen([sys.executable, "-c", "while True: pass"])
-    try:
-        time.sleep(1.0)
-        chosen_busy = policy()
-        busy = {n: steps(n) for n in sorted({default, 1, chosen_busy})}
-        busy_load = load_line()
-    finally:
-        spinner.kill()
-        spinner.wait()
+    quiet, busy, chosen, loads = {}, {}, {"quiet": [], "busy": []}, {"quiet": [], "busy": []}
+    for _ in range(rounds):
+        chosen["quiet"].append(policy())
+        for n in sorted({default, 1, chosen["quiet"][-1]}):
+            quiet.setdefault(n, []).append(steps(n))
+        loads["quiet"].append(load_line())
+        spinner = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+        try:
+            time.sleep(1.0)
+            chosen["busy"].append(policy())
+            for n in sorted({default, 1, chosen["busy"][-1]}):
+                busy.setdefault(n, []).append(steps(n))
+            loads["busy"].append(load_line())
+        finally:
+            spinner.kill()
+            spinner.wait()
     ms = lambda t: f"{1000.0 * t:.1f}"  # noqa: E731
-    rows = [[f"torch's default ({default})", ms(quiet[default]), ms(busy[default]), f"{busy[default] / quiet[default]:.2f}x"],
-            [f"primkit's policy (chose {chosen_quiet}, then {chosen_busy})", ms(quiet[chosen_quiet]), ms(busy[chosen_busy]),
-             f"{busy[chosen_busy] / quiet[chosen_quiet]:.2f}x"],
-            ["1 thread", ms(quiet[1]), ms(busy[1]), f"{busy[1] / quiet[1]:.2f}x"]]
+
+    def row(label, q, b):
+        """medians over rounds; the ratio of the medians, then each round's own ratio"""
+        each = ", ".join(f"{y / x:.2f}" for x, y in zip(q, b))
+        return [label, ms(med(q)), ms(med(b)), f"{med(b) / med(q):.2f}x ({each})"]
+
+    # each thread count is measured once a round, so round r's measurement of n is [n][r]
+    policy_quiet = [quiet[n][r] for r, n in enumerate(chosen["quiet"])]
+    policy_busy = [busy[n][r] for r, n in enumerate(chosen["busy"])]
+    rows = [row(f"torch's default ({default})", quiet[default], busy[default]),
+            row(f"primkit's policy (chose {'/'.join(map(str, sorted(set(chosen['quiet']))))}, "
+                f"then {'/'.join(map(str, sorted(set(chosen['busy']))))})", policy_quiet, policy_busy),
+            row("1 thread", quiet[1], busy[1])]
     table(
         f"5. training step (paper encoder, local existence gradient + placement, stage 2) with one core kept busy "
-        f"by another process ({parallel.available_cores()} cores available)",
-        ["threads", "without the busy process ms", "with it ms", "slowdown"],
+        f"by another process ({parallel.available_cores()} cores available), {rounds} round{'s' if rounds != 1 else ''} alternating",
+        ["threads", "without the busy process ms", "with it ms", "slowdown (each round)"],
         rows,
-        f"median of {iterations} steps; without the busy process: {quiet_load}; with it: {busy_load}.",
+        f"median over rounds of each round's median of {iterations} steps, after 20 untimed steps. "
+        f"With one core left a step cannot beat the one-thread step of the quiet machine: that floor is "
+        f"{med(quiet[1]) / med(quiet[default]):.2f}x the quiet {default}-thread step "
+        f"({', '.join(f'{b / a:.2f}' for a, b in zip(quiet[default], quiet[1]))}). "
+        f"Load "
+        f"without the busy process: {loads['quiet'][-1]}; with it: {loads['busy'][-1]} (last round).",
     )
 
 
@@ -692,7 +716,7 @@ def main(argv=None) -> int:
             rounds = args.rounds or (1 if quick else 3)
             bench_train_function(args.before, rounds, *((20, 20) if quick else (150, 250)))
         if device == "cpu" and args.shared and args.only in (None, "shared"):
-            bench_shared_machine(shapes, iterations, warmup)
+            bench_shared_machine(shapes, iterations, warmup, rounds=1 if quick else 3)
         if args.only in (None, "inference"):
             bench_inference(shapes, device, count=16 if quick else 64, files=4 if quick else 8, repeats=repeats)
     print(f"\n# {load_line()} at end; benchmark took {time.perf_counter() - t_start:.0f} s")
