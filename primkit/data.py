@@ -754,6 +754,9 @@ class _CacheIndex:
         self.root = root
         self.where: dict = {}
         self.damaged = 0
+        #: keys stored with these settings in the other codes (float32 against compact): not read,
+        #: since neither kind's values are the other's (:func:`compact_by_default`)
+        self.other_codes: set = set()
         key = settings.key()
         try:
             folders = sorted(p for p in root.iterdir() if not p.name.startswith(".") and p.is_dir())
@@ -768,7 +771,10 @@ class _CacheIndex:
                 self.damaged += 1
                 shutil.rmtree(folder, ignore_errors=True)
                 continue
-            if seg.settings_key != key or seg.compact != compact:
+            if seg.settings_key != key:
+                continue
+            if seg.compact != compact:
+                self.other_codes.update(seg.keys())
                 continue
             for j, k in enumerate(seg.keys()):
                 self.where.setdefault(k, []).append((seg, j))
@@ -958,7 +964,8 @@ def prepare_collection(
     :mod:`primkit.geometry.quantize`: a quarter of the first format's bytes, within the accuracy
     declared there. Every entry is checked before it is trusted (its CRC-32); a
     damaged one is a miss, prepared again and said once. A cache that cannot be written keeps the
-    shapes in memory (said once). Entries of the first format are not read (said once).
+    shapes in memory (said once). Entries of the first format are not read (said once), nor
+    entries of the other codes kind (said once; both kinds then stay in the cache).
 
     Parameters
     ----------
@@ -1044,6 +1051,12 @@ def prepare_collection(
     if index.damaged:
         print(f"primkit: cache: {index.damaged} damaged entr{'y' if index.damaged == 1 else 'ies'} in {root} "
               "(truncated or not an entry) prepared again", file=sys.stderr)
+    other = sum(key in index.other_codes for key in misses)
+    if other:
+        kinds = ("float32 values (PRIMKIT_CACHE_CODES=exact)", "compact codes") if compact else \
+                ("compact codes", "float32 values (PRIMKIT_CACHE_CODES=exact)")
+        print(f"primkit: cache: {other} shape{'' if other == 1 else 's'} in {root} stored as {kinds[0]} prepared again "
+              f"as {kinds[1]}, this run's kind", file=sys.stderr)
     if unwritable:
         print(f"primkit: cache: {root} cannot be written ({unwritable}): shapes prepared in memory", file=sys.stderr)
     paths, found, errs, names = [], [], [], []

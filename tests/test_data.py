@@ -194,6 +194,25 @@ def test_damaged_cache_entries_are_prepared_again_and_said_once(tmp_path, capsys
     assert "damaged" not in capsys.readouterr().err  # repaired for good
 
 
+def test_a_cache_of_the_other_codes_is_said_and_both_kinds_are_kept(tmp_path, capsys):
+    folder = tmp_path / "shapes"
+    synthetic.write_collection(folder, "chair", 2, seed=6)
+    cache = tmp_path / "cache"
+    settings = data.PrepareSettings(samples=500)
+    exact = data.prepare_collection(folder, settings, cache_dir=cache, workers=1, progress=False, compact=False)
+    capsys.readouterr()
+    compact = data.prepare_collection(folder, settings, cache_dir=cache, workers=1, progress=False, compact=True)
+    lines = [line for line in capsys.readouterr().err.splitlines() if "cache" in line]
+    assert len(lines) == 1 and "2 shapes" in lines[0] and "stored as float32" in lines[0] and "as compact codes" in lines[0]
+    assert len(_segments(cache)) == 2
+    # each kind reads its own segment from now on, without a word
+    for kind, want in ((False, exact), (True, compact)):
+        again = data.prepare_collection(folder, settings, cache_dir=cache, workers=1, progress=False, compact=kind)
+        assert "cache" not in capsys.readouterr().err
+        assert all(np.array_equal(again[i].closest, want[i].closest) for i in range(2))
+    assert not np.array_equal(exact[0].closest, compact[0].closest)  # the kinds differ, within the declared error
+
+
 def test_an_old_cache_is_said_once_and_prepared_again(tmp_path, capsys):
     folder = tmp_path / "shapes"
     synthetic.write_collection(folder, "table", 2, seed=2)
