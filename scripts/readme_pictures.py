@@ -6,7 +6,8 @@
   steps, each beside its cuboids (the pictures of ``scripts/build_bundled_models.py --pictures``);
 * ``chair-heldout.png``: the first 8 of the chair model's held-out ShapeNetVox32 chairs (every
   10th file by sorted path, then evenly spaced to at most 200, as the build script evaluates them);
-* ``viewer-abstraction.png``, ``viewer-deformation.png``: the viewers in real windows (under X, e.g.
+* ``viewer-abstraction.png``, ``viewer-deformation.png``, ``viewer-collection.png`` (segmentation),
+  ``viewer-embedding.png`` (chair_0000 chosen): the viewers in real windows (under X, e.g.
   ``xvfb-run``; off screen without a display), on procedural chairs (``primkit generate chair -n 8``).
 
 Existing pictures are replaced (they are this script's outputs).
@@ -86,6 +87,10 @@ def main(argv=None) -> int:
                     "--size", "1000x700", *window, *common]) == 0
         assert cli(["view", "deformation", str(chairs / "chair_0001.ply"), str(chairs / "chair_0004.ply"),
                     "--png", str(args.out / "viewer-deformation.png"), "--size", "1100x600", *window, *common]) == 0
+        assert cli(["view", "collection", str(chairs), "--mode", "segmentation",
+                    "--png", str(args.out / "viewer-collection.png"), "--size", "1100x700", *window, *common]) == 0
+        assert cli(["view", "embedding", str(chairs), "--select", "0",
+                    "--png", str(args.out / "viewer-embedding.png"), "--size", "1100x750", *window, *common]) == 0
     return 0
 
 

@@ -134,8 +134,9 @@ def embedding_explorer(shapes, part_names=None, *, parts="all", neighbors: int =
     explorer.info_actor = p.add_text("click a shape", position=(10, window_size[1] - 40), font_size=10, color="black")
     p.add_text(f"t-SNE of part descriptors ({parts})", position="upper_right", font_size=9, color="black")
     explorer.select(0)
-    # frame the map and the row under it (with room for the labels)
-    extent = np.vstack([positions + 0.3 * up, positions - 0.3 * up, explorer.row_positions() + 0.6 * up,
+    # frame the map and the row under it (with room for the labels, and for the title line above
+    # the map: 0.3 left a thumbnail under the title)
+    extent = np.vstack([positions + 0.7 * up, positions - 0.3 * up, explorer.row_positions() + 0.6 * up,
                         explorer.row_positions() - 0.8 * up, explorer.row_positions() + 0.8 * right,
                         explorer.row_positions() - 0.8 * right, positions + 0.3 * right, positions - 0.3 * right])
     u, r = extent @ up, extent @ right
