@@ -1,23 +1,15 @@
 """Build the bundled chair image model: render views, distil the chair volume model, evaluate.
 
     python scripts/build_image_model.py render                  # views of training and held-out chairs
-    python scripts/build_image_model.py train --minutes 20      # distil (stage 1)
-    cp /work/runs/image/chair-image.safetensors /work/runs/image/stage1.safetensors
-    python scripts/build_image_model.py train --resume /work/runs/image/stage1.safetensors \
-        --minutes 6 --lr 3e-4 --colour-shuffle                  # stage 2: colour-channel shuffling
-    python scripts/build_image_model.py render                  # again: the views now keep their foregrounds
-    cp /work/runs/image/chair-image.safetensors /work/runs/image/stage2.safetensors
-    python scripts/build_image_model.py train --resume /work/runs/image/stage2.safetensors \
-        --iterations 10000 --minutes 20 --lr 5e-4 --colour-shuffle --swap-backgrounds 0.75   # stage 3
-    cp /work/runs/image/chair-image.safetensors /work/runs/image/stage3.safetensors
-    python scripts/build_image_model.py train --resume /work/runs/image/stage3.safetensors \
-        --iterations 8000 --minutes 15 --lr 3e-4 --colour-shuffle --swap-backgrounds 0.9     # stage 4
-    cp /work/runs/image/chair-image.safetensors /work/runs/image/stage4.safetensors
-    python scripts/build_image_model.py train --resume /work/runs/image/stage4.safetensors \
-        --iterations 6000 --minutes 28 --lr 3e-4 --colour-shuffle --swap-backgrounds 0.9 --geometric 5   # stage 5
+    python scripts/build_image_model.py train --minutes 20      # distil (a stage; --resume FILE continues one)
     python scripts/build_image_model.py eval --eval-limit 200   # held-out chairs; writes the bundled file
 
-(the bundled model's recipe; ``all`` runs render, train and eval in one go with the options given).
+The bundled file's recipe is :data:`RECIPE` (also in its card): five stages against the chair model
+bundled until 2026-12-02 (``--teacher`` names that file), then two against today's chair model,
+whose part indices differ, continuing from the fifth stage's network. Stages differ in learning
+rate, colour shuffling, background swapping and the geometric term (``--geometric``).
+
+``all`` runs render, train and eval in one go with the options given.
 
 Data: ShapeNetVox32 chairs in ../shared/data/shapenetvox32/03001627, prepared through the cache
 ``--cache`` (default /work/runs/cache), split with the teacher's own hold-out rule
@@ -44,6 +36,33 @@ from primkit import image as views  # noqa: E402
 from primkit.model.abstractor import Abstractor  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data" / "shapenetvox32" / "03001627"
+_OLD = "--teacher /work/runs/chair-ab37adb.safetensors --threads 1"
+#: how the bundled file was built: stages 1-5 against the chair model bundled until 2026-12-02, then
+#: stages 6-7 against today's (whose part indices differ), continuing from stage 5's network
+RECIPE = (
+    "git show ab37adb:primkit/model/bundled/chair.safetensors > /work/runs/chair-ab37adb.safetensors; "
+    f"python scripts/build_image_model.py render {_OLD}; "
+    f"python scripts/build_image_model.py train --minutes 20 {_OLD}; "
+    "cp /work/runs/image/chair-image.safetensors /work/runs/image/stage1.safetensors; "
+    f"python scripts/build_image_model.py train --resume /work/runs/image/stage1.safetensors --minutes 6 --lr 3e-4 --colour-shuffle {_OLD}; "
+    "cp /work/runs/image/chair-image.safetensors /work/runs/image/stage2.safetensors; "
+    f"python scripts/build_image_model.py train --resume /work/runs/image/stage2.safetensors --iterations 10000 --minutes 20 "
+    f"--lr 5e-4 --colour-shuffle --swap-backgrounds 0.75 {_OLD}; "
+    "cp /work/runs/image/chair-image.safetensors /work/runs/image/stage3.safetensors; "
+    f"python scripts/build_image_model.py train --resume /work/runs/image/stage3.safetensors --iterations 8000 --minutes 15 "
+    f"--lr 3e-4 --colour-shuffle --swap-backgrounds 0.9 {_OLD}; "
+    "cp /work/runs/image/chair-image.safetensors /work/runs/image/stage4.safetensors; "
+    f"python scripts/build_image_model.py train --resume /work/runs/image/stage4.safetensors --iterations 6000 --minutes 28 "
+    f"--lr 3e-4 --colour-shuffle --swap-backgrounds 0.9 --geometric 5 {_OLD}; "
+    "cp /work/runs/image/chair-image.safetensors /work/runs/image/stage5.safetensors "
+    "(stage 5's network is also git 2081a9f:primkit/model/bundled/chair-image.safetensors); "
+    "python scripts/build_image_model.py train --resume /work/runs/image/stage5.safetensors --iterations 10000 --minutes 25 "
+    "--lr 5e-4 --colour-shuffle --swap-backgrounds 0.9 --threads 1; "
+    "cp /work/runs/image/chair-image.safetensors /work/runs/image/stage6.safetensors; "
+    "python scripts/build_image_model.py train --resume /work/runs/image/stage6.safetensors --iterations 6000 --minutes 25 "
+    "--lr 3e-4 --colour-shuffle --swap-backgrounds 0.9 --geometric 5 --threads 1; "
+    "python scripts/build_image_model.py eval --eval-limit 200"
+)
 CHUNK = 500
 
 
@@ -108,6 +127,16 @@ def teacher_targets(teacher, coll, path: Path, limit=None):
     return raw
 
 
+def teacher_record(teacher, name) -> dict:
+    """What a training run distilled: the teacher's card summary and the SHA-256 of its file."""
+    import hashlib
+
+    from primkit.model.bundled import resolve_model
+
+    return {"summary": teacher.metadata["card"]["summary"], "model": str(name),
+            "sha256": hashlib.sha256(Path(resolve_model(name)).read_bytes()).hexdigest()}
+
+
 def model_history(path):
     """The training record of the model a run continued from (None for a fresh run)."""
     if not path:
@@ -115,7 +144,7 @@ def model_history(path):
     from primkit.model.modelfile import read_metadata
 
     t = read_metadata(path)["training"]
-    return {k: t[k] for k in ("config", "seconds", "final", "resumed_from", "views") if k in t}
+    return {k: t[k] for k in ("config", "seconds", "final", "resumed_from", "views", "teacher") if k in t}
 
 
 def train(teacher, train_coll, work: Path, settings, args) -> None:
@@ -126,7 +155,7 @@ def train(teacher, train_coll, work: Path, settings, args) -> None:
     torch.set_num_threads(args.threads)
     views_train = render_split(train_coll, work, "train-seen", args.views, "seen", 0, settings, args.limit,
                                keep_foreground=True)
-    targets = teacher_targets(teacher, train_coll, work / "teacher-train.npz", args.limit)
+    targets = teacher_targets(teacher, train_coll, work / f"teacher-train-{args.teacher_tag}.npz", args.limit)
     config = im.ImageTrainConfig(iterations=args.iterations, time_limit_s=60 * args.minutes,
                                  learning_rate=args.lr, colour_shuffle=args.colour_shuffle,
                                  swap_backgrounds=args.swap_backgrounds, geometric=args.geometric)
@@ -150,6 +179,7 @@ def train(teacher, train_coll, work: Path, settings, args) -> None:
         "part_names": teacher.metadata.get("part_names"),
         "views": settings.to_dict(),
         "training": {"config": config.to_dict(), "views": len(views_train), "shapes": len(views_train.names),
+                     "teacher": teacher_record(teacher, args.teacher),
                      "views_per_shape": args.views, "palette": "seen", "seed": 0, "seconds": round(result.seconds, 1),
                      "device": "cpu", "threads": args.threads, "torch": torch.__version__,
                      "final": result.history[-1], "resumed_from": model_history(args.resume), "history": result.history[:: max(1, len(result.history) // 60)]},
@@ -194,7 +224,7 @@ def evaluate(teacher, held_coll, work: Path, settings, args) -> dict:
     teacher_results = teacher.predict(shapes)
     teacher_seconds = (time.time() - t) / len(shapes)
     teacher_scores = [score(r.canonical, s) for r, s in zip(teacher_results, shapes)]
-    targets = teacher_targets(teacher, held_coll, work / "teacher-held.npz", n)
+    targets = teacher_targets(teacher, held_coll, work / f"teacher-held-{args.teacher_tag}.npz", n)
     report = {"convention": ChamferConvention().describe(), "held_out_total": len(held_coll),
               "teacher_on_grids": _summary(teacher_scores, teacher_seconds)}
     print("teacher (32^3 grids):", report["teacher_on_grids"], flush=True)
@@ -253,24 +283,11 @@ def write_bundled(teacher, model, report: dict, work: Path) -> Path:
     tr = model.metadata["training"]
     unseen, seen, tnet = report["unseen_backgrounds"], report["seen_backgrounds"], report["teacher_on_grids"]
     ratio = unseen["chamfer_l1"] / tnet["chamfer_l1"]
-    command = ("python scripts/build_image_model.py render; python scripts/build_image_model.py train --minutes 20 "
-               "--threads 1; cp /work/runs/image/chair-image.safetensors /work/runs/image/stage1.safetensors; "
-               "python scripts/build_image_model.py train --resume /work/runs/image/stage1.safetensors --minutes 6 "
-               "--lr 3e-4 --colour-shuffle --threads 1; cp /work/runs/image/chair-image.safetensors "
-               "/work/runs/image/stage2.safetensors; python scripts/build_image_model.py render (again: it now keeps "
-               "the foregrounds); python scripts/build_image_model.py train --resume /work/runs/image/stage2.safetensors "
-               "--iterations 10000 --minutes 20 --lr 5e-4 --colour-shuffle --swap-backgrounds 0.75 --threads 1; "
-               "cp /work/runs/image/chair-image.safetensors /work/runs/image/stage3.safetensors; "
-               "python scripts/build_image_model.py train --resume /work/runs/image/stage3.safetensors "
-               "--iterations 8000 --minutes 15 --lr 3e-4 --colour-shuffle --swap-backgrounds 0.9 --threads 1; "
-               "cp /work/runs/image/chair-image.safetensors /work/runs/image/stage4.safetensors; "
-               "python scripts/build_image_model.py train --resume /work/runs/image/stage4.safetensors "
-               "--iterations 6000 --minutes 28 --lr 3e-4 --colour-shuffle --swap-backgrounds 0.9 --geometric 5 --threads 1; "
-               "python scripts/build_image_model.py eval --eval-limit 200")
+    command = RECIPE
     data_line = (f"{tr['views']} rendered views ({tr['views_per_shape']} per chair, 64x64, random azimuth, elevation "
                  "0-40 deg, random lights, object colours and backgrounds of the 'seen' palette) of the "
                  f"{tr['shapes']} ShapeNetVox32 chairs the chair model trained on (the voxel grids' contour surface); "
-                 "targets: the bundled chair model's cuboids on the same chairs")
+                 "targets: the teacher's cuboids on the same chairs (each stage's teacher in the schedule)")
     stages = []  # oldest first
     t = tr
     while t:
@@ -292,6 +309,9 @@ def write_bundled(teacher, model, report: dict, work: Path) -> Path:
         if c.get("geometric"):
             text += (f", plus {c['geometric']:g} x the method's coverage + consistency losses of the student's cuboids "
                      "against the true chair")
+        who = t.get("teacher")
+        text += (f"; teacher: {who['summary']} (sha256 {who['sha256'][:12]})" if who else
+                 "; teacher: the chair model bundled before 2026-12-02 (git ab37adb; not recorded in the file)")
         return text
 
     schedule = "; ".join(f"stage {i + 1}{' (continued)' if i else ''}: {describe(t)}" for i, t in enumerate(stages))
@@ -359,16 +379,21 @@ def main(argv=None) -> int:
     ap.add_argument("--resume", default=None, help="continue from this image model file")
     ap.add_argument("--minutes", type=float, default=0, help="stop training after this many minutes (0: no limit)")
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--teacher", default="chair",
+                    help="the volume model distilled (default the bundled chair; a file, e.g. the previous chair "
+                         "model from git, to run the earlier stages of the recipe as they were run)")
     args = ap.parse_args(argv)
     work = Path(args.work)
     work.mkdir(parents=True, exist_ok=True)
-    teacher = Abstractor.load("chair")
+    teacher = Abstractor.load(args.teacher)
+    # the teacher's outputs are cached per teacher file: a stage against another teacher must not reuse them
+    args.teacher_tag = teacher_record(teacher, args.teacher)["sha256"][:12]
     train_files, held_files = _split(teacher)
     train_coll, held_coll = _collection(train_files, args.cache), _collection(held_files, args.cache)
     settings = views.ViewSettings()
     if args.stage in ("render", "all"):
-        teacher_targets(teacher, train_coll, work / "teacher-train.npz", args.limit)
-        teacher_targets(teacher, held_coll, work / "teacher-held.npz")
+        teacher_targets(teacher, train_coll, work / f"teacher-train-{args.teacher_tag}.npz", args.limit)
+        teacher_targets(teacher, held_coll, work / f"teacher-held-{args.teacher_tag}.npz")
         if not args.reverse:
             render_split(held_coll, work, "held-unseen", 1, "unseen", 1, settings)
             render_split(held_coll, work, "held-seen", 1, "seen", 2, settings)

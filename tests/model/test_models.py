@@ -55,6 +55,9 @@ def test_image_models_name_their_teacher_and_its_terms():
         card = meta["card"]
         teacher = modelfile.read_metadata(bundled_models()[meta["teacher"]])
         assert card["terms"] == teacher["card"]["terms"]  # distilled from ShapeNet-trained weights
+        # index k is the teacher's part k: the names (learned for the teacher) must be the teacher's own
+        assert meta["part_names"] == teacher["part_names"], name
+        assert meta["teacher_card"]["summary"] == teacher["card"]["summary"], name
         assert card["text"].startswith(f"# primkit bundled model: {name}")
         held = card["metrics"]["held_out"]
         assert held["evaluated"] > 0 and 0 < held["network"]["iou"] <= 1
