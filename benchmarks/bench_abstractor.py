@@ -479,19 +479,19 @@ def bench_shared_machine(shapes, iterations: int, warmup: int, rounds: int = 3) 
         governor.close()
         return governor.threads
 
-    quiet, busy, chosen, loads = {}, {}, {"quiet": [], "busy": []}, {"quiet": [], "busy": []}
+    quiet, busy, chosen, loads = {}, {}, {"quiet": [], "busy": []}, {}
     for _ in range(rounds):
         chosen["quiet"].append(policy())
         for n in sorted({default, 1, chosen["quiet"][-1]}):
             quiet.setdefault(n, []).append(steps(n))
-        loads["quiet"].append(load_line())
+        loads["quiet"] = load_line()
         spinner = subprocess.Popen([sys.executable, "-c", "while True: pass"])
         try:
             time.sleep(1.0)
             chosen["busy"].append(policy())
             for n in sorted({default, 1, chosen["busy"][-1]}):
                 busy.setdefault(n, []).append(steps(n))
-            loads["busy"].append(load_line())
+            loads["busy"] = load_line()
         finally:
             spinner.kill()
             spinner.wait()
@@ -518,8 +518,7 @@ def bench_shared_machine(shapes, iterations: int, warmup: int, rounds: int = 3) 
         f"With one core left a step cannot beat the one-thread step of the quiet machine: that floor is "
         f"{med(quiet[1]) / med(quiet[default]):.2f}x the quiet {default}-thread step "
         f"({', '.join(f'{b / a:.2f}' for a, b in zip(quiet[default], quiet[1]))}). "
-        f"Load "
-        f"without the busy process: {loads['quiet'][-1]}; with it: {loads['busy'][-1]} (last round).",
+        f"Load without the busy process: {loads['quiet']}; with it: {loads['busy']} (last round).",
     )
 
 

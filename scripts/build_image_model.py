@@ -179,7 +179,7 @@ def train(teacher, train_coll, work: Path, settings, args) -> None:
         "part_names": teacher.metadata.get("part_names"),
         "views": settings.to_dict(),
         "training": {"config": config.to_dict(), "views": len(views_train), "shapes": len(views_train.names),
-                     "teacher": teacher_record(teacher, args.teacher),
+                     "teacher": args.teacher_record,
                      "views_per_shape": args.views, "palette": "seen", "seed": 0, "seconds": round(result.seconds, 1),
                      "device": "cpu", "threads": args.threads, "torch": torch.__version__,
                      "final": result.history[-1], "resumed_from": model_history(args.resume), "history": result.history[:: max(1, len(result.history) // 60)]},
@@ -283,7 +283,6 @@ def write_bundled(teacher, model, report: dict, work: Path) -> Path:
     tr = model.metadata["training"]
     unseen, seen, tnet = report["unseen_backgrounds"], report["seen_backgrounds"], report["teacher_on_grids"]
     ratio = unseen["chamfer_l1"] / tnet["chamfer_l1"]
-    command = RECIPE
     data_line = (f"{tr['views']} rendered views ({tr['views_per_shape']} per chair, 64x64, random azimuth, elevation "
                  "0-40 deg, random lights, object colours and backgrounds of the 'seen' palette) of the "
                  f"{tr['shapes']} ShapeNetVox32 chairs the chair model trained on (the voxel grids' contour surface); "
@@ -332,7 +331,7 @@ def write_bundled(teacher, model, report: dict, work: Path) -> Path:
         f"- Teacher: the bundled chair model ({tcard['summary']})",
         f"- Data: {data_line}",
         f"- Terms: {tcard['terms']}",
-        f"- Reproduce: `{command}`",
+        f"- Reproduce: `{RECIPE}`",
         f"- Schedule: {schedule}",
         f"- Training time: {training_time}",
         f"- Metric convention: {report['convention']}",
@@ -348,7 +347,7 @@ def write_bundled(teacher, model, report: dict, work: Path) -> Path:
         f"{unseen['azimuth_error_deg_median']:.0f} deg",
         "",
     ])
-    card = {"summary": summary, "data": data_line, "terms": tcard["terms"], "command": command, "schedule": schedule,
+    card = {"summary": summary, "data": data_line, "terms": tcard["terms"], "command": RECIPE, "schedule": schedule,
             "training_time": training_time, "metrics": metrics, "teacher": "chair", "text": text}
     out = ROOT / "primkit" / "model" / "bundled" / "chair-image.safetensors"
     changes = {"card": card, "metrics": metrics, "teacher_card": {k: tcard[k] for k in ("summary", "data", "terms", "command")}}
@@ -386,8 +385,9 @@ def main(argv=None) -> int:
     work = Path(args.work)
     work.mkdir(parents=True, exist_ok=True)
     teacher = Abstractor.load(args.teacher)
+    args.teacher_record = teacher_record(teacher, args.teacher)
     # the teacher's outputs are cached per teacher file: a stage against another teacher must not reuse them
-    args.teacher_tag = teacher_record(teacher, args.teacher)["sha256"][:12]
+    args.teacher_tag = args.teacher_record["sha256"][:12]
     train_files, held_files = _split(teacher)
     train_coll, held_coll = _collection(train_files, args.cache), _collection(held_files, args.cache)
     settings = views.ViewSettings()
