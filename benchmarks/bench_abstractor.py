@@ -514,7 +514,8 @@ def bench_shared_machine(shapes, iterations: int, warmup: int, rounds: int = 3) 
         f"by another process ({parallel.available_cores()} cores available), {rounds} round{'s' if rounds != 1 else ''} alternating",
         ["threads", "without the busy process ms", "with it ms", "slowdown (each round)"],
         rows,
-        f"median over rounds of each round's median of {iterations} steps, after 20 untimed steps. "
+        f"median over rounds of each round's median of {iterations} steps, after 20 untimed steps; the slowdown is "
+        f"the ratio of those two medians, then each round's own ratio in brackets. "
         f"With one core left a step cannot beat the one-thread step of the quiet machine: that floor is "
         f"{med(quiet[1]) / med(quiet[default]):.2f}x the quiet {default}-thread step "
         f"({', '.join(f'{b / a:.2f}' for a, b in zip(quiet[default], quiet[1]))}). "
