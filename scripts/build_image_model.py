@@ -137,6 +137,12 @@ def teacher_record(teacher, name) -> dict:
             "sha256": hashlib.sha256(Path(resolve_model(name)).read_bytes()).hexdigest()}
 
 
+def teacher_cache(work: Path, split: str, args) -> Path:
+    """Where the teacher's outputs on ``split`` are cached: per teacher file, so that a stage against
+    another teacher never reuses them."""
+    return work / f"teacher-{split}-{args.teacher_tag}.npz"
+
+
 def model_history(path):
     """The training record of the model a run continued from (None for a fresh run)."""
     if not path:
@@ -155,7 +161,7 @@ def train(teacher, train_coll, work: Path, settings, args) -> None:
     torch.set_num_threads(args.threads)
     views_train = render_split(train_coll, work, "train-seen", args.views, "seen", 0, settings, args.limit,
                                keep_foreground=True)
-    targets = teacher_targets(teacher, train_coll, work / f"teacher-train-{args.teacher_tag}.npz", args.limit)
+    targets = teacher_targets(teacher, train_coll, teacher_cache(work, "train", args), args.limit)
     config = im.ImageTrainConfig(iterations=args.iterations, time_limit_s=60 * args.minutes,
                                  learning_rate=args.lr, colour_shuffle=args.colour_shuffle,
                                  swap_backgrounds=args.swap_backgrounds, geometric=args.geometric)
@@ -224,7 +230,7 @@ def evaluate(teacher, held_coll, work: Path, settings, args) -> dict:
     teacher_results = teacher.predict(shapes)
     teacher_seconds = (time.time() - t) / len(shapes)
     teacher_scores = [score(r.canonical, s) for r, s in zip(teacher_results, shapes)]
-    targets = teacher_targets(teacher, held_coll, work / f"teacher-held-{args.teacher_tag}.npz", n)
+    targets = teacher_targets(teacher, held_coll, teacher_cache(work, "held", args), n)
     report = {"convention": ChamferConvention().describe(), "held_out_total": len(held_coll),
               "teacher_on_grids": _summary(teacher_scores, teacher_seconds)}
     print("teacher (32^3 grids):", report["teacher_on_grids"], flush=True)
@@ -386,14 +392,13 @@ def main(argv=None) -> int:
     work.mkdir(parents=True, exist_ok=True)
     teacher = Abstractor.load(args.teacher)
     args.teacher_record = teacher_record(teacher, args.teacher)
-    # the teacher's outputs are cached per teacher file: a stage against another teacher must not reuse them
     args.teacher_tag = args.teacher_record["sha256"][:12]
     train_files, held_files = _split(teacher)
     train_coll, held_coll = _collection(train_files, args.cache), _collection(held_files, args.cache)
     settings = views.ViewSettings()
     if args.stage in ("render", "all"):
-        teacher_targets(teacher, train_coll, work / f"teacher-train-{args.teacher_tag}.npz", args.limit)
-        teacher_targets(teacher, held_coll, work / f"teacher-held-{args.teacher_tag}.npz")
+        teacher_targets(teacher, train_coll, teacher_cache(work, "train", args), args.limit)
+        teacher_targets(teacher, held_coll, teacher_cache(work, "held", args))
         if not args.reverse:
             render_split(held_coll, work, "held-unseen", 1, "unseen", 1, settings)
             render_split(held_coll, work, "held-seen", 1, "seen", 2, settings)
