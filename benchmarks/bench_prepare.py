@@ -12,7 +12,8 @@ What it measures, all in one run, on the same meshes:
    the exact reference), a brute-force NumPy loop over all triangles, and a Euclidean distance
    transform of a 256^3 voxelisation, with their errors. 2b: the whole ``prepare`` of every
    10k-20k-face mesh against libigl's distances alone.
-3. Occupancy: primkit's region-sampled winding numbers against libigl's at every cell.
+3. Occupancy: primkit's region-sampled winding numbers against libigl's at every cell; 3b: the
+   surface cells, primkit's compiled triangle-box test against Open3D's voxeliser.
 4. Peak memory (``ru_maxrss`` of a fresh spawned process per method) and throughput of
    ``primkit.data.prepare_collection`` over ShapeNetVox32 chairs, extrapolated to all 5,931.
 6. ``--only training`` (about 15 minutes, not in the default run): does the faster preparation
@@ -472,11 +473,14 @@ def bench_whole_preparation(paths, repeats: int) -> None:
 def bench_occupancy(paths, repeats: int) -> None:
     from primkit import geometry
 
-    t_pk, t_igl, t_surf, diffs, faces_seen = [], [], [], [], []
+    t_pk, t_igl, t_surf, t_o3d, diffs, surf_diffs, faces_seen = [], [], [], [], [], [], []
     for path in paths:
         v, f = canonical_mesh(path)
         faces_seen.append(len(f))
         surface, ts = best_of(repeats, geometry.surface_voxels, v, f, RESOLUTION)
+        surface_o3d, to = best_of(repeats, geometry.surface_voxels, v, f, RESOLUTION, engine="open3d")
+        t_o3d.append(to)
+        surf_diffs.append(int((surface != surface_o3d).sum()))
         occ, tp = best_of(repeats, geometry.occupancy_grid, v, f, RESOLUTION, surface=surface)
         full, ti = best_of(repeats, geometry.occupancy_grid, v, f, RESOLUTION, engine="igl")
         t_pk.append(tp)
@@ -496,6 +500,18 @@ def bench_occupancy(paths, repeats: int) -> None:
         ],
         f"agreement: {100.0 * (1 - diffs.sum() / (len(paths) * RESOLUTION**3)):.4f}% of all cells; median per-mesh "
         f"time ratio {np.median(np.divide(t_pk, t_igl)):.2f}",
+    )
+    surf_diffs = np.array(surf_diffs)
+    table(
+        f"3b. surface cells (the cells a triangle meets) at {RESOLUTION}^3 on the same {len(paths)} meshes",
+        ["method", "median ms", "p90 ms", "cells differing (total)", "meshes differing"],
+        [
+            ["primkit surface_voxels (compiled triangle-box test)", ms(np.median(t_surf)), ms(np.percentile(t_surf, 90)),
+             int(surf_diffs.sum()), int((surf_diffs > 0).sum())],
+            ["surface_voxels(engine='open3d'): VoxelGrid.create_from_triangle_mesh_within_bounds", ms(np.median(t_o3d)),
+             ms(np.percentile(t_o3d, 90)), "reference", ""],
+        ],
+        f"median per-mesh time ratio {np.median(np.divide(t_surf, t_o3d)):.2f}",
     )
 
 

@@ -240,3 +240,85 @@ def test_edge_neighbours_of_a_closed_mesh():
         for e in range(3):
             u = adjacent[t, e]
             assert {f[t, e], f[t, (e + 1) % 3]} <= set(f[u]) and t in adjacent[u]
+
+
+# ------------------------------------------------------------------ surface cells
+
+
+def _clip_meets(tri, lo, hi):
+    """Whether a triangle meets the box [lo, hi]: Sutherland-Hodgman clipping of the triangle by
+    the box's six half-spaces leaves something (an algorithm independent of the kernel's axes)."""
+    poly = [np.asarray(p, float) for p in tri]
+    for axis in range(3):
+        for sign, bound in ((1.0, hi[axis]), (-1.0, lo[axis])):
+            out = []
+            for i, p in enumerate(poly):
+                q = poly[(i + 1) % len(poly)]
+                dp, dq = sign * (p[axis] - bound), sign * (q[axis] - bound)
+                if dp <= 0:
+                    out.append(p)
+                if (dp < 0 < dq) or (dq < 0 < dp):
+                    out.append(p + (q - p) * (dp / (dp - dq)))
+            poly = out
+            if not poly:
+                return False
+    return True
+
+
+def test_surface_cells_against_clipping_every_cell():
+    rng = np.random.default_rng(5)
+    res = 6
+    for _ in range(25):
+        corners = rng.uniform(-0.5, 0.5, (3, 3))
+        if rng.random() < 0.4:  # small ones, within a cell or two
+            corners = corners[0] + 0.15 * (corners - corners[0])
+        got = kernels.surface_cells(corners, np.array([[0, 1, 2]]), res)
+        for idx in np.ndindex(res, res, res):
+            lo = -0.5 + np.array(idx) / res
+            assert got[idx] == _clip_meets(corners, lo, lo + 1.0 / res), (corners, idx)
+
+
+def _lattice_soups():
+    """Random soups, some snapped onto the lattice of half cells so that triangles lie on cell
+    faces and touch cells at edges and corners, and the boundary meshes of voxelised chairs."""
+    rng = np.random.default_rng(0)
+    for trial in range(60):
+        v = rng.uniform(-0.5, 0.5, (30, 3))
+        if trial % 2:
+            v = np.round(v * 16) / 16
+        yield v, rng.integers(0, 30, (40, 3)), 32
+    for s in synthetic.generate("chair", 3, seed=11):
+        v = geometry.canonical_frame(s.vertices).to_canonical(s.vertices)
+        occupancy = geometry.occupancy_grid(v, s.faces, 32, include_surface=True)
+        bv, bf = geometry.voxel_boundary_mesh(occupancy)
+        for res in (32, 24, 16):
+            yield bv, bf, res
+        yield v, s.faces, 32
+
+
+def test_surface_cells_equal_open3d_touching_cases_included():
+    for v, f, res in _lattice_soups():
+        ours = geometry.surface_voxels(v, f, res)
+        theirs = geometry.surface_voxels(v, f, res, engine="open3d")
+        assert np.array_equal(ours, theirs), f"{(ours != theirs).sum()} cells differ at {res}"
+
+
+def test_surface_cells_edge_cases():
+    assert not geometry.surface_voxels(np.zeros((0, 3)), np.zeros((0, 3), int), 8).any()
+    # a triangle wholly outside the grid marks nothing; one on the grid's upper face marks the last cells
+    outside = np.array([[0.7, 0.7, 0.7], [0.9, 0.7, 0.7], [0.7, 0.9, 0.7]])
+    assert not kernels.surface_cells(outside, np.array([[0, 1, 2]]), 8).any()
+    top = np.array([[-0.5, 0.5, -0.5], [0.5, 0.5, -0.5], [-0.5, 0.5, 0.5]])
+    got = kernels.surface_cells(top, np.array([[0, 1, 2]]), 8)
+    assert got[:, 7].any() and not got[:, :7].any()
+    with pytest.raises(ValueError, match="engine"):
+        geometry.surface_voxels(top, np.array([[0, 1, 2]]), 8, engine="embree")
+
+
+@pytest.mark.skipif(not DATA.is_dir(), reason="../shared/data (PSB and COSEG meshes) is not here")
+def test_real_meshes_surface_cells_equal_open3d():
+    paths = sorted((DATA / "psb_seg_benchmark").glob("*/off/*.off"))[::4] + sorted((DATA / "coseg_chairs").rglob("*.off"))
+    for path in paths:
+        m = io.read_mesh(path)
+        v = geometry.canonical_frame(m.vertices).to_canonical(m.vertices)
+        assert np.array_equal(geometry.surface_voxels(v, m.faces, 32), geometry.surface_voxels(v, m.faces, 32, engine="open3d")), path.name
