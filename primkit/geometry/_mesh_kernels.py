@@ -471,8 +471,8 @@ def _centroids(v, f):
 
 @numba.njit(cache=True, nogil=True)
 def _tree_arrays(v, f, size):
-    """The tree of :func:`build_tree`, all in compiled code (no GIL held: it is built while Open3D's
-    voxeliser, which holds the GIL, finds the surface cells)."""
+    """The tree of :func:`build_tree`, all in compiled code (no GIL held: preparation draws its
+    surface samples on another thread meanwhile)."""
     n = f.shape[0]
     order = _build_order(_centroids(v, f), size)
     tri = np.empty((n, 9))
