@@ -1,0 +1,79 @@
+"""The compiled winner search of the distance-field lookup against the torch search it replaces on the CPU."""
+
+import numpy as np
+import pytest
+import torch
+
+from primkit import geometry, synthetic
+from primkit.model import distance_field
+
+kernel = pytest.importorskip("primkit.model._field_kernel", reason="Numba is not installed")
+
+
+@pytest.fixture(scope="module")
+def grids():
+    out = []
+    for s in synthetic.generate("chair", 3, seed=2):
+        v = geometry.canonical_frame(s.vertices).to_canonical(s.vertices)
+        out.append(geometry.distance_grid(v, s.faces, 16).closest)
+    return np.stack(out)  # (3, 16, 16, 16, 3) float32
+
+
+def _planar(closest):
+    b, r = closest.shape[0], closest.shape[1]
+    return closest.reshape(b, r ** 3, 3).transpose(1, 2).contiguous()
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_the_same_cells_as_the_torch_search(grids, dtype):
+    """Points inside, outside and on the grid's cells, NaN and infinite ones, a NaN stored in a
+    grid (it poisons the running minimum, as torch.minimum does), and ties (every cell of the third
+    grid holds the same point, so all 8 corners tie and the first must win)."""
+    closest = torch.as_tensor(grids, dtype=dtype).clone()
+    closest[2] = torch.tensor([0.1, -0.2, 0.05], dtype=dtype)
+    closest[0, 8, 8, 8] = float("nan")
+    rng = np.random.default_rng(0)
+    pts = torch.as_tensor(rng.uniform(-0.8, 0.8, (3, 4000, 3)), dtype=dtype)
+    pts[0, 1000:1100] = torch.as_tensor(rng.uniform(0.0, 0.1, (100, 3)), dtype=dtype)  # around cell (8, 8, 8)
+    pts[:, :500] = torch.as_tensor(geometry.grid_centres(16).reshape(-1, 3)[rng.choice(4096, 500)], dtype=dtype)
+    pts[0, 600] = float("nan")
+    pts[0, 601, 1] = float("nan")
+    pts[1, 602] = float("inf")
+    pts[1, 603, 2] = -float("inf")
+    planar = _planar(closest)
+    ref = distance_field._winners(planar, pts, 16)
+    cells, got = kernel.nearest_cells(planar.numpy(), pts.transpose(1, 2).contiguous().numpy(), 16, threads=2)
+    np.testing.assert_array_equal(got, ref.numpy())  # NaN where NaN, every other value bit for bit
+    # the cells hold the points returned, and ties went to the first corner (x, y, z lowest)
+    flat = planar.numpy()
+    np.testing.assert_array_equal(np.take_along_axis(flat, np.broadcast_to(cells[:, None, :], got.shape), 2), got)
+    base = np.clip(np.floor((pts[2].numpy() + 0.5) * 16 - 0.5), 0, 15).astype(int)
+    finite = np.isfinite(pts[2].numpy()).all(1)
+    assert np.array_equal(cells[2][finite], (base[:, 0] * 256 + base[:, 1] * 16 + base[:, 2])[finite])
+
+
+def test_threads_do_not_change_the_cells(grids):
+    planar = _planar(torch.as_tensor(grids))
+    pts = torch.as_tensor(np.random.default_rng(1).uniform(-0.6, 0.6, (3, 3, 2000)), dtype=torch.float32)
+    one = kernel.nearest_cells(planar.numpy(), pts.numpy(), 16, threads=1)
+    for threads in (2, 3, 8):
+        many = kernel.nearest_cells(planar.numpy(), pts.numpy(), 16, threads=threads)
+        assert all(np.array_equal(a, b) for a, b in zip(one, many))
+
+
+def test_lookup_values_and_gradients_equal_the_torch_search(grids, monkeypatch):
+    """lookup_distance_sq through the compiled search against the same function with the compiled
+    search turned off: the same values and gradients, bit for bit."""
+    closest = torch.as_tensor(grids)
+    pts = torch.as_tensor(np.random.default_rng(2).uniform(-0.7, 0.7, (3, 3000, 3)), dtype=torch.float32)
+
+    def run():
+        p = pts.clone().requires_grad_(True)
+        d = distance_field.lookup_distance_sq(closest, p)
+        d.sum().backward()
+        return d.detach(), p.grad
+
+    d1, g1 = run()
+    monkeypatch.setattr(distance_field, "_winners_compiled", lambda *a: None)
+    d2, g2 = run()
+    assert torch.equal(d1, d2) and torch.equal(g1, g2)
