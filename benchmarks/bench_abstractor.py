@@ -15,7 +15,7 @@ What it measures, all in one run:
 2. The straightforward alternative, in the same run and on the same batches: the same losses
    computed one cuboid at a time in a Python loop (running minimum for coverage, one consistency
    term per cuboid); checked to give the same values, then timed alone and inside a whole step.
-2b. The consistency loss's distance-field lookup: the compiled winner search against torch's.
+2b. The consistency term: its distance-field lookup and the whole term, compiled against torch.
 3. Peak memory of training (a fresh spawned process per variant; RSS, and CUDA allocations).
 4. Inference with :class:`primkit.model.abstractor.Abstractor` around a randomly initialised network:
    shapes per second from prepared grids (batched, with and without pruning, against one shape at
@@ -341,13 +341,28 @@ def bench_training(shapes, device: str, iterations: int, warmup: int) -> None:
     )
 
 
-def bench_lookup(shapes, device: str, iterations: int, warmup: int) -> None:
-    """2b. The distance-field lookup of the consistency loss on the training batch's cuboid
-    surface samples (32 x 20 x 150 points): the compiled winner search against the torch one,
-    each with the gradient recomputed for the winner, in the same process, alternating."""
+def _alternate(ways: dict, fn, iterations: int, warmup: int, rounds: int = 3) -> tuple:
+    """Times ``fn(way)`` for each way, ``rounds`` rounds alternating; (seconds per way, last result per way)."""
+    times, results = {label: [] for label in ways}, {}
+    for _ in range(rounds):
+        for label, way in ways.items():
+            for i in range(warmup + iterations):
+                t0 = time.perf_counter()
+                results[label] = fn(way)
+                if i >= warmup:
+                    times[label].append(time.perf_counter() - t0)
+    return times, results
+
+
+def bench_consistency(shapes, device: str, iterations: int, warmup: int) -> None:
+    """2b. The consistency loss on the training batch (32 shapes x 20 parts x 150 surface samples),
+    with its gradient: the distance-field lookup alone (compiled winner search against torch's),
+    and the whole term (``losses.surface_consistency``: samples, lookup and weighted means in one
+    compiled pass with a closed-form gradient, against the torch form under autograd), in the same
+    process, alternating, at torch's thread count and on one thread."""
     import torch
 
-    from primkit.model import distance_field
+    from primkit.model import distance_field, losses
     from primkit.primitives import sample_surface_torch
 
     if device != "cpu":
@@ -359,42 +374,54 @@ def bench_lookup(shapes, device: str, iterations: int, warmup: int) -> None:
         pred = tr.net(occ)
         samples, _ = sample_surface_torch(pred.half_extents, pred.quaternions, pred.translations, SAMPLES_PER_CUBOID,
                                           generator=tr.generator)
-    points = samples.reshape(BATCH, -1, 3).clone().requires_grad_(True)
-    compiled = distance_field._winners_compiled
-    ways = {"compiled winner search (primkit.model._field_kernel), one thread": compiled,
-            "torch winner search (8 gathers of (B, 3, n) rows)": lambda *a: None}
+    leaves = [x.detach() for x in (pred.half_extents, pred.quaternions, pred.translations)]
+    compiled_lookup = distance_field._winners_compiled
+
+    def lookup(way):
+        distance_field._winners_compiled = way
+        try:
+            points = samples.reshape(BATCH, -1, 3).clone().requires_grad_(True)
+            d2 = distance_field.lookup_distance_sq(closest, points)
+            d2.sum().backward()
+            return d2.detach(), points.grad
+        finally:
+            distance_field._winners_compiled = compiled_lookup
+
+    def consistency(way):
+        z, q, t = (x.clone().requires_grad_(True) for x in leaves)
+        generator = torch.Generator().manual_seed(0)
+        if way == "compiled":
+            out = losses.surface_consistency(closest, z, q, t, SAMPLES_PER_CUBOID, generator)
+        else:
+            out = losses.consistency_per_part(closest, *sample_surface_torch(z, q, t, SAMPLES_PER_CUBOID, generator=generator))
+        out.sum().backward()
+        return out.detach(), z.grad, q.grad, t.grad
+
     threads = torch.get_num_threads()
-    rows, values = [], {}
+    rows, notes = [], []
     for n_threads in [threads] + ([1] if threads > 1 else []):
         torch.set_num_threads(n_threads)
-        times = {label: [] for label in ways}
         try:
-            for _ in range(3):
-                for label, fn in ways.items():
-                    distance_field._winners_compiled = fn
-                    for i in range(warmup + iterations):
-                        t0 = time.perf_counter()
-                        d2 = distance_field.lookup_distance_sq(closest, points)
-                        d2.sum().backward()
-                        if i >= warmup:
-                            times[label].append(time.perf_counter() - t0)
-                    values[label] = (d2.detach(), points.grad.clone())
-                    points.grad = None
+            lk, lk_out = _alternate({"compiled": compiled_lookup, "torch": lambda *a: None}, lookup, iterations, warmup)
+            cs, cs_out = _alternate({"compiled": "compiled", "torch": "torch"}, consistency, iterations, warmup)
         finally:
-            distance_field._winners_compiled = compiled
             torch.set_num_threads(threads)
-        for label in ways:
-            rows.append([f"{label}; torch on {n_threads} thread{'s' if n_threads > 1 else ''}",
-                         f"{1000.0 * med(times[label]):.2f}", f"{1000.0 * p90(times[label]):.2f}"])
-    (a, ga), (b, gb) = values.values()
+        on = f"torch on {n_threads} thread{'s' if n_threads > 1 else ''}"
+        rows += [[f"lookup, compiled winner search (model._field_kernels); {on}", *(f"{1000.0 * f(lk['compiled']):.2f}" for f in (med, p90))],
+                 [f"lookup, torch winner search (8 gathers of (B, 3, n) rows); {on}", *(f"{1000.0 * f(lk['torch']):.2f}" for f in (med, p90))],
+                 [f"consistency term, one compiled pass + closed-form gradient; {on}", *(f"{1000.0 * f(cs['compiled']):.2f}" for f in (med, p90))],
+                 [f"consistency term, torch form (samples, lookup, means; autograd); {on}", *(f"{1000.0 * f(cs['torch']):.2f}" for f in (med, p90))]]
+        same = all(torch.equal(a, b) for a, b in zip(lk_out["compiled"], lk_out["torch"]))
+        rel = max(((a - b).abs().max() / b.abs().max()).item() for a, b in zip(cs_out["compiled"], cs_out["torch"]))
+        notes.append(f"{on}: lookup values and gradients {'bit-identical' if same else 'DIFFERENT'}; consistency values and "
+                     f"gradients within {rel:.1e} relative")
     table(
-        f"2b. distance-field lookup with its gradient, {BATCH} shapes x {PARTS * SAMPLES_PER_CUBOID} cuboid surface samples on {device} (ms)",
+        f"2b. the consistency term with its gradient, {BATCH} shapes x {PARTS} parts x {SAMPLES_PER_CUBOID} samples on {device} (ms)",
         ["way", "median", "p90"],
         rows,
-        f"values {'bit-identical' if torch.equal(a, b) else 'DIFFERENT'}, gradients {'bit-identical' if torch.equal(ga, gb) else 'DIFFERENT'}; "
-        f"{iterations} timed calls a way a round, three rounds alternating. The compiled search runs on the calling\n"
-        "thread alone: split over two Python threads beside torch's OpenMP pool (whose threads spin after each parallel\n"
-        "region) it took 1 ms off a training step's loss phase on 2 cores, against 3-5 ms alone.",
+        "; ".join(notes) + f". {iterations} timed calls a way a round, three rounds alternating. The compiled kernels run on\n"
+        "the calling thread alone: split over two Python threads beside torch's OpenMP pool (whose threads spin after each\n"
+        "parallel region) the lookup took 1 ms off a training step's loss phase on 2 cores, against 3-5 ms alone.",
     )
 
 
@@ -769,7 +796,7 @@ def main(argv=None) -> int:
     for device in devices:
         if args.only in (None, "training"):
             bench_training(shapes, device, iterations, warmup)
-            bench_lookup(shapes, device, iterations, warmup)
+            bench_consistency(shapes, device, iterations, warmup)
             bench_training_memory(shapes, device, max(4, iterations // 3))
         if device == "cpu" and args.only in (None, "train"):
             rounds = args.rounds or (1 if quick else 3)

@@ -65,14 +65,14 @@ def lookup_distance_sq(closest: torch.Tensor, points: torch.Tensor) -> torch.Ten
 
 def _winners_compiled(planar, points, res):
     """(B, 3, n) closest point of each point's winning cell by the compiled search
-    (:mod:`primkit.model._field_kernel`: the same cells as :func:`_winners`), None where Numba is
+    (:mod:`primkit.model._field_kernels`: the same cells as :func:`_winners`), None where Numba is
     missing. On the training batch the lookup with its gradient took 7.9 ms against 13.5 with
     torch on 2 threads, 9.3 against 21.3 on one (``benchmarks/bench_abstractor.py``, section 2b).
     It runs on this thread alone: split over Python threads beside torch's OpenMP pool, whose
     threads spin for a while after each parallel region, it took 1 ms off a training step on 2
     cores instead of 3-5."""
     try:
-        from ._field_kernel import nearest_cells
+        from ._field_kernels import nearest_cells
     except ImportError:  # pragma: no cover - Numba is a dependency; the torch search is the fallback
         return None
     with torch.no_grad():

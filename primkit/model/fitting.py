@@ -21,8 +21,7 @@ from dataclasses import replace
 import numpy as np
 import torch
 
-from .losses import consistency_loss, coverage_loss
-from ..primitives import sample_surface_torch
+from .losses import coverage_loss, surface_consistency
 
 __all__ = ["fit_losses", "refine"]
 
@@ -48,8 +47,7 @@ def _stack(cuboids, shapes, points: int, generator: torch.Generator):
 
 def _losses(z, q, t, present, closest, pts, samples_per_cuboid, generator):
     cov = coverage_loss(pts, z, q, t, present)
-    samples, w = sample_surface_torch(z, q, t, samples_per_cuboid, generator=generator)
-    cons = consistency_loss(closest, samples, w, present)
+    cons = (surface_consistency(closest, z, q, t, samples_per_cuboid, generator) * present).sum(dim=1)
     return cov, cons
 
 

@@ -11,7 +11,8 @@ from .sampling import face_area_pairs, surface_layout
 if TYPE_CHECKING:  # pragma: no cover
     import torch
 
-__all__ = ["quaternion_to_matrix_torch", "world_to_local_torch", "cuboid_distance_sq_torch", "sample_surface_torch"]
+__all__ = ["quaternion_to_matrix_torch", "world_to_local_torch", "cuboid_distance_sq_torch", "sample_surface_torch",
+           "surface_coefficients_torch"]
 
 
 def quaternion_to_matrix_torch(q: torch.Tensor) -> torch.Tensor:
@@ -156,6 +157,20 @@ def sample_surface_torch(
     weights : (B, m, k)
         ``area(face) / (k / 6)``, differentiable in ``z``; they sum to each surface area.
     """
+    uv = surface_coefficients_torch(half_extents, quaternions, translations, samples_per_cuboid, generator)
+    return _sample_surface_from_uv_torch(half_extents, quaternions, translations, uv)
+
+
+def surface_coefficients_torch(
+    half_extents: torch.Tensor,
+    quaternions: torch.Tensor,
+    translations: torch.Tensor,
+    samples_per_cuboid: int = 150,
+    generator: torch.Generator | None = None,
+) -> torch.Tensor:
+    """The random face coefficients :func:`sample_surface_torch` places its samples by: (B, m, k, 2)
+    uniform in [-1, 1], drawn on the generator's device (from the same stream, so that a caller
+    forming the samples its own way gets the same points), on ``half_extents``' device and dtype."""
     import torch
 
     k = int(samples_per_cuboid)
@@ -169,5 +184,4 @@ def sample_surface_torch(
     B, m = half_extents.shape[:2]
     device = half_extents.device if generator is None else generator.device
     uv = torch.rand((B, m, k, 2), generator=generator, device=device, dtype=half_extents.dtype)
-    uv = (2.0 * uv - 1.0).to(half_extents.device)
-    return _sample_surface_from_uv_torch(half_extents, quaternions, translations, uv)
+    return (2.0 * uv - 1.0).to(half_extents.device)

@@ -7,7 +7,7 @@ import torch
 from primkit import geometry, synthetic
 from primkit.model import distance_field
 
-kernel = pytest.importorskip("primkit.model._field_kernel", reason="Numba is not installed")
+kernel = pytest.importorskip("primkit.model._field_kernels", reason="Numba is not installed")
 
 
 @pytest.fixture(scope="module")
@@ -77,3 +77,54 @@ def test_lookup_values_and_gradients_equal_the_torch_search(grids, monkeypatch):
     monkeypatch.setattr(distance_field, "_winners_compiled", lambda *a: None)
     d2, g2 = run()
     assert torch.equal(d1, d2) and torch.equal(g1, g2)
+
+
+def _cuboids(dtype, seed=3):
+    """20 random cuboids for each of 3 shapes, some of them degenerate (a zero extent: no area on
+    two faces; all zero: no area at all, the mean's denominator clamped)."""
+    g = torch.Generator().manual_seed(seed)
+    z = (0.02 + 0.2 * torch.rand(3, 20, 3, generator=g)).to(dtype)
+    z[0, 3, 1] = 0.0
+    z[1, 4] = 0.0
+    q = torch.randn(3, 20, 4, generator=g).to(dtype)
+    t = (0.6 * torch.rand(3, 20, 3, generator=g) - 0.3).to(dtype)
+    return z, q, t
+
+
+@pytest.mark.parametrize("dtype, tol", [(torch.float64, 1e-12), (torch.float32, 2e-5)])
+def test_compiled_consistency_equals_the_torch_form_and_its_gradient(grids, dtype, tol):
+    """surface_consistency (compiled on the CPU) against the torch form, sample_surface_torch +
+    consistency_per_part under autograd, from the same random coefficients: values and gradients
+    with respect to extents, quaternions and translations, under an uneven weighting of the parts."""
+    from primkit.model import losses
+
+    closest = torch.as_tensor(grids, dtype=dtype)
+    scale = torch.linspace(0.5, 1.5, 20, dtype=dtype)
+
+    def run(compiled: bool):
+        leaves = [x.clone().requires_grad_(True) for x in _cuboids(dtype)]
+        generator = torch.Generator().manual_seed(9)
+        if compiled:
+            out = losses.surface_consistency(closest, *leaves, 150, generator)
+            assert type(out.grad_fn).__name__ == "_SurfaceConsistencyBackward"  # the compiled path was taken
+        else:
+            out = losses.consistency_per_part(closest, *losses.sample_surface_torch(*leaves, 150, generator=generator))
+        (out * scale).sum().backward()
+        return [out.detach()] + [x.grad for x in leaves]
+
+    for name, a, b in zip(("values", "extents", "quaternions", "translations"), run(True), run(False)):
+        assert torch.isfinite(a).all(), name
+        err = ((a - b).abs().max() / b.abs().max()).item()
+        assert err < tol, f"{name}: {err:.1e}"
+
+
+def test_the_compiled_path_draws_the_same_random_stream(grids):
+    """surface_consistency draws its coefficients as sample_surface_torch does: the generator ends
+    in the same state either way."""
+    from primkit.model import losses
+
+    z, q, t = _cuboids(torch.float32)
+    g1, g2 = torch.Generator().manual_seed(4), torch.Generator().manual_seed(4)
+    losses.surface_consistency(torch.as_tensor(grids), z, q, t, 150, g1)
+    losses.sample_surface_torch(z, q, t, 150, generator=g2)
+    assert torch.equal(torch.rand(4, generator=g1), torch.rand(4, generator=g2))
