@@ -15,7 +15,8 @@ What it measures, all in one run:
 2. The straightforward alternative, in the same run and on the same batches: the same losses
    computed one cuboid at a time in a Python loop (running minimum for coverage, one consistency
    term per cuboid); checked to give the same values, then timed alone and inside a whole step.
-2b. The consistency term: its distance-field lookup and the whole term, compiled against torch.
+2b. The loss terms compiled on the CPU (the consistency term's lookup, the consistency term, the coverage
+    term) against their torch forms.
 3. Peak memory of training (a fresh spawned process per variant; RSS, and CUDA allocations).
 4. Inference with :class:`primkit.model.abstractor.Abstractor` around a randomly initialised network:
    shapes per second from prepared grids (batched, with and without pruning, against one shape at
@@ -354,12 +355,13 @@ def _alternate(ways: dict, fn, iterations: int, warmup: int, rounds: int = 3) ->
     return times, results
 
 
-def bench_consistency(shapes, device: str, iterations: int, warmup: int) -> None:
-    """2b. The consistency loss on the training batch (32 shapes x 20 parts x 150 surface samples),
-    with its gradient: the distance-field lookup alone (compiled winner search against torch's),
-    and the whole term (``losses.surface_consistency``: samples, lookup and weighted means in one
-    compiled pass with a closed-form gradient, against the torch form under autograd), in the same
-    process, alternating, at torch's thread count and on one thread."""
+def bench_loss_terms(shapes, device: str, iterations: int, warmup: int) -> None:
+    """2b. The loss terms on the training batch (32 shapes x 20 parts, 150 samples a part, 1,000
+    surface points a shape), each with its gradient, compiled on the CPU against the torch form,
+    in the same process, alternating, at torch's thread count and on one thread: the consistency
+    term's distance-field lookup alone (the winner search), the whole consistency term
+    (``losses.surface_consistency``: samples, lookup and weighted means in one pass, gradient in
+    closed form) and the coverage term with the presence effects (``losses._union_distance_sq``)."""
     import torch
 
     from primkit.model import distance_field, losses
@@ -397,6 +399,15 @@ def bench_consistency(shapes, device: str, iterations: int, warmup: int) -> None
         out.sum().backward()
         return out.detach(), z.grad, q.grad, t.grad
 
+    present = (torch.rand(BATCH, PARTS, generator=tr.generator) < 0.7).to(torch.float32)
+
+    def coverage(way):
+        z, q, t = (x.clone().requires_grad_(True) for x in leaves)
+        union, effect = way(points_batch, z, q, t, present, toggles=True)
+        union.mean(1).sum().backward()
+        return union.detach(), effect, z.grad, q.grad, t.grad
+
+    _, _, points_batch = tr.tensors.batch(index, POINTS, tr.generator, device)
     threads = torch.get_num_threads()
     rows, notes = [], []
     for n_threads in [threads] + ([1] if threads > 1 else []):
@@ -404,19 +415,24 @@ def bench_consistency(shapes, device: str, iterations: int, warmup: int) -> None
         try:
             lk, lk_out = _alternate({"compiled": compiled_lookup, "torch": lambda *a: None}, lookup, iterations, warmup)
             cs, cs_out = _alternate({"compiled": "compiled", "torch": "torch"}, consistency, iterations, warmup)
+            cv, cv_out = _alternate({"compiled": losses._union_distance_sq, "torch": losses._union_distance_sq_torch},
+                                    coverage, iterations, warmup)
         finally:
             torch.set_num_threads(threads)
         on = f"torch on {n_threads} thread{'s' if n_threads > 1 else ''}"
         rows += [[f"lookup, compiled winner search (model._field_kernels); {on}", *(f"{1000.0 * f(lk['compiled']):.2f}" for f in (med, p90))],
                  [f"lookup, torch winner search (8 gathers of (B, 3, n) rows); {on}", *(f"{1000.0 * f(lk['torch']):.2f}" for f in (med, p90))],
                  [f"consistency term, one compiled pass + closed-form gradient; {on}", *(f"{1000.0 * f(cs['compiled']):.2f}" for f in (med, p90))],
-                 [f"consistency term, torch form (samples, lookup, means; autograd); {on}", *(f"{1000.0 * f(cs['torch']):.2f}" for f in (med, p90))]]
+                 [f"consistency term, torch form (samples, lookup, means; autograd); {on}", *(f"{1000.0 * f(cs['torch']):.2f}" for f in (med, p90))],
+                 [f"coverage term + presence effects, compiled (model._union_kernels); {on}", *(f"{1000.0 * f(cv['compiled']):.2f}" for f in (med, p90))],
+                 [f"coverage term + presence effects, torch form (batched product; autograd); {on}", *(f"{1000.0 * f(cv['torch']):.2f}" for f in (med, p90))]]
         same = all(torch.equal(a, b) for a, b in zip(lk_out["compiled"], lk_out["torch"]))
         rel = max(((a - b).abs().max() / b.abs().max()).item() for a, b in zip(cs_out["compiled"], cs_out["torch"]))
+        rel_cv = max(((a - b).abs().max() / b.abs().max()).item() for a, b in zip(cv_out["compiled"], cv_out["torch"]))
         notes.append(f"{on}: lookup values and gradients {'bit-identical' if same else 'DIFFERENT'}; consistency values and "
-                     f"gradients within {rel:.1e} relative")
+                     f"gradients within {rel:.1e} relative, coverage within {rel_cv:.1e}")
     table(
-        f"2b. the consistency term with its gradient, {BATCH} shapes x {PARTS} parts x {SAMPLES_PER_CUBOID} samples on {device} (ms)",
+        f"2b. loss terms with their gradients, {BATCH} shapes x {PARTS} parts ({SAMPLES_PER_CUBOID} samples each), {POINTS} points a shape, on {device} (ms)",
         ["way", "median", "p90"],
         rows,
         "; ".join(notes) + f". {iterations} timed calls a way a round, three rounds alternating. The compiled kernels run on\n"
@@ -796,7 +812,7 @@ def main(argv=None) -> int:
     for device in devices:
         if args.only in (None, "training"):
             bench_training(shapes, device, iterations, warmup)
-            bench_consistency(shapes, device, iterations, warmup)
+            bench_loss_terms(shapes, device, iterations, warmup)
             bench_training_memory(shapes, device, max(4, iterations // 3))
         if device == "cpu" and args.only in (None, "train"):
             rounds = args.rounds or (1 if quick else 3)

@@ -23,6 +23,7 @@ per cuboid. ``present`` is the sampled existence ``z_e`` of each part, a ``(B, m
 
 from __future__ import annotations
 
+import importlib
 from dataclasses import dataclass
 
 import torch
@@ -63,7 +64,22 @@ def _union_distance_sq(points, half_extents, quaternions, translations, present,
 
     With ``toggles`` also returns ``(B, m)``: the mean over the points with part ``j`` present minus
     the same with part ``j`` absent, every other part's choice held (:func:`_toggle_deltas`).
+
+    On the CPU, for points that are data (no gradient), the same in one compiled pass per point
+    with the winner's gradient in closed form (:mod:`primkit.model._union_kernels`; values to float
+    rounding of this form's, which finds the distances with one batched matrix product).
     """
+    if _compiled_union_applies(points, half_extents, quaternions, translations, present):
+        rot = quaternion_to_matrix_torch(quaternions)
+        offset = (rot.transpose(-1, -2) @ translations[..., None])[..., 0]  # R^T t, as _nearest_distance_sq
+        absent = ((1.0 - present) * _ABSENT).detach()
+        union, deltas = _UnionDistance.apply(rot, offset, half_extents, absent, present.detach(), points, toggles)
+        return (union, deltas) if toggles else union
+    return _union_distance_sq_torch(points, half_extents, quaternions, translations, present, toggles=toggles)
+
+
+def _union_distance_sq_torch(points, half_extents, quaternions, translations, present, *, toggles: bool = False):
+    """:func:`_union_distance_sq` in torch (any device; the reference of the compiled form)."""
     with torch.no_grad():
         d2 = cuboid_distance_sq_torch(points.detach(), half_extents.detach(), quaternions.detach(),
                                       translations.detach(), parts_first=True)  # (B, m, n)
@@ -72,6 +88,48 @@ def _union_distance_sq(points, half_extents, quaternions, translations, present,
         deltas = _toggle_deltas(d2, masked, present, first, nearest) if toggles else None
     union = _nearest_distance_sq(points, half_extents, quaternions, translations, present, nearest)
     return (union, deltas) if toggles else union
+
+
+def _compiled_union_applies(points, half_extents, quaternions, translations, present) -> bool:
+    """Whether :func:`_union_distance_sq` runs compiled: CPU tensors of one float dtype, points
+    that need no gradient, and Numba."""
+    tensors = (points, half_extents, quaternions, translations, present)
+    if points.requires_grad or any(x.device.type != "cpu" or x.dtype != half_extents.dtype for x in tensors):
+        return False
+    return half_extents.dtype in (torch.float32, torch.float64) and _compiled("_union_kernels")
+
+
+def _compiled(name: str) -> bool:
+    """Whether this package's compiled kernels ``name`` import (Numba is a dependency; without it,
+    or on a machine where it fails to load, the torch forms serve)."""
+    try:
+        importlib.import_module(f"{__package__}.{name}")
+    except ImportError:  # pragma: no cover
+        return False
+    return True
+
+
+class _UnionDistance(torch.autograd.Function):
+    """:func:`_union_distance_sq` on the CPU: forward and backward by the compiled kernels."""
+
+    @staticmethod
+    def forward(ctx, rot, offset, half_extents, absent, present, points, toggles):
+        from ._union_kernels import union_forward
+
+        arrays = [x.detach().contiguous().numpy() for x in (rot, offset, half_extents, absent, present, points)]
+        union, nearest, deltas = union_forward(*arrays, toggles, _ABSENT)
+        ctx.arrays, ctx.nearest = (arrays[0], arrays[1], arrays[2], arrays[5]), nearest
+        deltas = torch.from_numpy(deltas)
+        ctx.mark_non_differentiable(deltas)
+        return torch.from_numpy(union), deltas
+
+    @staticmethod
+    @torch.autograd.function.once_differentiable
+    def backward(ctx, grad_union, grad_deltas):
+        from ._union_kernels import union_backward
+
+        grads = union_backward(*ctx.arrays, ctx.nearest, grad_union.contiguous().numpy())
+        return (*(torch.from_numpy(g) for g in grads), None, None, None, None)
 
 
 def _toggle_deltas(d2, masked, present, d1, k1):
@@ -191,12 +249,7 @@ def surface_consistency(closest, half_extents, quaternions, translations, sample
     uv = surface_coefficients_torch(half_extents, quaternions, translations, samples_per_cuboid, generator)
     compiled = closest.device.type == "cpu" and not closest.requires_grad and half_extents.dtype in (
         torch.float32, torch.float64) and all(x.dtype == half_extents.dtype for x in (closest, quaternions, translations))
-    if compiled:
-        try:
-            from . import _field_kernels  # noqa: F401
-        except ImportError:  # pragma: no cover - Numba is a dependency; the torch form is the fallback
-            compiled = False
-    if not compiled:
+    if not (compiled and _compiled("_field_kernels")):
         samples, weights = _sample_surface_from_uv_torch(half_extents, quaternions, translations, uv)
         return consistency_per_part(closest, samples, weights)
     b, res = closest.shape[0], closest.shape[1]
