@@ -102,7 +102,7 @@ def loop_losses(prediction, present, points, closest, samples_per_cuboid: int = 
 
     from primkit.model.distance_field import lookup_distance_sq
     from primkit.model.losses import _ABSENT, ShapeLosses
-    from primkit.primitives.differentiable import _sample_surface_from_uv_torch, cuboid_distance_sq_torch
+    from primkit.primitives.differentiable import surface_samples_from_coefficients_torch, cuboid_distance_sq_torch
 
     z, q, t = prediction.half_extents, prediction.quaternions, prediction.translations
     batch, m = present.shape
@@ -115,7 +115,7 @@ def loop_losses(prediction, present, points, closest, samples_per_cuboid: int = 
         zj, qj, tj = z[:, j : j + 1], q[:, j : j + 1], t[:, j : j + 1]
         d2 = cuboid_distance_sq_torch(points, zj, qj, tj)[..., 0] + (1.0 - present[:, j, None]) * _ABSENT  # (B, n)
         best = d2 if best is None else torch.minimum(best, d2)
-        samples, w = _sample_surface_from_uv_torch(zj, qj, tj, uv[:, j : j + 1])  # (B, 1, k, 3), (B, 1, k)
+        samples, w = surface_samples_from_coefficients_torch(zj, qj, tj, uv[:, j : j + 1])  # (B, 1, k, 3), (B, 1, k)
         ds = lookup_distance_sq(closest, samples[:, 0])  # (B, k)
         part = (ds * w[:, 0]).sum(-1) / w[:, 0].sum(-1).clamp_min(1e-12)
         consistency = consistency + part * present[:, j]

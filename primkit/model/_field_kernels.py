@@ -101,7 +101,7 @@ def nearest_cells(planar: np.ndarray, points: np.ndarray, resolution: int, threa
 def _surface_point(R, z0, z1, z2, t0, t1, t2, axis, sign, u, v):
     """The face point of coefficients (u, v) on the face of ``axis`` and ``sign``: its unit-cube
     coordinates, then ``R (unit * z) + t`` in the order of
-    :func:`primkit.primitives.differentiable._sample_surface_from_uv_torch`."""
+    :func:`primkit.primitives.differentiable.surface_samples_from_coefficients_torch`."""
     if axis == 0:
         u0, u1, u2 = sign, u, v
     elif axis == 1:

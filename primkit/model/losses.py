@@ -31,8 +31,7 @@ import torch.nn.functional as F
 
 from .distance_field import lookup_distance_sq
 from ..primitives import (cuboid_distance_sq_torch, quaternion_to_matrix_torch, sample_surface_torch,
-                          surface_coefficients_torch)
-from ..primitives.differentiable import _sample_surface_from_uv_torch
+                          surface_coefficients_torch, surface_samples_from_coefficients_torch)
 
 __all__ = [
     "coverage_loss",
@@ -250,7 +249,7 @@ def surface_consistency(closest, half_extents, quaternions, translations, sample
     compiled = closest.device.type == "cpu" and not closest.requires_grad and half_extents.dtype in (
         torch.float32, torch.float64) and all(x.dtype == half_extents.dtype for x in (closest, quaternions, translations))
     if not (compiled and _compiled("_field_kernels")):
-        samples, weights = _sample_surface_from_uv_torch(half_extents, quaternions, translations, uv)
+        samples, weights = surface_samples_from_coefficients_torch(half_extents, quaternions, translations, uv)
         return consistency_per_part(closest, samples, weights)
     b, res = closest.shape[0], closest.shape[1]
     planar = closest.reshape(b, res ** 3, 3).transpose(1, 2).contiguous()

@@ -53,7 +53,7 @@ Modules: :mod:`~primkit.primitives.cuboids` (the value type), :mod:`~primkit.pri
 
 from .cuboids import CORNER_SIGNS, SCHEMA_VERSION, Cuboids
 from .differentiable import (cuboid_distance_sq_torch, quaternion_to_matrix_torch, sample_surface_torch,
-                             surface_coefficients_torch, world_to_local_torch)
+                             surface_coefficients_torch, surface_samples_from_coefficients_torch, world_to_local_torch)
 from .distances import assign_points, contains, local_to_world, point_cuboid_distance, union_distance, world_to_local
 from .rotations import matrix_to_quaternion, quaternion_to_matrix
 from .sampling import SurfaceSamples, fraction_inside_others, prune_covered, prune_covered_many, sample_surface, sample_volume, union_surface_samples
@@ -82,4 +82,5 @@ __all__ = [
     "cuboid_distance_sq_torch",
     "sample_surface_torch",
     "surface_coefficients_torch",
+    "surface_samples_from_coefficients_torch",
 ]

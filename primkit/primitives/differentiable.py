@@ -12,7 +12,7 @@ if TYPE_CHECKING:  # pragma: no cover
     import torch
 
 __all__ = ["quaternion_to_matrix_torch", "world_to_local_torch", "cuboid_distance_sq_torch", "sample_surface_torch",
-           "surface_coefficients_torch"]
+           "surface_coefficients_torch", "surface_samples_from_coefficients_torch"]
 
 
 def quaternion_to_matrix_torch(q: torch.Tensor) -> torch.Tensor:
@@ -100,10 +100,11 @@ def cuboid_distance_sq_torch(
     return d2 if parts_first else d2.transpose(1, 2)
 
 
-def _sample_surface_from_uv_torch(
+def surface_samples_from_coefficients_torch(
     half_extents: torch.Tensor, quaternions: torch.Tensor, translations: torch.Tensor, uv: torch.Tensor
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Surface points and weights from coefficients ``uv`` (B, m, k, 2) in [-1, 1]."""
+    """Surface points (B, m, k, 3) and weights (B, m, k) of :func:`sample_surface_torch` from given
+    face coefficients ``uv`` (B, m, k, 2) in [-1, 1] (:func:`surface_coefficients_torch`)."""
     import torch
 
     k = uv.shape[2]
@@ -158,7 +159,7 @@ def sample_surface_torch(
         ``area(face) / (k / 6)``, differentiable in ``z``; they sum to each surface area.
     """
     uv = surface_coefficients_torch(half_extents, quaternions, translations, samples_per_cuboid, generator)
-    return _sample_surface_from_uv_torch(half_extents, quaternions, translations, uv)
+    return surface_samples_from_coefficients_torch(half_extents, quaternions, translations, uv)
 
 
 def surface_coefficients_torch(

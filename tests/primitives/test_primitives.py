@@ -10,7 +10,7 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from primkit import primitives as P
-from primkit.primitives.differentiable import _sample_surface_from_uv_torch
+from primkit.primitives.differentiable import surface_samples_from_coefficients_torch
 from primkit.primitives.sampling import _surface_from_uv
 from primkit.primitives import Cuboids
 
@@ -320,7 +320,7 @@ def test_torch_surface_sampling_matches_numpy():
     B, m, k = 2, 3, 24
     cs, z, q, t = batch_of_cuboids(rng, B, m)
     uv = rng.uniform(-1, 1, size=(B, m, k, 2))
-    pts, w = _sample_surface_from_uv_torch(z, q, t, torch.tensor(uv))
+    pts, w = surface_samples_from_coefficients_torch(z, q, t, torch.tensor(uv))
     for b in range(B):
         ref = _surface_from_uv(cs[b], uv[b])
         np.testing.assert_allclose(pts[b].numpy(), ref.points, atol=1e-12)
