@@ -39,32 +39,39 @@ def _cells(p, zero, one, half, res, top):
     return int(min(max(base, zero), top)), int(min(max(base + one, zero), top))
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _winner(gx, gy, gz, px, py, pz, resolution, zero, one, half, res, top):
+    """(squared distance, flat cell) of the point's winning cell among the 8 around it: corners in
+    (x, y, z) order with z fastest, a tie keeps the first, a NaN distance poisons the minimum."""
+    x0, x1 = _cells(px, zero, one, half, res, top)
+    y0, y1 = _cells(py, zero, one, half, res, top)
+    z0, z1 = _cells(pz, zero, one, half, res, top)
+    plane = resolution * resolution
+    best = zero
+    best_cell = 0
+    for corner in range(8):
+        cell = (x1 if corner & 4 else x0) * plane + (y1 if corner & 2 else y0) * resolution + (z1 if corner & 1 else z0)
+        dx = gx[cell] - px
+        dy = gy[cell] - py
+        dz = gz[cell] - pz
+        d2 = dx * dx + dy * dy + dz * dz
+        if corner == 0 or d2 < best:
+            best, best_cell = d2, cell
+        elif d2 != d2:
+            best = d2
+    return best, best_cell
+
+
 @numba.njit(cache=True, nogil=True)
 def _nearest_cells(planar, points, resolution, zero, one, half, res, top, out_cell, out_point):
     """``planar`` (B, 3, R^3) closest points, ``points`` (B, 3, n) -> ``out_cell`` (B, n): the flat
     index of each point's winning cell, ``out_point`` (B, 3, n): its closest point. The scalars
     0, 1, 0.5, R and R - 1 come in the arrays' precision, so that the arithmetic stays in it."""
-    plane = resolution * resolution
     for b in range(points.shape[0]):
         gx, gy, gz = planar[b, 0], planar[b, 1], planar[b, 2]
         for i in range(points.shape[2]):
-            px, py, pz = points[b, 0, i], points[b, 1, i], points[b, 2, i]
-            x0, x1 = _cells(px, zero, one, half, res, top)
-            y0, y1 = _cells(py, zero, one, half, res, top)
-            z0, z1 = _cells(pz, zero, one, half, res, top)
-            best = zero
-            best_cell = 0
-            for corner in range(8):
-                cell = (x1 if corner & 4 else x0) * plane + (y1 if corner & 2 else y0) * resolution \
-                    + (z1 if corner & 1 else z0)
-                dx = gx[cell] - px
-                dy = gy[cell] - py
-                dz = gz[cell] - pz
-                d2 = dx * dx + dy * dy + dz * dz
-                if corner == 0 or d2 < best:
-                    best, best_cell = d2, cell
-                elif d2 != d2:
-                    best = d2
+            _, best_cell = _winner(gx, gy, gz, points[b, 0, i], points[b, 1, i], points[b, 2, i], resolution, zero, one,
+                                   half, res, top)
             out_cell[b, i] = best_cell
             out_point[b, 0, i] = gx[best_cell]
             out_point[b, 1, i] = gy[best_cell]
@@ -134,7 +141,6 @@ def _consistency_forward(rot, z, t, uv, planar, resolution, zero, one, half, res
     out (B, m): each part's area-weighted mean squared distance; winners (B, m, k, 3): the closest
     point each sample's distance was measured to."""
     share = uv.shape[2] // 6
-    plane = resolution * resolution
     for b in range(uv.shape[0]):
         gx, gy, gz = planar[b, 0], planar[b, 1], planar[b, 2]
         for j in range(uv.shape[1]):
@@ -150,22 +156,7 @@ def _consistency_forward(rot, z, t, uv, planar, resolution, zero, one, half, res
                 for i in range(face * share, (face + 1) * share):
                     _, _, _, sx, sy, sz = _surface_point(R, z0, z1, z2, t0, t1, t2, axis, sign, uv[b, j, i, 0],
                                                          uv[b, j, i, 1])
-                    x0, x1 = _cells(sx, zero, one, half, res, top)
-                    y0, y1 = _cells(sy, zero, one, half, res, top)
-                    c0, c1 = _cells(sz, zero, one, half, res, top)
-                    best = zero
-                    best_cell = 0
-                    for corner in range(8):
-                        cell = (x1 if corner & 4 else x0) * plane + (y1 if corner & 2 else y0) * resolution \
-                            + (c1 if corner & 1 else c0)
-                        dx = gx[cell] - sx
-                        dy = gy[cell] - sy
-                        dz = gz[cell] - sz
-                        d2 = dx * dx + dy * dy + dz * dz
-                        if corner == 0 or d2 < best:
-                            best, best_cell = d2, cell
-                        elif d2 != d2:
-                            best = d2
+                    best, best_cell = _winner(gx, gy, gz, sx, sy, sz, resolution, zero, one, half, res, top)
                     winners[b, j, i, 0] = gx[best_cell]
                     winners[b, j, i, 1] = gy[best_cell]
                     winners[b, j, i, 2] = gz[best_cell]
