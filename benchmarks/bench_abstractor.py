@@ -420,17 +420,17 @@ def bench_loss_terms(shapes, device: str, iterations: int, warmup: int) -> None:
         finally:
             torch.set_num_threads(threads)
         on = f"torch on {n_threads} thread{'s' if n_threads > 1 else ''}"
-        rows += [[f"lookup, compiled winner search (model._field_kernels); {on}", *(f"{1000.0 * f(lk['compiled']):.2f}" for f in (med, p90))],
-                 [f"lookup, torch winner search (8 gathers of (B, 3, n) rows); {on}", *(f"{1000.0 * f(lk['torch']):.2f}" for f in (med, p90))],
-                 [f"consistency term, one compiled pass + closed-form gradient; {on}", *(f"{1000.0 * f(cs['compiled']):.2f}" for f in (med, p90))],
-                 [f"consistency term, torch form (samples, lookup, means; autograd); {on}", *(f"{1000.0 * f(cs['torch']):.2f}" for f in (med, p90))],
-                 [f"coverage term + presence effects, compiled (model._union_kernels); {on}", *(f"{1000.0 * f(cv['compiled']):.2f}" for f in (med, p90))],
-                 [f"coverage term + presence effects, torch form (batched product; autograd); {on}", *(f"{1000.0 * f(cv['torch']):.2f}" for f in (med, p90))]]
+        pieces = [(lk, "lookup, compiled winner search (model._field_kernels)", "lookup, torch winner search (8 gathers of (B, 3, n) rows)"),
+                  (cs, "consistency term, one compiled pass + closed-form gradient", "consistency term, torch form (samples, lookup, means; autograd)"),
+                  (cv, "coverage term + presence effects, compiled (model._union_kernels)", "coverage term + presence effects, torch form (batched product; autograd)")]
+        for times, *labels in pieces:
+            for way, label in zip(("compiled", "torch"), labels):
+                rows.append([f"{label}; {on}", *(f"{1000.0 * f(times[way]):.2f}" for f in (med, p90))])
         same = all(torch.equal(a, b) for a, b in zip(lk_out["compiled"], lk_out["torch"]))
-        rel = max(((a - b).abs().max() / b.abs().max()).item() for a, b in zip(cs_out["compiled"], cs_out["torch"]))
-        rel_cv = max(((a - b).abs().max() / b.abs().max()).item() for a, b in zip(cv_out["compiled"], cv_out["torch"]))
+        rel = [max(((a - b).abs().max() / b.abs().max()).item() for a, b in zip(out["compiled"], out["torch"]))
+               for out in (cs_out, cv_out)]
         notes.append(f"{on}: lookup values and gradients {'bit-identical' if same else 'DIFFERENT'}; consistency values and "
-                     f"gradients within {rel:.1e} relative, coverage within {rel_cv:.1e}")
+                     f"gradients within {rel[0]:.1e} relative, coverage within {rel[1]:.1e}")
     table(
         f"2b. loss terms with their gradients, {BATCH} shapes x {PARTS} parts ({SAMPLES_PER_CUBOID} samples each), {POINTS} points a shape, on {device} (ms)",
         ["way", "median", "p90"],

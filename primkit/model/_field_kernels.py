@@ -78,29 +78,14 @@ def _nearest_cells(planar, points, resolution, zero, one, half, res, top, out_ce
             out_point[b, 2, i] = gz[best_cell]
 
 
-def nearest_cells(planar: np.ndarray, points: np.ndarray, resolution: int, threads: int = 1):
+def nearest_cells(planar: np.ndarray, points: np.ndarray, resolution: int):
     """(cells (B, n) int64, their closest points (B, 3, n)) for ``planar`` (B, 3, R^3) and
-    ``points`` (B, 3, n), both C-contiguous of one float dtype. ``threads`` > 1 splits the shapes
-    among Python threads (the kernel releases the GIL; no thread pool of Numba's own, so that it
-    is safe in forked workers)."""
-    batch = points.shape[0]
-    out_cell = np.empty((batch, points.shape[2]), np.int64)
+    ``points`` (B, 3, n), both C-contiguous of one float dtype."""
+    out_cell = np.empty((points.shape[0], points.shape[2]), np.int64)
     out_point = np.empty(points.shape, planar.dtype)
     t = planar.dtype.type
-    scalars = (t(0.0), t(1.0), t(0.5), t(resolution), t(resolution - 1))
-
-    def run(lo, hi):
-        _nearest_cells(planar[lo:hi], points[lo:hi], resolution, *scalars, out_cell[lo:hi], out_point[lo:hi])
-
-    threads = max(1, min(int(threads), batch))
-    if threads == 1:
-        run(0, batch)
-    else:
-        from concurrent.futures import ThreadPoolExecutor
-
-        cuts = np.linspace(0, batch, threads + 1).astype(int)
-        with ThreadPoolExecutor(threads) as pool:
-            list(pool.map(run, cuts[:-1], cuts[1:]))
+    _nearest_cells(planar, points, resolution, t(0.0), t(1.0), t(0.5), t(resolution), t(resolution - 1), out_cell,
+                   out_point)
     return out_cell, out_point
 
 

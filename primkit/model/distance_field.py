@@ -22,6 +22,8 @@ from __future__ import annotations
 
 import torch
 
+from ._compiled import kernels
+
 __all__ = ["lookup_distance_sq", "lookup_distance"]
 
 
@@ -55,9 +57,7 @@ def lookup_distance_sq(closest: torch.Tensor, points: torch.Tensor) -> torch.Ten
     planar = closest.reshape(batch, res ** 3, 3).transpose(1, 2)  # (B, 3, R^3)
     if not planar.is_contiguous():
         planar = planar.contiguous()
-    cp = None
-    if planar.device.type == "cpu" and not planar.requires_grad and planar.dtype == points.dtype:
-        cp = _winners_compiled(planar, points, res)
+    cp = _winners_compiled(planar, points, res)
     if cp is None:
         cp = _winners(planar, points, res)
     return (points.transpose(1, 2) - cp).square().sum(1)
@@ -66,18 +66,17 @@ def lookup_distance_sq(closest: torch.Tensor, points: torch.Tensor) -> torch.Ten
 def _winners_compiled(planar, points, res):
     """(B, 3, n) closest point of each point's winning cell by the compiled search
     (:mod:`primkit.model._field_kernels`: the same cells as :func:`_winners`), None where Numba is
-    missing. On the training batch the lookup with its gradient took 7.9 ms against 13.5 with
+    missing or the tensors are not theirs (:func:`primkit.model._compiled.kernels`). On the training batch the lookup with its gradient took 7.9 ms against 13.5 with
     torch on 2 threads, 9.3 against 21.3 on one (``benchmarks/bench_abstractor.py``, section 2b).
     It runs on this thread alone: split over Python threads beside torch's OpenMP pool, whose
     threads spin for a while after each parallel region, it took 1 ms off a training step on 2
     cores instead of 3-5."""
-    try:
-        from ._field_kernels import nearest_cells
-    except ImportError:  # pragma: no cover - Numba is a dependency; the torch search is the fallback
+    compiled = kernels("_field_kernels", planar, points, data=(planar,))
+    if compiled is None:
         return None
     with torch.no_grad():
         pp = points.detach().transpose(1, 2).contiguous()  # (B, 3, n)
-        _, cp = nearest_cells(planar.numpy(), pp.numpy(), res)
+        _, cp = compiled.nearest_cells(planar.numpy(), pp.numpy(), res)
     return torch.from_numpy(cp)
 
 

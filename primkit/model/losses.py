@@ -23,12 +23,12 @@ per cuboid. ``present`` is the sampled existence ``z_e`` of each part, a ``(B, m
 
 from __future__ import annotations
 
-import importlib
 from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as F
 
+from ._compiled import kernels
 from .distance_field import lookup_distance_sq
 from ..primitives import (cuboid_distance_sq_torch, quaternion_to_matrix_torch, sample_surface_torch,
                           surface_coefficients_torch, surface_samples_from_coefficients_torch)
@@ -68,7 +68,7 @@ def _union_distance_sq(points, half_extents, quaternions, translations, present,
     with the winner's gradient in closed form (:mod:`primkit.model._union_kernels`; values to float
     rounding of this form's, which finds the distances with one batched matrix product).
     """
-    if _compiled_union_applies(points, half_extents, quaternions, translations, present):
+    if kernels("_union_kernels", points, half_extents, quaternions, translations, present, data=(points,)):
         rot = quaternion_to_matrix_torch(quaternions)
         offset = (rot.transpose(-1, -2) @ translations[..., None])[..., 0]  # R^T t, as _nearest_distance_sq
         absent = ((1.0 - present) * _ABSENT).detach()
@@ -87,25 +87,6 @@ def _union_distance_sq_torch(points, half_extents, quaternions, translations, pr
         deltas = _toggle_deltas(d2, masked, present, first, nearest) if toggles else None
     union = _nearest_distance_sq(points, half_extents, quaternions, translations, present, nearest)
     return (union, deltas) if toggles else union
-
-
-def _compiled_union_applies(points, half_extents, quaternions, translations, present) -> bool:
-    """Whether :func:`_union_distance_sq` runs compiled: CPU tensors of one float dtype, points
-    that need no gradient, and Numba."""
-    tensors = (points, half_extents, quaternions, translations, present)
-    if points.requires_grad or any(x.device.type != "cpu" or x.dtype != half_extents.dtype for x in tensors):
-        return False
-    return half_extents.dtype in (torch.float32, torch.float64) and _compiled("_union_kernels")
-
-
-def _compiled(name: str) -> bool:
-    """Whether this package's compiled kernels ``name`` import (Numba is a dependency; without it,
-    or on a machine where it fails to load, the torch forms serve)."""
-    try:
-        importlib.import_module(f"{__package__}.{name}")
-    except ImportError:  # pragma: no cover
-        return False
-    return True
 
 
 class _UnionDistance(torch.autograd.Function):
@@ -246,9 +227,7 @@ def surface_consistency(closest, half_extents, quaternions, translations, sample
     half_extents, quaternions, translations : (B, m, 3), (B, m, 4), (B, m, 3) tensors
     """
     uv = surface_coefficients_torch(half_extents, quaternions, translations, samples_per_cuboid, generator)
-    compiled = closest.device.type == "cpu" and not closest.requires_grad and half_extents.dtype in (
-        torch.float32, torch.float64) and all(x.dtype == half_extents.dtype for x in (closest, quaternions, translations))
-    if not (compiled and _compiled("_field_kernels")):
+    if not kernels("_field_kernels", closest, half_extents, quaternions, translations, data=(closest,)):
         samples, weights = surface_samples_from_coefficients_torch(half_extents, quaternions, translations, uv)
         return consistency_per_part(closest, samples, weights)
     b, res = closest.shape[0], closest.shape[1]

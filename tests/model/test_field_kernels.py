@@ -42,7 +42,7 @@ def test_the_same_cells_as_the_torch_search(grids, dtype):
     pts[1, 603, 2] = -float("inf")
     planar = _planar(closest)
     ref = distance_field._winners(planar, pts, 16)
-    cells, got = kernel.nearest_cells(planar.numpy(), pts.transpose(1, 2).contiguous().numpy(), 16, threads=2)
+    cells, got = kernel.nearest_cells(planar.numpy(), pts.transpose(1, 2).contiguous().numpy(), 16)
     np.testing.assert_array_equal(got, ref.numpy())  # NaN where NaN, every other value bit for bit
     # the cells hold the points returned, and ties went to the first corner (x, y, z lowest)
     flat = planar.numpy()
@@ -50,15 +50,6 @@ def test_the_same_cells_as_the_torch_search(grids, dtype):
     base = np.clip(np.floor((pts[2].numpy() + 0.5) * 16 - 0.5), 0, 15).astype(int)
     finite = np.isfinite(pts[2].numpy()).all(1)
     assert np.array_equal(cells[2][finite], (base[:, 0] * 256 + base[:, 1] * 16 + base[:, 2])[finite])
-
-
-def test_threads_do_not_change_the_cells(grids):
-    planar = _planar(torch.as_tensor(grids))
-    pts = torch.as_tensor(np.random.default_rng(1).uniform(-0.6, 0.6, (3, 3, 2000)), dtype=torch.float32)
-    one = kernel.nearest_cells(planar.numpy(), pts.numpy(), 16, threads=1)
-    for threads in (2, 3, 8):
-        many = kernel.nearest_cells(planar.numpy(), pts.numpy(), 16, threads=threads)
-        assert all(np.array_equal(a, b) for a, b in zip(one, many))
 
 
 def test_lookup_values_and_gradients_equal_the_torch_search(grids, monkeypatch):

@@ -5,6 +5,7 @@ import pytest
 import torch
 
 from primkit.model import losses
+from primkit.model._compiled import kernels
 
 pytest.importorskip("primkit.model._union_kernels", reason="Numba is not installed")
 
@@ -36,7 +37,7 @@ def test_compiled_union_equals_the_torch_form(dtype, tol, m):
     translations, under uneven weights of the points; a shape with no part present; one part."""
     points, z, q, t, present = _case(dtype, m)
     weights = torch.linspace(0.2, 2.0, points.shape[1], dtype=dtype)
-    assert losses._compiled_union_applies(points, z, q, t, present)
+    assert kernels("_union_kernels", points, z, q, t, present, data=(points,))  # the compiled path applies
     compiled = _run(losses._union_distance_sq, points, z, q, t, present, weights)
     reference = _run(losses._union_distance_sq_torch, points, z, q, t, present, weights)
     for name, a, b in zip(("distances", "effects", "extents", "quaternions", "translations"), compiled, reference):
@@ -47,7 +48,7 @@ def test_compiled_union_equals_the_torch_form(dtype, tol, m):
 def test_points_with_a_gradient_take_the_torch_form():
     """The symmetry term's mirrored samples carry a gradient: the torch form serves them."""
     points, z, q, t, present = _case(torch.float32)
-    assert not losses._compiled_union_applies(points.requires_grad_(True), z, q, t, present)
+    assert not kernels("_union_kernels", points.requires_grad_(True), z, q, t, present, data=(points,))
     union = losses._union_distance_sq(points, z, q, t, present)
     union.sum().backward()
     assert points.grad is not None and torch.isfinite(points.grad).all()
