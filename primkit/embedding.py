@@ -76,6 +76,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+# scikit-learn at the top, against the package's habit: the two estimators subclass its BaseEstimator
+# (this module is an application of scikit-learn's neighbours and t-SNE; ``import primkit`` does not load it)
+from sklearn.base import BaseEstimator, TransformerMixin
 
 from .model import parts as _parts
 from . import primitives
@@ -86,7 +89,10 @@ from .io import atomic_output
 __all__ = [
     "PROPERTIES",
     "DEFAULT_SCALES",
+    "CUBOID_COLUMNS",
+    "CuboidTable",
     "PartDescriptor",
+    "AbstractionTransformer",
     "Neighbors",
     "descriptor_distances",
     "nearest_neighbors",
@@ -114,22 +120,6 @@ _COMPONENTS = {
 }
 
 
-def _as_cuboids(shapes) -> list[primitives.Cuboids]:
-    """Cuboids of each shape: an AbstractionResult's canonical cuboids, or Cuboids as given."""
-    out = []
-    for s in shapes:
-        cub = getattr(s, "canonical", s)
-        if not isinstance(cub, primitives.Cuboids):
-            raise TypeError(f"expected Cuboids or AbstractionResult, got {type(s).__name__}")
-        out.append(cub)
-    if not out:
-        raise ValueError("no shapes given")
-    m = out[0].count
-    if any(c.count != m for c in out):
-        raise ValueError(f"all shapes must have the same number of part slots (one model); got {sorted({c.count for c in out})}")
-    return out
-
-
 def _parse_what(what) -> tuple[str, ...]:
     if isinstance(what, str):
         what = [w.strip() for w in what.split(",") if w.strip()]
@@ -149,8 +139,126 @@ def _chordal_mean(rotations: np.ndarray) -> np.ndarray:
     return u @ np.diag([1.0, 1.0, d]) @ vt
 
 
-class PartDescriptor:
-    """Per-part descriptors of abstracted shapes (scikit-learn style: ``fit`` then ``transform``).
+#: The columns of a cuboid table for each part slot, in order (slot-major: slot ``k`` holds columns
+#: ``11 k`` to ``11 k + 10``): half extents, the unit quaternion local-to-canonical (real part first),
+#: the centre, and presence (1.0 present, 0.0 absent; a table read back counts values >= 0.5 present).
+CUBOID_COLUMNS = ("size.x", "size.y", "size.z", "quaternion.w", "quaternion.x", "quaternion.y", "quaternion.z",
+                  "position.x", "position.y", "position.z", "present")
+_NCOL = len(CUBOID_COLUMNS)
+
+
+def _slot_labels(names) -> list[str]:
+    """One label per slot for column names: the part's name, with its index appended when several
+    slots share the name (the chair model's seven ``legs`` slots are ``legs3``, ``legs5``, ...)."""
+    names = [str(n) for n in names]
+    return [n if names.count(n) == 1 else f"{n}{k}" for k, n in enumerate(names)]
+
+
+def _is_shape_list(X) -> bool:
+    """True for a list of Cuboids / AbstractionResult / Abstraction (or an Abstractions), not a numeric table."""
+    if isinstance(X, (np.ndarray, CuboidTable)) or not hasattr(X, "__getitem__") or not len(X):
+        return False
+    first = X[0]
+    return isinstance(first, primitives.Cuboids) or isinstance(getattr(first, "canonical", None), primitives.Cuboids)
+
+
+def _as_cuboids(shapes) -> list[primitives.Cuboids]:
+    """Cuboids of each shape: an AbstractionResult's (or Abstraction's) canonical cuboids, or Cuboids as given."""
+    out = []
+    for s in shapes:
+        cub = getattr(s, "canonical", s)
+        if not isinstance(cub, primitives.Cuboids):
+            raise TypeError(f"expected Cuboids or AbstractionResult, got {type(s).__name__}")
+        out.append(cub)
+    if not out:
+        raise ValueError("no shapes given")
+    m = out[0].count
+    if any(c.count != m for c in out):
+        raise ValueError(f"all shapes must have the same number of part slots (one model); got {sorted({c.count for c in out})}")
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class CuboidTable:
+    """Cuboids of ``s`` shapes as one numeric table, with the part names they came with: what
+    :class:`AbstractionTransformer` returns, and what :class:`PartDescriptor` reads.
+
+    Attributes
+    ----------
+    values : (s, 11 m) float
+        One row per shape, :data:`CUBOID_COLUMNS` for each of the ``m`` part slots (slot-major),
+        in the canonical frame (upright, front +X, longest side 1). Absent slots keep the
+        network's values with ``present`` 0.
+    part_names : tuple of m str
+        The model's name of each slot (several slots may share one).
+    names : tuple of s str
+        The shapes' names.
+
+    ``np.asarray(table)`` is ``values``, so every scikit-learn estimator takes a table as it takes
+    an array; :class:`PartDescriptor` also reads ``part_names``, so ``parts="back"`` resolves in a
+    pipeline.
+    """
+
+    values: np.ndarray
+    part_names: tuple
+    names: tuple = ()
+
+    def __post_init__(self):
+        v = np.asarray(self.values, float)
+        if v.ndim != 2 or v.shape[1] != _NCOL * len(self.part_names):
+            raise ValueError(f"`values` must be (s, {_NCOL} m) float with m = {len(self.part_names)} part names, "
+                             f"got shape {v.shape}")
+        object.__setattr__(self, "values", v)
+        object.__setattr__(self, "part_names", tuple(str(n) for n in self.part_names))
+        object.__setattr__(self, "names", tuple(str(n) for n in self.names))
+
+    @classmethod
+    def from_cuboids(cls, shapes, part_names=None, names=None) -> "CuboidTable":
+        """The table of a list of :class:`primitives.Cuboids` (taken as canonical),
+        :class:`AbstractionResult` or :class:`~primkit.model.abstraction.Abstraction` (their
+        ``canonical`` cuboids), or an :class:`~primkit.model.abstraction.Abstractions` (whose
+        model gives the part names). ``part_names``: default the model's, else ``part0, ...``."""
+        cubs = _as_cuboids(shapes)
+        m = cubs[0].count
+        if part_names is None:
+            model = getattr(shapes, "model", None)
+            part_names = model.part_names if model is not None else _parts.default_names(m)
+        if names is None:
+            names = [getattr(s, "name", f"shape{i}") for i, s in enumerate(shapes)]
+        rows = [np.concatenate([c.half_extents, c.quaternions, c.translations, c.existence[:, None].astype(float)],
+                               axis=1).ravel() for c in cubs]
+        return cls(np.stack(rows), tuple(part_names), tuple(names))
+
+    @property
+    def shape(self) -> tuple:
+        return self.values.shape
+
+    def __len__(self) -> int:
+        return len(self.values)
+
+    def __array__(self, dtype=None, copy=None):
+        return self.values.astype(dtype or self.values.dtype, copy=bool(copy))
+
+    def feature_names(self) -> list[str]:
+        """One name per column: ``"<part>.<column>"`` (``"seat.size.x"``, ``"legs3.present"``)."""
+        return [f"{label}.{c}" for label in _slot_labels(self.part_names) for c in CUBOID_COLUMNS]
+
+
+def _raw_from_table(A: np.ndarray, idx):
+    """Selected slots of an ``(s, m, 11)`` table: (s, k, 3) half extents, (s, k, 3, 3) rotations,
+    (s, k, 3) translations, (s, k) presence."""
+    T = A[:, idx]
+    q = T[..., 3:7]
+    norm = np.linalg.norm(q, axis=-1, keepdims=True)
+    if np.any(norm < 1e-12):
+        raise ValueError("a quaternion of the table is zero: columns quaternion.w-z must hold a rotation")
+    R = primitives.quaternion_to_matrix((q / norm).reshape(-1, 4)).reshape(q.shape[:-1] + (3, 3))
+    return T[..., 0:3], R, T[..., 7:10], T[..., 10] >= 0.5
+
+
+class PartDescriptor(TransformerMixin, BaseEstimator):
+    """Per-part descriptors of abstracted shapes: a scikit-learn transformer (``clone``, pipelines,
+    ``GridSearchCV``, ``set_output``).
 
     Parameters
     ----------
@@ -162,8 +270,17 @@ class PartDescriptor:
     scales : dict, optional
         Overrides of :data:`DEFAULT_SCALES` (``{"orientation": 30.0}``).
     part_names : sequence of str, optional
-        The model's name of each index (:attr:`primkit.model.abstractor.Abstractor.part_names`); default
+        The model's name of each index (:attr:`primkit.model.abstractor.Abstractor.part_names`);
+        default the names the input carries (a :class:`CuboidTable` or an ``Abstractions``), else
         ``part0, part1, ...``.
+
+    Input
+    -----
+    ``X`` is one of: a list of :class:`primitives.Cuboids` (canonical frame) or of
+    :class:`AbstractionResult` / :class:`~primkit.model.abstraction.Abstraction` (their
+    ``canonical`` cuboids); an ``Abstractions``; a :class:`CuboidTable`; or any ``(s, 11 m)``
+    numeric array laid out as :data:`CUBOID_COLUMNS` (checked by scikit-learn's
+    ``validate_data``: finite values, ``n_features_in_``).
 
     Fitted attributes
     -----------------
@@ -175,9 +292,12 @@ class PartDescriptor:
         Values an absent part takes (the average present instance of that part; see the module).
     present_fraction_ : (k,) float
         Fraction of the fitted shapes on which each selected part is present.
-    feature_names_ : list of str, one per descriptor column (``"back.orientation.r01"``).
+    feature_names_ : list of str, one per descriptor column (``"back.orientation.r01"``; a name
+        shared by several slots gets the index appended, ``"legs3.size.x"``).
     n_slots_ : int
         Part slots of the model (m).
+    n_features_in_ : int
+        Columns of the input table (``11 m``).
     """
 
     def __init__(self, parts=None, what=PROPERTIES, scales=None, part_names=None):
@@ -186,14 +306,32 @@ class PartDescriptor:
         self.scales = scales
         self.part_names = part_names
 
+    # ---- input ------------------------------------------------------------------------------
+
+    def _table(self, X, reset: bool):
+        """``X`` as an ``(s, m, 11)`` float array, with the part names it carries (or None)."""
+        from sklearn.utils.validation import validate_data
+
+        names = None
+        if _is_shape_list(X):
+            X = CuboidTable.from_cuboids(X)
+            names = X.part_names
+        if isinstance(X, CuboidTable):
+            names = X.part_names
+            X = X.values
+        A = validate_data(self, X, reset=reset, dtype=np.float64)
+        if A.shape[1] % _NCOL:
+            raise ValueError(f"a cuboid table has {_NCOL} columns per part slot ({', '.join(CUBOID_COLUMNS)}); "
+                             f"got {A.shape[1]} columns")
+        return A.reshape(len(A), -1, _NCOL), names
+
     # ---- fitting ----------------------------------------------------------------------------
 
-    def fit(self, shapes, y=None) -> "PartDescriptor":
-        """Learn the part selection and the absent-part fill values from ``shapes``
-        (a list of :class:`primitives.Cuboids` or :class:`AbstractionResult`, one model's)."""
-        cubs = _as_cuboids(shapes)
-        m = cubs[0].count
-        names = list(self.part_names) if self.part_names is not None else _parts.default_names(m)
+    def fit(self, X, y=None) -> "PartDescriptor":
+        """Learn the part selection and the absent-part fill values from ``X`` (see *Input*)."""
+        A, carried = self._table(X, reset=True)
+        m = A.shape[1]
+        names = [str(n) for n in (self.part_names if self.part_names is not None else carried or _parts.default_names(m))]
         if len(names) != m:
             raise ValueError(f"part_names has {len(names)} names but the cuboids have {m} slots")
         self.n_slots_ = m
@@ -213,7 +351,7 @@ class PartDescriptor:
             raise ValueError(f"the orientation scale is an angle in degrees in (0, 180], got {scales['orientation']}")
         self.scales_ = scales
 
-        z, R, t, e = self._raw(cubs)
+        z, R, t, e = _raw_from_table(A, self.parts_)
         self.present_fraction_ = e.mean(axis=0)
         fill = {"size": np.zeros((len(self.parts_), 3)), "position": np.zeros((len(self.parts_), 3)),
                 "orientation": np.tile(np.eye(3).ravel(), (len(self.parts_), 1))}
@@ -224,31 +362,22 @@ class PartDescriptor:
                 fill["position"][j] = t[on, j].mean(axis=0)
                 fill["orientation"][j] = _chordal_mean(R[on, j]).ravel()
         self.fill_ = fill
+        labels = _slot_labels(names)
         self.feature_names_ = [
-            f"{names[k]}.{p}" + (f".{c}" if c else "")
+            f"{labels[k]}.{p}" + (f".{c}" if c else "")
             for k in self.parts_ for p in self.what_ for c in _COMPONENTS[p]
         ]
         return self
 
-    def _raw(self, cubs):
-        """Selected parts' (s, k, 3) half extents, (s, k, 3, 3) rotations, (s, k, 3) translations, (s, k) existence."""
-        idx = self.parts_
-        z = np.stack([c.half_extents[idx] for c in cubs])
-        R = np.stack([c.rotations[idx] for c in cubs])
-        t = np.stack([c.translations[idx] for c in cubs])
-        e = np.stack([c.existence[idx] for c in cubs])
-        return z, R, t, e
-
     # ---- transforming -----------------------------------------------------------------------
 
-    def transform(self, shapes) -> np.ndarray:
+    def transform(self, X) -> np.ndarray:
         """Descriptors: ``(s, d) float``, columns as :attr:`feature_names_`."""
-        if not hasattr(self, "parts_"):
-            raise RuntimeError("PartDescriptor is not fitted: call fit(shapes) first")
-        cubs = _as_cuboids(shapes)
-        if cubs[0].count != self.n_slots_:
-            raise ValueError(f"the cuboids have {cubs[0].count} slots but the descriptor was fitted on {self.n_slots_}")
-        z, R, t, e = self._raw(cubs)
+        from sklearn.utils.validation import check_is_fitted
+
+        check_is_fitted(self, "parts_")
+        A, _ = self._table(X, reset=False)
+        z, R, t, e = _raw_from_table(A, self.parts_)
         s, k = e.shape
         values = {"size": z, "position": t, "orientation": R.reshape(s, k, 9)}
         scale = dict(self.scales_)
@@ -262,8 +391,103 @@ class PartDescriptor:
                 blocks.append(v / scale[p])
         return np.concatenate(blocks, axis=2).reshape(s, -1)
 
-    def fit_transform(self, shapes, y=None) -> np.ndarray:
-        return self.fit(shapes).transform(shapes)
+    def get_feature_names_out(self, input_features=None) -> np.ndarray:
+        """The descriptor's column names (:attr:`feature_names_`), as scikit-learn asks for them."""
+        from sklearn.utils.validation import check_is_fitted
+
+        check_is_fitted(self, "parts_")
+        if input_features is not None and len(input_features) != self.n_features_in_:
+            raise ValueError(f"input_features has {len(input_features)} names but the descriptor was fitted on "
+                             f"{self.n_features_in_} columns")
+        return np.asarray(self.feature_names_, dtype=object)
+
+
+class AbstractionTransformer(TransformerMixin, BaseEstimator):
+    """Shapes -> their cuboids, as a scikit-learn transformer (inference only: nothing is learned).
+
+    ``make_pipeline(AbstractionTransformer("chair"), PartDescriptor(parts="back"), TSNE())`` maps
+    shapes by their backs. ``X`` is a list of shapes, each anything :func:`primkit.abstract` takes
+    (a path to one shape file, ``(vertices, faces)``, ``(n, 3)`` points, an :class:`primkit.io.Mesh`,
+    a trimesh, pyvista or Open3D object); ``transform`` returns a :class:`CuboidTable`, one row per
+    shape (the canonical frame, :data:`CUBOID_COLUMNS` per part slot), that carries the model's part
+    names down the pipeline. A shape that cannot be abstracted raises ValueError naming it (a
+    transformer cannot drop rows).
+
+    Parameters
+    ----------
+    model : a bundled model's name, a model file's path, or an :class:`~primkit.model.abstractor.Abstractor`.
+    up, front, align, refine, existence_threshold, prune_threshold, cache, workers, progress
+        As :func:`primkit.model.abstraction.abstract_shapes`.
+
+    Fitted attributes
+    -----------------
+    model_ : Abstractor
+        Loaded by :meth:`fit` (``X`` is not looked at).
+    part_names_ : list of str
+    n_slots_ : int
+    """
+
+    def __init__(self, model="chair", *, up=None, front=None, align=None, refine=0, existence_threshold=0.5,
+                 prune_threshold=0.6, cache=None, workers=None, progress=False):
+        self.model = model
+        self.up = up
+        self.front = front
+        self.align = align
+        self.refine = refine
+        self.existence_threshold = existence_threshold
+        self.prune_threshold = prune_threshold
+        self.cache = cache
+        self.workers = workers
+        self.progress = progress
+
+    def fit(self, X=None, y=None) -> "AbstractionTransformer":
+        """Load the model (``X`` is not used: the model is trained elsewhere)."""
+        from .model.abstraction import load_model
+
+        self.model_ = load_model(self.model)
+        self.part_names_ = list(self.model_.part_names)
+        self.n_slots_ = int(self.model_.parts)
+        return self
+
+    def transform(self, X) -> CuboidTable:
+        """Abstract every shape of ``X``: a :class:`CuboidTable`, ``(s, 11 m)``."""
+        import os
+
+        from sklearn.utils.validation import check_is_fitted
+
+        from .model.abstraction import abstract_shapes
+
+        check_is_fitted(self, "model_")
+        if isinstance(X, (str, os.PathLike)) or not hasattr(X, "__len__"):
+            raise TypeError(f"X must be a list of shapes, got {type(X).__name__}")
+        items = list(X)
+        if not items:
+            raise ValueError("X holds no shapes")
+        for item in items:
+            if isinstance(item, (str, os.PathLike)) and os.path.isdir(item):
+                raise ValueError(f"{item}: a folder; list its shape files (one row per shape)")
+        out = abstract_shapes(items, self.model_, up=self.up, front=self.front, align=self.align, refine=self.refine,
+                              existence_threshold=self.existence_threshold, prune_threshold=self.prune_threshold,
+                              cache=self.cache, workers=self.workers, progress=self.progress)
+        if out.errors or len(out.shapes) != len(items):
+            raise ValueError(f"cannot abstract {len(items) - len(out.shapes)} of {len(items)} shapes: "
+                             + "; ".join(map(str, out.errors[:3])))
+        return CuboidTable.from_cuboids(out, part_names=self.part_names_)
+
+    def get_feature_names_out(self, input_features=None) -> np.ndarray:
+        """The table's column names (:meth:`CuboidTable.feature_names`): ``"seat.size.x"``, ..."""
+        from sklearn.utils.validation import check_is_fitted
+
+        check_is_fitted(self, "model_")
+        labels = _slot_labels(self.part_names_)
+        return np.asarray([f"{label}.{c}" for label in labels for c in CUBOID_COLUMNS], dtype=object)
+
+    def __sklearn_tags__(self):
+        tags = super().__sklearn_tags__()
+        tags.input_tags.two_d_array = False  # a list of shapes, not a numeric array
+        tags.transformer_tags.preserves_dtype = []
+        return tags
+
 
 
 # ------------------------------------------------------------------------------------------------

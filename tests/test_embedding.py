@@ -205,3 +205,114 @@ def test_embed_refine_passes_through(tmp_path):
     got = np.load(tmp_path / "r" / "descriptors.npy")
     assert np.allclose(got, expected, atol=1e-5)
     assert not np.allclose(got, np.load(tmp_path / "n" / "descriptors.npy"), atol=1e-5)
+
+
+# ---- scikit-learn: PartDescriptor and AbstractionTransformer as estimators ---------------------------
+
+from sklearn.base import clone  # noqa: E402
+from sklearn.utils.estimator_checks import parametrize_with_checks  # noqa: E402
+
+# scikit-learn's checks feed generic data of 1-10 columns; a cuboid table has 11 per part slot, so the
+# checks that fit on their own data cannot apply. What they check is repeated on real tables below
+# (pickling, idempotence, order and subset invariance, non-finite input, read-only input).
+_GENERIC_DATA = "scikit-learn's generic data (1-10 columns) is not a cuboid table (11 columns per part slot)"
+_DATA_CHECKS = [
+    "check_fit_score_takes_y", "check_estimators_overwrite_params", "check_dont_overwrite_parameters",
+    "check_estimators_fit_returns_self", "check_readonly_memmap_input", "check_n_features_in_after_fitting",
+    "check_positive_only_tag_during_fit", "check_estimators_dtypes", "check_dtype_object", "check_pipeline_consistency",
+    "check_estimators_nan_inf", "check_estimators_pickle", "check_f_contiguous_array_estimator",
+    "check_transformer_data_not_an_array", "check_transformer_general", "check_transformer_preserve_dtypes",
+    "check_methods_sample_order_invariance", "check_methods_subset_invariance", "check_fit2d_1sample",
+    "check_fit2d_1feature", "check_dict_unchanged", "check_fit_idempotent", "check_fit_check_is_fitted",
+    "check_n_features_in", "check_fit2d_predict1d",
+]
+
+
+@parametrize_with_checks([PartDescriptor()], expected_failed_checks=lambda est: dict.fromkeys(_DATA_CHECKS, _GENERIC_DATA))
+def test_part_descriptor_passes_scikit_learns_checks(estimator, check):
+    check(estimator)
+
+
+def random_table(rng, s, m=6):
+    """A cuboid table laid out as CUBOID_COLUMNS, with its Cuboids."""
+    cubs = random_cuboids(rng, s, m)
+    return np.stack([np.concatenate([c.half_extents, c.quaternions, c.translations, c.existence[:, None]], 1).ravel()
+                     for c in cubs]), cubs
+
+
+def test_part_descriptor_reads_tables_as_it_reads_cuboids():
+    import pickle
+
+    rng = np.random.default_rng(3)
+    X, cubs = random_table(rng, 12)
+    assert X.shape == (12, 6 * len(embedding.CUBOID_COLUMNS))
+    ref = PartDescriptor(parts="1,4").fit(cubs)
+    est = PartDescriptor(parts="1,4").fit(X)
+    assert np.allclose(est.transform(X), ref.transform(cubs), atol=1e-12) and est.n_features_in_ == X.shape[1]
+    assert np.allclose(est.fill_["orientation"], ref.fill_["orientation"], atol=1e-12)
+    # a CuboidTable is the same numbers; the fit is idempotent; rows are independent of order and subset
+    table = embedding.CuboidTable.from_cuboids(cubs)
+    assert np.array_equal(np.asarray(table), X) and table.feature_names()[11] == "part1.size.x"
+    Y = est.transform(table)
+    assert np.array_equal(clone(est).fit(X).transform(X), Y)
+    perm = rng.permutation(12)
+    assert np.array_equal(est.transform(X[perm]), Y[perm]) and np.array_equal(est.transform(X[3:5]), Y[3:5])
+    assert np.array_equal(pickle.loads(pickle.dumps(est)).transform(X), Y)
+    ro = X.copy()
+    ro.flags.writeable = False
+    assert np.array_equal(est.transform(ro), Y)
+    assert list(est.get_feature_names_out()) == est.feature_names_ and len(est.feature_names_) == Y.shape[1]
+    bad = X.copy()
+    bad[0, 0] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        est.transform(bad)
+    with pytest.raises(ValueError, match="11 columns per part slot"):
+        PartDescriptor().fit(X[:, :-1])
+    with pytest.raises(ValueError, match="features"):
+        est.transform(X[:, :-11])
+
+
+def test_part_descriptor_clone_and_params():
+    est = PartDescriptor(parts="back", what="orientation", scales={"orientation": 30.0}, part_names=["back", "seat"])
+    twin = clone(est)
+    assert twin is not est and twin.get_params() == est.get_params()
+    assert twin.set_params(parts="seat").parts == "seat" and est.parts == "back"
+    a, b = two_part(), two_part(q0=axis_angle_quaternion([0, 1, 0], 30.0))
+    assert PartDescriptor(parts="back", part_names=["back", "seat"]).fit([a, b]).get_feature_names_out()[0] == "back.size.x"
+    # names shared by several slots get the index: no two columns share a name
+    shared = PartDescriptor(part_names=["legs", "legs"]).fit([a, b]).get_feature_names_out()
+    assert len(set(shared)) == len(shared) and shared[0] == "legs0.size.x"
+
+
+@pytest.mark.parametrize("form", ["arrays", "paths"])
+def test_abstraction_pipeline_on_procedural_chairs(tmp_path, form):
+    """make_pipeline(AbstractionTransformer("chair"), PartDescriptor(parts="back"), TSNE()) on a few
+    procedural chairs, given as (vertices, faces) or as files; the middle step equals the library's own."""
+    from sklearn.manifold import TSNE
+    from sklearn.pipeline import make_pipeline
+
+    from primkit import synthetic
+    from primkit.embedding import AbstractionTransformer
+    from primkit.model.abstraction import abstract_shapes
+
+    chairs = synthetic.generate("chair", 6, seed=21)
+    if form == "arrays":
+        X = [(c.vertices, c.faces) for c in chairs]
+    else:
+        X = synthetic.write_collection(tmp_path / "in", "chair", 6, seed=21)
+    step = AbstractionTransformer("chair", workers=1, cache=tmp_path / "cache")
+    twin = clone(step)
+    assert twin.get_params() == step.get_params() and not hasattr(twin, "model_")
+    pipe = make_pipeline(step, PartDescriptor(parts="back"), TSNE(perplexity=2.0, init="random", random_state=0))
+    Y = pipe.fit_transform(X)
+    assert Y.shape == (6, 2) and np.all(np.isfinite(Y))
+    # the descriptor in the pipeline resolved "back" through the part names the table carried
+    back = pipe[1].parts_
+    assert [pipe[0].part_names_[k] for k in back] == ["back"] * len(back) and len(back) >= 1
+    table = pipe[0].transform(X)
+    assert table.shape == (6, 11 * 20) and list(pipe[0].get_feature_names_out()) == table.feature_names()
+    expected = PartDescriptor(parts="back", part_names=step.model_.part_names).fit_transform(
+        abstract_shapes(X, "chair", workers=1, cache=tmp_path / "cache", progress=False).results)
+    assert np.allclose(pipe[:2].transform(X), expected, atol=1e-9)
+    with pytest.raises(ValueError, match="folder"):
+        step.transform([tmp_path])
