@@ -5,7 +5,7 @@ The report folder holds ``index.html``, ``report.json`` (the same numbers, for m
 co-segmentation (one colour per part index on every shape, :func:`primkit.viz.palette.part_colors`,
 drawn with the camera convention of :mod:`primkit.viz.render` at one fixed scale so they line up); the
 similarity map (t-SNE of :class:`primkit.embedding.PartDescriptor`) with each shape's nearest
-neighbours; one deformation transfer (the first shape onto the shape least like it); a table of
+neighbours; deformation transfers (each shape onto its nearest other shape); a table of
 metrics (:func:`primkit.metrics.score`, with its convention sentence); and an interactive 3D scene.
 
 The 3D scene is drawn by plotly.js (:mod:`primkit.viz.web`): each shape's co-segmented surface
@@ -43,10 +43,11 @@ from .model.abstractor import Abstractor
 from .model.abstraction import abstract_shapes
 from .metrics import score
 
-__all__ = ["ReportShape", "Report", "build_report", "write_report", "scene_figure"]
+__all__ = ["ReportShape", "Report", "build_report", "write_report", "scene_figure", "partners"]
 
 THUMB = 160  # thumbnail size in pixels
 SCENE_FACES = 3000  # triangles per shape in the interactive scene
+DEFORMED_SHAPES = 12  # shapes deformed onto their partners in the picture (one row each)
 
 
 @dataclass
@@ -121,7 +122,46 @@ def scene_figure(shapes, part_names, part_count: int, faces_per_shape: int = SCE
         v, f, lab = _decimate(s.vertices, s.faces, s.labels, faces_per_shape)
         items.append((s.name, v, f, lab, s.cuboids))
     names = list(part_names) + [f"part{k}" for k in range(len(part_names), part_count)]
-    return web.scene_figure(items, names, count=part_count)
+    figure = web.scene_figure(items, names, count=part_count)
+    _frame_scene(figure)
+    return figure
+
+
+#: Half the height plotly's orthographic camera shows, in scene-box units, with the camera eye two
+#: units from the centre as :func:`primkit.viz.web.scene_figure` puts it (measured: a report of 4
+#: chairs drawn 600 px high shows 300 px per box unit, whatever the width).
+_ORTHO_HALF_HEIGHT = 1.0
+
+
+def _frame_scene(figure: dict, margin: float = 0.06) -> None:
+    """Make the scene frame everything it holds at any page width, in place.
+
+    plotly's orthographic camera shows a fixed height of the scene box (``2 * _ORTHO_HALF_HEIGHT``
+    units) and a width in proportion to the plot's width / height, so a fixed height on a narrow
+    page cut off the first and last shapes. Here the axis ranges are widened to every point (a
+    cuboid can stick out of its cell), the box is scaled so that the content, seen along the
+    camera, fills the height less ``margin``, and ``layout.meta["height_per_width"]`` is the
+    plot's height / width at which it also fills the width: the page sets the plot's height from
+    its width with it (on load and on every resize).
+    """
+    from .viz.camera import CAMERA
+
+    scene = figure["layout"]["scene"]
+    pts = [np.stack([np.asarray(t["x"], float), np.asarray(t["y"], float), np.asarray(t["z"], float)], axis=1)
+           for t in figure["data"] if t.get("type") in ("mesh3d", "scatter3d") and len(t.get("x", ()))]
+    pts = np.concatenate(pts) if pts else np.zeros((1, 3))
+    pts = pts[np.isfinite(pts).all(axis=1)]  # edge traces separate their lines with None (NaN)
+    ranges = np.array([scene[f"{a}axis"]["range"] for a in "xyz"], float)
+    lo, hi = np.minimum(ranges[:, 0], pts.min(axis=0)), np.maximum(ranges[:, 1], pts.max(axis=0))
+    _, up, right = CAMERA.basis()
+    rel = pts - (lo + hi) / 2  # plotly centres the camera on the middle of the box
+    half_w = max(float(np.abs(rel @ right).max()), 1e-6)
+    half_h = max(float(np.abs(rel @ up).max()), 1e-6)
+    scale = _ORTHO_HALF_HEIGHT / (half_h * (1.0 + margin))  # box units per world unit
+    for n, a in enumerate("xyz"):
+        scene[f"{a}axis"]["range"] = [float(lo[n]), float(hi[n])]
+    scene["aspectratio"] = dict(zip("xyz", map(float, scale * (hi - lo))))
+    figure["layout"]["meta"] = {**figure["layout"].get("meta", {}), "height_per_width": half_h / half_w}
 
 
 def _thumbnails(shapes, folder: Path, overwrite: bool, progress: bool) -> dict:
@@ -160,23 +200,42 @@ def _similarity(shapes, results, part_names, folder: Path, thumbs: dict, overwri
     return {"map": path, "coords": coords, "neighbors": near, "distances": D}
 
 
+def partners(distances) -> np.ndarray:
+    """Each shape's partner for the deformation: its nearest other shape, ``(s,) int``.
+
+    ``distances`` is the ``(s, s)`` descriptor distance matrix; the diagonal is left out (a shape's
+    partner is never itself, even when another shape is an exact copy at distance 0); ties go to
+    the lower index."""
+    D = np.array(distances, float)
+    if D.ndim != 2 or D.shape[0] != D.shape[1] or len(D) < 2:
+        raise ValueError(f"`distances` must be (s, s) float with s >= 2, got shape {D.shape}")
+    np.fill_diagonal(D, np.inf)
+    return np.argmin(D, axis=1)
+
+
 def _deformation(shapes, similarity, folder: Path, overwrite: bool) -> dict:
+    """Each of the first :data:`DEFORMED_SHAPES` shapes deformed onto its partner (:func:`partners`),
+    one row each (source, partner, result in the source's part colours) in ``deformation.png``."""
     if len(shapes) < 2:
         raise ValueError("a deformation needs two shapes")
-    src = 0
     if similarity is not None:
-        tgt = int(np.argmax(similarity["distances"][src]))
-    else:
-        tgt = 1
-    a, b = shapes[src], shapes[tgt]
-    d = deformation.deform(a.vertices, a.cuboids, b.cuboids, faces=a.faces)
-    tiles = [Tile(f"source {a.name[:14]}", [segmentation_layer(a.vertices, a.faces, a.labels, a.cuboids.count)]),
-             Tile(f"target {b.name[:14]}", [segmentation_layer(b.vertices, b.faces, b.labels, b.cuboids.count)]),
-             Tile("result", [mesh_layer(d.vertices, a.faces)])]
+        partner = partners(similarity["distances"])
+    else:  # no descriptor distances (fewer than 3 shapes): two shapes are each other's partner
+        partner = np.array([1 - i if len(shapes) == 2 else (i + 1) % len(shapes) for i in range(len(shapes))])
+    tiles, pairs = [], []
+    for src in range(min(len(shapes), DEFORMED_SHAPES)):
+        a, b = shapes[src], shapes[int(partner[src])]
+        d = deformation.deform(a.vertices, a.cuboids, b.cuboids, faces=a.faces)
+        q = d.quality(a.faces)
+        tiles += [Tile(f"{a.name[:16]}", [segmentation_layer(a.vertices, a.faces, a.labels, a.cuboids.count)]),
+                  Tile(f"partner {b.name[:14]}", [segmentation_layer(b.vertices, b.faces, b.labels, b.cuboids.count)]),
+                  Tile("deformed", [segmentation_layer(d.vertices, a.faces, a.labels, a.cuboids.count)])]
+        pairs.append({"source": a.name, "target": b.name,
+                      "distance": None if similarity is None else float(similarity["distances"][src, partner[src]]),
+                      "paired": list(map(int, d.transfer.paired)), "quality": q})
     path = write_png(folder / "deformation.png", tiles, columns=3, tile=220, overwrite=overwrite,
                      radius=float(np.sqrt(3) / 2))
-    return {"path": path, "source": a.name, "target": b.name,
-            "paired": list(map(int, d.transfer.paired)), "quality": d.quality(a.faces)}
+    return {"path": path, "pairs": pairs, "shown": len(pairs), "shapes": len(shapes)}
 
 
 def build_report(paths, model, output, *, refine: int = 0, align=None, up=None, front=None, overwrite: bool = False,
@@ -298,16 +357,28 @@ def _page(shapes, part_names, thumbs, similarity, deform, notes, scene, out: Pat
     sim = (f'<img src="{rel(similarity["map"])}" alt="similarity map" class="map">' if similarity is not None
            else f"<p class='note'>{esc(notes.get('similarity', ''))}</p>")
     if deform is not None:
-        q = deform["quality"]
-        dfm = (f'<img src="{rel(deform["path"])}" alt="deformation" class="wide"><p>{esc(deform["source"])} deformed '
-               f'onto the parts of {esc(deform["target"])} (the shape least like it); {len(deform["paired"])} parts paired '
-               f'by index; flipped triangles {q["flipped"]:.2%}.</p>')
+        lines = "".join(f"<li>{esc(p['source'])} onto {esc(p['target'])}"
+                        + ("" if p["distance"] is None else f" (distance {p['distance']:.2f})")
+                        + f": {len(p['paired'])} parts paired by index, flipped triangles {p['quality']['flipped']:.2%}</li>"
+                        for p in deform["pairs"])
+        more = (f" The first {deform['shown']} of {deform['shapes']} shapes are shown." if deform["shown"] < deform["shapes"]
+                else "")
+        dfm = (f'<p>Each shape deformed onto the parts of its partner, its nearest other shape by the part '
+               f'descriptors (the similarity map\'s distance), so that the transfer is between shapes alike.{more}</p>'
+               f'<img src="{rel(deform["path"])}" alt="deformation" class="wide"><ul>{lines}</ul>')
     else:
         dfm = f"<p class='note'>{esc(notes.get('deformation', ''))}</p>"
     triangles = sum(len(t["i"]) for t in scene["data"] if t["type"] == "mesh3d")
-    ready = ('document.getElementById("status").textContent = gd.data.length + " traces, " + ' + json.dumps(triangles)
+    # the plot's height follows its width (see _frame_scene), so every shape stays in view
+    ready = ('const fit = function(){ const w = gd._fullLayout._size.w; '
+             'const h = Math.max(120, Math.min(1000, Math.round(w * F.layout.meta.height_per_width))); '
+             'return Math.abs(gd._fullLayout.height - h) > 1 ? Plotly.relayout(gd, {height: h}) : Promise.resolve(); }; '
+             'let pending = null; window.addEventListener("resize", function(){ clearTimeout(pending); '
+             'pending = setTimeout(fit, 150); }); '
+             'fit().then(function(){ '
+             'document.getElementById("status").textContent = gd.data.length + " traces, " + ' + json.dumps(triangles)
              + ' + " triangles"; document.body.setAttribute("data-ready", "1"); '
-             f'console.log("primkit report ready: {len(shapes)} shapes");')
+             f'console.log("primkit report ready: {len(shapes)} shapes"); }});')
     return _TEMPLATE.format(
         title=f"primkit report: {len(shapes)} shapes", meta=esc(json.dumps(meta)), cards="".join(cards),
         rows="".join(rows), convention=esc(conv), usage=usage, similarity=sim, deformation=dfm,

@@ -73,6 +73,35 @@ def test_report_files_and_numbers(report_dir):
     assert names["text"] == [s["name"] for s in summary["shapes"]]
 
 
+
+def test_each_shape_is_deformed_onto_its_nearest_other_shape(report_dir):
+    summary = json.loads((report_dir / "report.json").read_text())
+    pairs = summary["deformation"]["pairs"]
+    assert [p["source"] for p in pairs] == [s["name"] for s in summary["shapes"]]
+    for p, s in zip(pairs, summary["shapes"]):
+        assert p["target"] != p["source"] and p["target"] == s["neighbors"][0]["name"]
+        assert p["distance"] == pytest.approx(s["neighbors"][0]["distance"])
+        assert 0.0 <= p["quality"]["flipped"] < 0.05
+    page = (report_dir / "index.html").read_text()
+    assert "nearest other shape" in page and "least like it" not in page
+
+
+def test_partners_against_brute_force():
+    from primkit.report import partners
+
+    rng = np.random.default_rng(4)
+    X = rng.normal(size=(9, 5))
+    X[7] = X[2]  # an exact copy: each is the other's partner at distance 0, never itself
+    D = np.linalg.norm(X[:, None] - X[None], axis=-1)
+    got = partners(D)
+    for i in range(len(X)):
+        others = [j for j in range(len(X)) if j != i]
+        assert got[i] == min(others, key=lambda j: (D[i, j], j))
+    assert got[2] == 7 and got[7] == 2
+    with pytest.raises(ValueError, match="s >= 2"):
+        partners(np.zeros((1, 1)))
+
+
 def test_inline_json_cannot_end_its_script():
     hostile = {"name": "<!--<script></script><b>&\u2028\u2029", "x": np.array([0.25, -1.5])}
     text = web.figure_json(hostile)
@@ -158,3 +187,29 @@ def test_a_hostile_shape_name_does_not_stop_the_scene(tmp_path):
     scene = _scene((out / "index.html").read_text())
     names = [t for t in scene["data"] if t.get("meta", {}).get("kind") == "names"][0]["text"]
     assert html.escape("<!--<script>") in names  # plotly decodes entities: the name is drawn as written
+
+
+@needs_chromium
+@pytest.mark.parametrize("width", [760, 1200])
+def test_the_3d_scene_frames_every_shape_at_any_width(report_dir, width):
+    """The plot's height follows its width so that no shape is cut off: the plot area's outer
+    columns and rows are background (at 760 px, before, the first and last shapes were cut)."""
+    from io import BytesIO
+
+    from PIL import Image
+
+    size = "JSON.stringify(Object.assign({top: document.getElementById('scene').getBoundingClientRect().top, " \
+           "left: document.getElementById('scene').getBoundingClientRect().left}, document.getElementById('scene')._fullLayout._size))"
+    got = load_page(report_dir / "index.html", width=width, height=1100, evaluate=[size])
+    assert got.ready_ms is not None and not got.problems(), got.problems()
+    box = json.loads(got.values[size])
+    img = np.array(Image.open(BytesIO(got.screenshot)).convert("RGB")).astype(int)
+    top, left = int(round(box["top"])) + 1, int(round(box["left"])) + 1
+    area = img[top + 30 : top + int(box["h"]) - 2, left + 2 : left + int(box["w"]) - 2]  # below the mode bar
+    ink = np.ptp(area, axis=-1) > 30  # coloured parts (the background and the grey text are not)
+    rows, cols = np.nonzero(ink)
+    assert len(rows) > 2000, "the scene is empty"
+    assert cols.min() > 3 and cols.max() < area.shape[1] - 4, (cols.min(), cols.max(), area.shape)
+    assert rows.max() < area.shape[0] - 4, (rows.max(), area.shape)
+    # and the content fills the width (framed, not shrunk to a corner)
+    assert cols.max() - cols.min() > 0.7 * area.shape[1]
