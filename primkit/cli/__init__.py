@@ -112,6 +112,11 @@ def _picture_path(path):
     return None if path is None else check_suffix(path, ".png", "a picture")
 
 
+def _output_suffixes(args) -> tuple[str, str]:
+    """The two files ``abstract`` writes per shape: the JSON and the mesh (``--format``)."""
+    return (".cuboids.json", ".glb") if args.format == "glb" else (".cuboids.json", ".cuboids.ply")
+
+
 def _not_done(args, files, names, folder, options):
     """``--skip-done``: the names of this shard's inputs still to do, and ``options`` selecting only
     them (in place of the shard), so that a rerun after a lost worker or a killed job does only
@@ -123,7 +128,7 @@ def _not_done(args, files, names, folder, options):
     from ..parallel import Selection, shard_indices
 
     keep = shard_indices(len(files), parse_shard_option(args))
-    paths = {i: [folder / f"{names[i]}.cuboids{ext}" for ext in (".json", ".ply")] for i in keep}
+    paths = {i: [folder / f"{names[i]}{ext}" for ext in _output_suffixes(args)] for i in keep}
     todo = [i for i in keep if not all(p.is_file() for p in paths[i])]
     print(f"--skip-done: {len(keep) - len(todo)} of {len(keep)} input(s) already done", file=sys.stderr)
     for i in todo:
@@ -141,6 +146,10 @@ def _cmd_abstract(args) -> int:
     if read_metadata(model_path).get("kind") == "image-abstractor":
         from .image import run_abstract_images
 
+        if args.format != "ply":
+            err(f"--format {args.format}: shapes only (an image model writes JSON and PLY)")
+            return 2
+
         return run_abstract_images(args)
     from ..model.abstraction import abstract_shapes, load_model
     from ..viz.render import render_abstractions
@@ -157,13 +166,19 @@ def _cmd_abstract(args) -> int:
         names, options = _not_done(args, files, output_names(files), folder, options)
     else:
         names = shard_of(args, output_names(files))
-    outputs = [folder / f"{name}.cuboids{ext}" for name in names for ext in (".json", ".ply")]
+    outputs = [folder / f"{name}{ext}" for name in names for ext in _output_suffixes(args)]
     check_outputs(args, outputs + [_picture_path(args.png)], input_paths(files, model_path))
     out = abstract_shapes(files, model, existence_threshold=args.threshold,
                           prune_threshold=None if args.prune <= 0 else args.prune, **options)
     failed = list(out.errors)
-    for r in out.results:
-        j, m = r.save(args.output, overwrite=args.force)
+    if args.format == "glb":
+        from ..export import save_glb
+    for a in out:
+        r = a.result
+        if args.format == "glb":  # the input's surface split by part and the cuboids, a node per part
+            j, m = save_glb(a, out.model.part_names, args.output, overwrite=args.force)
+        else:
+            j, m = r.save(args.output, overwrite=args.force)
         extra = ""
         if r.alignment is not None:
             extra += f"; oriented with up {r.alignment['up']}, front {r.alignment['front']}"
@@ -342,6 +357,10 @@ def build_parser() -> argparse.ArgumentParser:
     add_png(p)
     p.add_argument("--threshold", type=float, default=0.5, help="existence probability above which a part exists")
     p.add_argument("--prune", type=float, default=0.6, help="drop parts more than this fraction inside others (0: off)")
+    p.add_argument("--format", choices=("ply", "glb"), default="ply",
+                   help="the mesh beside each shape's JSON: ply (the coloured cuboids, <name>.cuboids.ply) or glb "
+                        "(a glTF scene, <name>.glb: the input's surface split by part and the cuboids, one named "
+                        "node per part with its index, name and existence probability; docs/export.md)")
     p.add_argument("--skip-done", action="store_true",
                    help="leave out inputs whose two outputs already exist (a rerun of a shard after a lost worker "
                         "does only what is missing; an input with one of its two outputs is redone)")
