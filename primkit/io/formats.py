@@ -336,6 +336,10 @@ def write_points(path, points, *, normals=None, labels=None, colors=None, overwr
             np.savetxt(buffer, columns, fmt="%.17g")
             temporary.write_text(buffer.getvalue(), encoding="ascii")
         else:
+            # Written here, not by trimesh's PointCloud export (trimesh 4.x): that writes float32
+            # coordinates (10,000 normal points came back up to 2.2e-7 off; these are float64,
+            # exact), no normals and no per-point `part` (a PointCloud has no vertex attributes),
+            # and adds an alpha channel and a comment line.
             fields = [(name, "<f8") for name in ["x", "y", "z"] + ([] if cloud.normals is None else ["nx", "ny", "nz"])]
             fields += [(c, "u1") for c in ("red", "green", "blue")] if colors is not None else []
             fields += [("part", "<i4")] if labels is not None else []
