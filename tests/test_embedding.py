@@ -316,3 +316,28 @@ def test_abstraction_pipeline_on_procedural_chairs(tmp_path, form):
     assert np.allclose(pipe[:2].transform(X), expected, atol=1e-9)
     with pytest.raises(ValueError, match="folder"):
         step.transform([tmp_path])
+
+
+@pytest.mark.parametrize("check", ["check_get_params_invariance", "check_set_params", "check_estimator_cloneable",
+                                   "check_estimator_repr", "check_no_attributes_set_in_init",
+                                   "check_parameters_default_constructible", "check_do_not_raise_errors_in_init_or_set_params",
+                                   "check_estimator_tags_renamed", "check_valid_tag_types", "check_mixin_order",
+                                   "check_get_feature_names_out_error"])
+def test_abstraction_transformer_passes_the_checks_that_need_no_numeric_data(check):
+    """The transformer takes shapes, not numbers, so only scikit-learn's checks of parameters, tags
+    and cloning apply (the pipeline test above runs it on shapes)."""
+    import sklearn.utils.estimator_checks as checks
+
+    from primkit.embedding import AbstractionTransformer
+
+    est = AbstractionTransformer("chair")
+    getattr(checks, check)("AbstractionTransformer", est)
+    assert est.__sklearn_tags__().input_tags.two_d_array is False
+
+
+def test_set_output_default_keeps_arrays():
+    rng = np.random.default_rng(5)
+    X, _ = random_table(rng, 5)
+    est = PartDescriptor(parts="0,2").set_output(transform="default")
+    Y = est.fit_transform(X)
+    assert isinstance(Y, np.ndarray) and Y.shape == (5, 2 * 16)
