@@ -143,6 +143,11 @@ def test_abstract_format_glb(glb_dir, capsys):
                  "--cache", str(glb_dir.parent / "cache"), "--workers", "1"]) == 2
     assert "exists" in capsys.readouterr().err
     assert {p: p.stat().st_mtime_ns for p in glb_dir.iterdir()} == before
+    # --skip-done counts a shape done when its JSON and its .glb exist
+    assert main(["abstract", str(src), "--model", "chair", "--format", "glb", "-o", str(glb_dir), "--skip-done",
+                 "--cache", str(glb_dir.parent / "cache"), "--workers", "1"]) == 0
+    assert "2 of 2 input(s) already done" in capsys.readouterr().err
+    assert {p: p.stat().st_mtime_ns for p in glb_dir.iterdir()} == before
 
 
 @pytest.fixture(scope="session")
