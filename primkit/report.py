@@ -10,7 +10,8 @@ metrics (:func:`primkit.metrics.score`, with its convention sentence); and an in
 
 The 3D scene is drawn by plotly.js (:mod:`primkit.viz.web`): each shape's co-segmented surface
 beside its cuboids with their edges, a legend entry per part index that toggles that part on every
-shape, and the camera convention of every primkit picture. The library (from the installed
+shape, and the camera convention of every primkit picture; the plot's height follows the page's
+width so that every shape stays in view (:func:`_frame_scene`). The library (from the installed
 ``plotly`` package) and the data are inlined, so the page opens without a network; the data's JSON
 is escaped so that no shape name can end its script element. The meshes are decimated for it with
 Open3D's quadric decimation. (Until this page used plotly, a hand-written canvas painter drew the
