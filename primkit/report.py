@@ -143,7 +143,7 @@ def _frame_scene(figure: dict, margin: float = 0.06) -> None:
     cuboid can stick out of its cell), the box is scaled so that the content, seen along the
     camera, fills the height less ``margin``, and ``layout.meta["height_per_width"]`` is the
     plot's height / width at which it also fills the width: the page sets the plot's height from
-    its width with it (on load and on every resize).
+    its width with it (:data:`_FIT_SCENE`, on load and on every resize).
     """
     from .viz.camera import CAMERA
 
@@ -163,6 +163,9 @@ def _frame_scene(figure: dict, margin: float = 0.06) -> None:
         scene[f"{a}axis"]["range"] = [float(lo[n]), float(hi[n])]
     scene["aspectratio"] = dict(zip("xyz", map(float, scale * (hi - lo))))
     figure["layout"]["meta"] = {**figure["layout"].get("meta", {}), "height_per_width": half_h / half_w}
+    # a strip above the plot for plotly's mode bar, and the legend from the plot's top (not over the bar)
+    figure["layout"]["margin"] = {**figure["layout"].get("margin", {}), "t": 32}
+    figure["layout"]["legend"] = {**figure["layout"].get("legend", {}), "y": 1.0, "yanchor": "top"}
 
 
 def _thumbnails(shapes, folder: Path, overwrite: bool, progress: bool) -> dict:
@@ -371,12 +374,8 @@ def _page(shapes, part_names, thumbs, similarity, deform, notes, scene, out: Pat
         dfm = f"<p class='note'>{esc(notes.get('deformation', ''))}</p>"
     triangles = sum(len(t["i"]) for t in scene["data"] if t["type"] == "mesh3d")
     # the plot's height follows its width (see _frame_scene), so every shape stays in view
-    ready = ('const fit = function(){ const w = gd._fullLayout._size.w; '
-             'const h = Math.max(120, Math.min(1000, Math.round(w * F.layout.meta.height_per_width))); '
-             'return Math.abs(gd._fullLayout.height - h) > 1 ? Plotly.relayout(gd, {height: h}) : Promise.resolve(); }; '
-             'let pending = null; window.addEventListener("resize", function(){ clearTimeout(pending); '
-             'pending = setTimeout(fit, 150); }); '
-             'fit().then(function(){ '
+    # the plot's height follows its width (see _frame_scene), so every shape stays in view
+    ready = (_FIT_SCENE + 'fit().then(function(){ '
              'document.getElementById("status").textContent = gd.data.length + " traces, " + ' + json.dumps(triangles)
              + ' + " triangles"; document.body.setAttribute("data-ready", "1"); '
              f'console.log("primkit report ready: {len(shapes)} shapes"); }});')
@@ -385,6 +384,22 @@ def _page(shapes, part_names, thumbs, similarity, deform, notes, scene, out: Pat
         rows="".join(rows), convention=esc(conv), usage=usage, similarity=sim, deformation=dfm,
         scene=web.figure_div(scene, "scene"), scene_script=web.figure_script("scene", ready=ready))
 
+
+#: JavaScript run once the scene is drawn (``gd`` the plot, ``F`` its figure): the plot area's height
+#: set from its width by ``layout.meta.height_per_width`` (:func:`_frame_scene`), within 260-1000 px;
+#: below 260 px the scene box shrinks instead, so the width stays in view and the legend beside it
+#: keeps room. Again on every resize of the window.
+_FIT_SCENE = (
+    "const base = JSON.parse(JSON.stringify(gd.layout.scene.aspectratio)); "
+    "const fit = function(){ "
+    "const size = gd._fullLayout._size, want = size.w * F.layout.meta.height_per_width; "
+    "const h = Math.min(1000, Math.max(260, want)), shrink = Math.min(1, want / h); "
+    "const update = {height: Math.round(h + size.t + size.b)}; "
+    "for (const a of ['x', 'y', 'z']) update['scene.aspectratio.' + a] = base[a] * shrink; "
+    "return Plotly.relayout(gd, update); }; "
+    "let pending = null; "
+    "window.addEventListener('resize', function(){ clearTimeout(pending); pending = setTimeout(fit, 150); }); "
+)
 
 _TEMPLATE = """<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>{title}</title>

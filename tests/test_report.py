@@ -204,8 +204,8 @@ def test_the_3d_scene_frames_every_shape_at_any_width(report_dir, width):
     assert got.ready_ms is not None and not got.problems(), got.problems()
     box = json.loads(got.values[size])
     img = np.array(Image.open(BytesIO(got.screenshot)).convert("RGB")).astype(int)
-    top, left = int(round(box["top"])) + 1, int(round(box["left"])) + 1
-    area = img[top + 30 : top + int(box["h"]) - 2, left + 2 : left + int(box["w"]) - 2]  # below the mode bar
+    top, left = int(round(box["top"] + box["t"])) + 1, int(round(box["left"])) + 1  # below the mode bar's strip
+    area = img[top + 2 : top + int(box["h"]) - 2, left + 2 : left + int(box["w"]) - 2]
     ink = np.ptp(area, axis=-1) > 30  # coloured parts (the background and the grey text are not)
     rows, cols = np.nonzero(ink)
     assert len(rows) > 2000, "the scene is empty"
