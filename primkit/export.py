@@ -100,7 +100,8 @@ def glb_scene(cuboids, part_names=None, vertices=None, faces=None, *, labels=Non
     vertices : (n, 3) float, optional; faces : (f, 3) int, optional
         The input's surface. None: the cuboids alone.
     labels : (f,) int, optional
-        The part of each face (-1: none); default :func:`primkit.segmentation.face_labels`.
+        The part of each face (-1: none); default :func:`primkit.segmentation.face_labels`. Faces
+        of -1 or of a part that is not present go to the ``"unlabelled surface"`` node.
     name, source : the shape's name (the root node's) and where it came from.
     """
     import trimesh
@@ -143,10 +144,11 @@ def glb_scene(cuboids, part_names=None, vertices=None, faces=None, *, labels=Non
                                      "half_extents": [float(x) for x in cuboids.half_extents[k]],
                                      "quaternion_wxyz": [float(x) for x in cuboids.quaternions[k]],
                                      "translation": [float(x) for x in cuboids.translations[k]]})
-    if faces is not None and np.any(labels < 0):
-        rest = _trimesh(vertices, faces[labels < 0], _material("unlabelled", _GREY))
+    unclaimed = None if faces is None else ~np.isin(labels, present)  # -1, or a part that is not present
+    if unclaimed is not None and unclaimed.any():
+        rest = _trimesh(vertices, faces[unclaimed], _material("unlabelled", _GREY))
         scene.add_geometry(rest, node_name="unlabelled surface", geom_name="unlabelled surface", parent_node_name=root,
-                           metadata={"part_index": -1, "kind": "surface", "faces": int(np.sum(labels < 0))})
+                           metadata={"part_index": -1, "kind": "surface", "faces": int(unclaimed.sum())})
     return scene
 
 

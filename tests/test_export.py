@@ -94,8 +94,11 @@ def test_glb_cuboids_only_and_unlabelled_faces(tmp_path):
     v, f, cub, na = _two_boxes()
     labels = np.full(len(f), -1)
     labels[:na] = 1
+    labels[na : na + 2] = 0  # a part that is not present: unlabelled too
     scene = glb_scene(cub, None, v, f, labels=labels, name="x")
     assert "unlabelled surface" in scene.graph.nodes and "3 part3 surface" not in scene.graph.nodes
+    assert _edge(scene, "unlabelled surface") == ("x", {"part_index": -1, "kind": "surface", "faces": len(f) - na})
+    assert len(scene.geometry["unlabelled surface"].faces) == len(f) - na
     alone = trimesh.load(write_glb(tmp_path / "c.glb", cub))  # no surface: the cuboids alone
     assert {n for n in alone.graph.nodes if n.endswith(" surface")} == set()
     assert {"1 part1 cuboid", "3 part3 cuboid"} <= set(alone.graph.nodes)
