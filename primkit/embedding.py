@@ -46,6 +46,15 @@ tool built on Euclidean vectors (scikit-learn's neighbour indices, t-SNE on vect
   penalty in every block is not a Euclidean distance (no point is equally far from every size),
   and giving that up would cost the neighbour index and t-SNE on vectors.
 
+scikit-learn
+------------
+:class:`PartDescriptor` is a scikit-learn transformer (``clone``, ``get_params``,
+``get_feature_names_out``, ``set_output``, pipelines), and :class:`AbstractionTransformer` turns a
+list of shapes into a :class:`CuboidTable` (inference only), so
+``make_pipeline(AbstractionTransformer("chair"), PartDescriptor(parts="back"), TSNE())`` maps shapes
+by their backs. The table is numeric (``(s, 11 m)``, :data:`CUBOID_COLUMNS` per part slot, canonical
+frame) and carries the model's part names, which is how ``parts="back"`` resolves in a pipeline.
+
 Scale: for 10,000 shapes the descriptors are (10,000, d) floats (d <= 16 per part);
 :func:`nearest_neighbors` uses scikit-learn's index and never builds the (s, s) matrix;
 :func:`tsne_map` runs t-SNE on a precomputed matrix for small collections and on the descriptors
