@@ -19,9 +19,9 @@ Like the pyvista viewers, :func:`open3d_viewer` builds the scene and the actions
 tests call them directly; :meth:`Open3DViewer.show` opens the window. Open3D's window renders with
 Filament on Vulkan: on machines without a GPU, Mesa's CPU Vulkan driver (Debian:
 ``mesa-vulkan-drivers``, which ``scripts/setup.sh`` installs) does it, under X (or ``xvfb-run``).
-:meth:`Open3DViewer.picture` (``primkit view open3d ... --png``) needs no display: without one it
-draws the same scene with Open3D's ``OffscreenRenderer`` (:meth:`Open3DViewer.render`), on the same
-Vulkan driver with no window.
+:meth:`Open3DViewer.picture` (``primkit view open3d ... --png``) needs no display: it draws the
+same scene with Open3D's ``OffscreenRenderer`` (:meth:`Open3DViewer.render`), on the same Vulkan
+driver with no window (``--png --window``: the window's own frame, under X).
 """
 
 from __future__ import annotations
