@@ -51,6 +51,22 @@ SCRIPT = textwrap.dedent("""
 
 
 @pytest.fixture(scope="module")
+def pvpython():
+    path = shutil.which("pvpython")
+    if path is None:
+        pytest.skip("pvpython not found (scripts/setup.sh installs Debian's paraview and python3-paraview)")
+    return path
+
+
+@pytest.fixture(scope="module")
+def paraview_gui():
+    paraview, xvfb = shutil.which("paraview"), shutil.which("xvfb-run")
+    if paraview is None or xvfb is None:
+        pytest.skip("the ParaView GUI or xvfb-run not found (scripts/setup.sh installs both)")
+    return paraview, xvfb
+
+
+@pytest.fixture(scope="module")
 def chair(shared_data, tmp_path_factory):
     """The COSEG chair as PLY (ParaView reads no OFF), and ``primkit segment``'s labels for that file."""
     from primkit.cli import main
@@ -90,10 +106,7 @@ def _check(got_file, info_file, chair):
 
 
 @pytest.mark.shared
-def test_pvpython_loads_the_plugin_and_gives_primkit_segments_labels(chair, tmp_path):
-    pvpython = shutil.which("pvpython")
-    if pvpython is None:
-        pytest.skip("pvpython not found (scripts/setup.sh installs Debian's paraview and python3-paraview)")
+def test_pvpython_loads_the_plugin_and_gives_primkit_segments_labels(pvpython, chair, tmp_path):
     script = tmp_path / "run.py"
     script.write_text(SCRIPT.format(
         shim="if not hasattr(inspect, 'getargspec'): inspect.getargspec = inspect.getfullargspec",
@@ -106,14 +119,12 @@ def test_pvpython_loads_the_plugin_and_gives_primkit_segments_labels(chair, tmp_
 
 
 @pytest.mark.shared
-def test_the_paraview_gui_loads_the_plugin_after_its_startup_script(chair, tmp_path):
+def test_the_paraview_gui_loads_the_plugin_after_its_startup_script(paraview_gui, chair, tmp_path):
     """The GUI's route: ``paraview --script=<plugin file>`` (which puts back inspect.getargspec), then
     the plugin loaded by path. The script below runs the plugin file as ``--script`` runs it (as
     ``__main__``, no ``__file__``), then loads it through ``LoadPlugin``: the same
     ``vtkSMPluginManager::LoadLocalPlugin`` that *Tools > Manage Plugins > Load New* calls."""
-    paraview, xvfb = shutil.which("paraview"), shutil.which("xvfb-run")
-    if paraview is None or xvfb is None:
-        pytest.skip("the ParaView GUI or xvfb-run not found (scripts/setup.sh installs both)")
+    paraview, xvfb = paraview_gui
     script = tmp_path / "gui.py"
     startup = f"exec(compile(open({str(PLUGIN)!r}).read(), {str(PLUGIN)!r}, 'exec'), {{'__name__': '__main__'}})"
     script.write_text(SCRIPT.format(shim=startup, plugin=str(PLUGIN), data=str(chair[0]), out=str(tmp_path / "got.npz"),

@@ -57,7 +57,7 @@ def wheel_python(tmp_path_factory):
 
 
 @pytest.mark.shared
-def test_pv_read_off_and_binvox_and_segment_from_the_wheel_without_import(wheel_python, shared_data, tmp_path):
+def test_pv_read_off_and_binvox_and_segment_from_the_wheel_without_import(shared_data, wheel_python, tmp_path):
     python, env = wheel_python
     cloud = tmp_path / "chair.xyz"
     mesh = io.read_mesh(shared_data / CHAIR)
