@@ -8,9 +8,10 @@ cd "$(dirname "$0")/.."
 # open3d needs libusb and the GL/EGL loaders; pyvista renders off screen through EGL.
 # xvfb + xauth: real windows for the viewers (xvfb-run) and their window test; chromium: the
 # headless-browser check of `primkit report` pages; libvulkan1 + mesa-vulkan-drivers: Open3D's window
-# (`primkit view open3d`) renders through Vulkan, on the CPU where there is no GPU.
+# (`primkit view open3d`) renders through Vulkan, on the CPU where there is no GPU. paraview +
+# python3-paraview: Debian's ParaView (5.11, its own VTK 9.2) for the plugin's test (tests/plugins/test_paraview.py).
 need=()
-for pkg in libgl1 libegl1 libopengl0 libusb-1.0-0 libfontconfig1 libgomp1 xvfb xauth chromium libvulkan1 mesa-vulkan-drivers; do
+for pkg in libgl1 libegl1 libopengl0 libusb-1.0-0 libfontconfig1 libgomp1 xvfb xauth chromium libvulkan1 mesa-vulkan-drivers paraview python3-paraview; do
   dpkg -s "$pkg" >/dev/null 2>&1 || need+=("$pkg")
 done
 if [ ${#need[@]} -gt 0 ]; then

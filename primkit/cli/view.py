@@ -161,14 +161,16 @@ def _view_open3d(args, off, size) -> int:
     else:
         err(f"{args.shape}: a voxel grid; the Open3D viewer shows meshes and point clouds")
         return 2
-    if args.png is not None and not os.environ.get("DISPLAY"):
-        err("view open3d --png draws in Open3D's window and needs a display: run it under X or xvfb-run -a")
+    if args.png is not None and args.window and not os.environ.get("DISPLAY"):
+        err("view open3d --png --window takes the picture from Open3D's window and needs a display: run it under X "
+            "or xvfb-run -a (without --window it draws off screen)")
         return 2
     options = {k: v for k, v in abstraction_options(args).items() if k not in ("cache", "workers")}
     viewer = open3d_viewer(given, args.model, name=Path(args.shape).stem, refine_step=args.refine_step,
                            export_folder=args.export, **options)
     if args.png is not None:
-        viewer.picture(args.png, width=size[0], height=size[1], overwrite=True)
+        # --png: Open3D's OffscreenRenderer, no display; with --window: the window's own frame (X)
+        viewer.picture(args.png, width=size[0], height=size[1], overwrite=True, offscreen=not args.window)
         print(f"wrote {args.png}")
     else:
         viewer.show(width=size[0], height=size[1])

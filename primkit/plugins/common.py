@@ -1,7 +1,8 @@
 """What every plugin does: abstract shapes held in memory and co-segment them.
 
 A mesh gets a part index per face (the face-area rule of :func:`primkit.segmentation.face_labels`)
-and per vertex; a point cloud a part index per point (:func:`primkit.segmentation.point_labels`).
+and per vertex; a point cloud a part index per point (:func:`primkit.segmentation.point_labels`);
+a voxel grid a part index per voxel (:func:`primkit.segmentation.label_voxels`).
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ import numpy as np
 
 from .. import io
 from ..model.abstraction import Abstraction, abstract_shapes
-from ..segmentation import face_labels, point_labels
+from ..segmentation import face_labels, label_voxels, point_labels, voxel_centres
 
 __all__ = ["Labelled", "label_shapes", "label_shape"]
 
@@ -28,15 +29,21 @@ class Labelled:
     face_labels : (f,) int or None
         Part index of each face of a mesh; None for a point cloud.
     point_labels : (n,) int
-        Part index of each vertex of a mesh, or of each point of a cloud.
+        Part index of each vertex of a mesh, of each point of a cloud, or of each occupied voxel of
+        a grid (in ``np.argwhere`` order).
     part_names : list of str
         The model's name of each part slot.
+    voxel_labels : (R, R, R) int or None
+        Part index of each voxel of a grid (``[x, y, z]``, -1 for empty voxels); None otherwise.
+
+    -1 marks an element with no cuboid to go to (a shape with no part present).
     """
 
     abstraction: Abstraction
     face_labels: np.ndarray | None
     point_labels: np.ndarray
     part_names: list
+    voxel_labels: np.ndarray | None = None
 
     @property
     def cuboids(self):
@@ -44,7 +51,7 @@ class Labelled:
         return self.abstraction.cuboids
 
 
-def _labels(shape, cuboids) -> tuple[np.ndarray | None, np.ndarray]:
+def _labels(shape, cuboids) -> tuple:
     if isinstance(shape, io.Mesh):
         if not cuboids.existence.any():
             return np.full(len(shape.faces), -1, np.int64), np.full(len(shape.vertices), -1, np.int64)
@@ -53,24 +60,40 @@ def _labels(shape, cuboids) -> tuple[np.ndarray | None, np.ndarray]:
         if not cuboids.existence.any():
             return None, np.full(len(shape.points), -1, np.int64)
         return None, point_labels(shape.points, cuboids)
-    raise TypeError(f"cannot label a {type(shape).__name__}: a mesh or a point cloud")
+    if isinstance(shape, io.VoxelGrid):
+        voxels = label_voxels(shape, cuboids) if cuboids.existence.any() else np.full(shape.occupancy.shape, -1, np.int64)
+        return None, voxels[tuple(voxel_centres(shape)[1].T)], voxels
+    raise TypeError(f"cannot label a {type(shape).__name__}: a mesh, a point cloud or a voxel grid")
 
 
-def label_shapes(shapes, model="chair", *, names=None, **options) -> list[Labelled]:
+def label_shapes(shapes, model="chair", *, names=None, progress_bar: bool = False, **options) -> list[Labelled]:
     """Abstract and co-segment shapes held in memory (any form :func:`primkit.model.abstraction.as_shape`
-    takes: meshes and point clouds of primkit, trimesh, pyvista, Open3D, or arrays), in one batch.
+    takes: meshes, point clouds and voxel grids of primkit, trimesh, pyvista, Open3D, or arrays), in
+    one batch.
 
     ``options`` are :func:`~primkit.model.abstraction.abstract_shapes`'s (``up``, ``front``,
-    ``align``, ``refine``, ...). Raises ValueError naming every shape that could not be used.
+    ``align``, ``refine``, ...). ``progress_bar`` draws a tqdm bar: one step for preparing and
+    abstracting the batch, then one per shape labelled. Raises ValueError naming every shape that
+    could not be used.
     """
+    from tqdm.auto import tqdm
+
     options.setdefault("progress", False)
     options.setdefault("workers", 1)
     shapes = list(shapes)
     names = list(names) if names is not None else [f"shape{i}" for i in range(len(shapes))]
-    out = abstract_shapes(shapes, model, names=names, **options)
-    if out.errors:
-        raise ValueError("; ".join(str(e) for e in out.errors))
-    return [Labelled(a, *_labels(a.given, a.cuboids), list(out.model.part_names)) for a in out]
+    with tqdm(total=len(shapes) + 1, desc="primkit: abstracting", unit="step", disable=not progress_bar) as bar:
+        out = abstract_shapes(shapes, model, names=names, **options)
+        if out.errors:
+            raise ValueError("; ".join(str(e) for e in out.errors))
+        bar.update(1)
+        bar.set_description("primkit: labelling")
+        labelled = []
+        for a in out:
+            face, point, *voxels = _labels(a.given, a.cuboids)
+            labelled.append(Labelled(a, face, point, list(out.model.part_names), *voxels))
+            bar.update(1)
+    return labelled
 
 
 def label_shape(shape, model="chair", *, name: str = "shape", **options) -> Labelled:

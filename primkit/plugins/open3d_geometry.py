@@ -7,13 +7,36 @@
     seg.geometry.triangle["part"]                             # (f,) int32: part index per face
     seat = seg.geometry.select_faces_by_mask(seg.geometry.triangle["part"] == 16)   # part kept
     o3d.visualization.draw([seg.geometry, seg.cuboid_edges])
+    pk.write("seg.npz", seg.geometry)                         # o3d.t.io.read_triangle_mesh keeps part
 
-A mesh comes back as an ``open3d.t.geometry.TriangleMesh`` with ``triangle["part"]`` and
-``vertex["part"]`` (int32) and ``vertex["colors"]`` (float32, the part colour of each vertex); a point
-cloud as an ``open3d.t.geometry.PointCloud`` with ``point["part"]`` and ``point["colors"]``. The
-attributes travel through Open3D's own operations (``select_faces_by_mask``, ``select_by_mask``,
-``select_by_index``). Cuboids come as tensor geometry too (:func:`primkit.viz.interop.cuboids_to_o3d_tensor`,
-``triangle["part"]``; and the 12 edges of each as a ``LineSet`` with ``line["part"]``).
+A mesh comes back as an ``open3d.t.geometry.TriangleMesh`` with ``triangle["part"]`` ((f,) int32),
+``vertex["part"]`` ((n, 1) int32) and ``vertex["colors"]`` (float32, the part colour of each
+vertex); a point cloud as an ``open3d.t.geometry.PointCloud`` with ``point["part"]`` ((n, 1) int32)
+and ``point["colors"]``. The attributes travel through Open3D's own operations
+(``select_faces_by_mask``, ``select_by_mask`` (with ``point["part"][:, 0] == k``),
+``select_by_index``). Cuboids come as tensor geometry too
+(:func:`primkit.viz.interop.cuboids_to_o3d_tensor`, ``triangle["part"]``; and the 12 edges of each
+as a ``LineSet`` with ``line["part"]``).
+
+Files (measured with Open3D 0.20, ``tests/plugins/test_open3d_io.py``)
+--------------------------------------------------------------------
+Per-vertex and per-point attributes are ``(n, 1)`` because Open3D's writers need that shape: a
+1-D ``point["part"]`` makes ``o3d.t.io.write_point_cloud`` fail on ``.ply`` and skip it on
+``.pcd``, and a 1-D ``vertex["part"]`` makes ``o3d.t.io.read_triangle_mesh`` raise on the ``.npz``
+it wrote. ``triangle["part"]`` stays 1-D, the mask ``select_faces_by_mask`` takes. What survives
+``o3d.t.io`` write-and-read (:data:`KEEPS_PART`):
+
+* point clouds: ``part`` survives ``.ply``, ``.pcd`` and ``.npz``; ``.xyz``, ``.xyzn``, ``.xyzrgb``
+  and ``.pts`` drop it;
+* meshes: only ``.npz`` keeps ``triangle["part"]``; Open3D's ``.npz`` reader drops
+  ``vertex["part"]`` (it is in the file), and its ``.ply``, ``.obj``, ``.off``, ``.stl``,
+  ``.glb``/``.gltf`` writers drop every custom attribute.
+
+:func:`write` writes with Open3D where the format keeps ``part``, writes ``.ply`` meshes itself
+(``part`` per vertex and per face as PLY properties, through trimesh; Open3D's reader reads the
+same file's positions and colours but not ``part``), and elsewhere writes with Open3D after a
+one-line warning that ``part`` is not kept. :func:`read` reads every file :func:`write` wrote with
+its ``part`` attributes back.
 
 ``options`` are those of :func:`primkit.abstract` (``up``, ``front``, ``align``, ``refine``, ...).
 """
@@ -21,15 +44,19 @@ attributes travel through Open3D's own operations (``select_faces_by_mask``, ``s
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
-from ..viz.interop import (cuboids_to_o3d_tensor, cuboids_to_o3d_tensor_lineset, mesh_from_o3d, mesh_to_o3d_tensor,
-                           points_from_o3d, points_to_o3d_tensor)
+from ..viz.interop import (cuboids_to_o3d_tensor, cuboids_to_o3d_tensor_lineset, is_tensor_geometry, mesh_from_o3d,
+                           mesh_to_o3d_tensor, points_from_o3d, points_to_o3d_tensor)
 from ..viz.palette import part_colors
 from .common import Labelled, label_shapes
 
-__all__ = ["O3DSegmentation", "segment", "segment_all"]
+__all__ = ["O3DSegmentation", "segment", "segment_all", "write", "read", "KEEPS_PART"]
+
+#: The suffixes whose ``o3d.t.io`` round trip keeps ``part`` (see the module notes): per kind of geometry.
+KEEPS_PART = {"TriangleMesh": (".npz",), "PointCloud": (".ply", ".pcd", ".npz")}
 
 
 @dataclass(frozen=True, eq=False)
@@ -83,6 +110,7 @@ def _to_tensor(shape, labelled: Labelled):
     palette = np.vstack([part_colors(max(len(labelled.part_names), 1)), [[200, 200, 200]]]) / 255.0
     point_part = labelled.point_labels
     colours = palette[np.where(point_part < 0, -1, point_part)]
+    point_part = point_part.reshape(-1, 1)  # (n, 1): the shape Open3D's writers keep (module notes)
     if isinstance(shape, tuple):
         vertices, faces = shape
         return mesh_to_o3d_tensor(vertices, faces, vertex_attributes={"part": point_part, "colors": colours},
@@ -103,3 +131,87 @@ def segment_all(geometries, model="chair", **options) -> list[O3DSegmentation]:
 def segment(geometry, model="chair", **options) -> O3DSegmentation:
     """Abstract and co-segment one Open3D mesh or point cloud (see the module notes)."""
     return segment_all([geometry], model, **options)[0]
+
+
+def _kind(geometry) -> str:
+    kind = type(geometry).__name__
+    if kind not in KEEPS_PART or not is_tensor_geometry(geometry):
+        raise TypeError(f"expected an Open3D tensor TriangleMesh or PointCloud, got {type(geometry).__module__}.{kind}")
+    return kind
+
+
+def write(path, geometry, *, overwrite: bool = False):
+    """Write Open3D tensor geometry (e.g. :attr:`O3DSegmentation.geometry`) so that ``part`` survives
+    where the format can hold it (see the module notes); returns the path. Never replaces a file
+    unless ``overwrite``; written atomically."""
+    import warnings
+
+    import open3d as o3d
+
+    from .. import io
+
+    path = Path(path)
+    kind = _kind(geometry)
+    suffix = path.suffix.lower()
+    has_part = "part" in (geometry.triangle if kind == "TriangleMesh" else geometry.point) or \
+        (kind == "TriangleMesh" and "part" in geometry.vertex)
+    if kind == "TriangleMesh" and suffix == ".ply":
+        return _write_mesh_ply(path, geometry, overwrite)
+    if has_part and suffix not in KEEPS_PART[kind]:
+        keep = ", ".join(KEEPS_PART[kind] + ((".ply (primkit's writer)",) if kind == "TriangleMesh" else ()))
+        warnings.warn(f"{path}: Open3D's {suffix} keeps no 'part' attribute; written without it (keeps it: {keep})",
+                      stacklevel=2)
+    with io.atomic_output(path, overwrite=overwrite) as tmp:
+        writer = o3d.t.io.write_triangle_mesh if kind == "TriangleMesh" else o3d.t.io.write_point_cloud
+        if not writer(str(tmp), geometry):
+            raise OSError(f"{path}: Open3D could not write this {kind}")
+    return path
+
+
+def _write_mesh_ply(path: Path, mesh, overwrite: bool) -> Path:
+    """A binary PLY with ``part`` as an int property of each vertex and face (trimesh writes the
+    attributes Open3D's PLY writer drops), and the vertex colours."""
+    import trimesh
+
+    from .. import io
+
+    t = trimesh.Trimesh(mesh.vertex.positions.numpy(), mesh.triangle.indices.numpy(), process=False)
+    if "colors" in mesh.vertex:
+        t.visual.vertex_colors = np.clip(np.rint(mesh.vertex["colors"].numpy() * 255), 0, 255).astype(np.uint8)
+    for name, attributes, store in (("vertex", mesh.vertex, t.vertex_attributes), ("face", mesh.triangle, t.face_attributes)):
+        if "part" in attributes:
+            store["part"] = attributes["part"].numpy().reshape(-1).astype(np.int32)
+    data = trimesh.exchange.ply.export_ply(t, encoding="binary", include_attributes=True)
+    with io.atomic_output(path, overwrite=overwrite) as tmp:
+        Path(tmp).write_bytes(data)
+    return path
+
+
+def read(path):
+    """Read a file :func:`write` wrote as Open3D tensor geometry with its ``part`` attributes: Open3D's
+    reader, plus what it leaves out (a mesh's ``part`` from primkit's ``.ply``, ``vertex["part"]``
+    from an ``.npz``). A ``.ply`` or ``.npz`` without faces is a point cloud."""
+    import open3d as o3d
+
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such file")
+    mesh = o3d.t.io.read_triangle_mesh(str(path)) if suffix not in (".pcd", ".xyz", ".xyzn", ".xyzrgb", ".pts") else None
+    if mesh is None or len(mesh.triangle.indices) == 0:
+        return o3d.t.io.read_point_cloud(str(path))
+    if suffix == ".npz":
+        with np.load(path, allow_pickle=False) as stored:
+            if "vertex_part" in stored.files:
+                mesh.vertex["part"] = o3d.core.Tensor(stored["vertex_part"].reshape(-1, 1).astype(np.int32))
+    elif suffix == ".ply":
+        import trimesh
+
+        # trimesh keeps every PLY property it parsed in metadata["_ply_raw"] (the only place it exposes
+        # properties it has no name for); Open3D's tensor PLY reader keeps none for meshes
+        raw = trimesh.load(path, process=False).metadata.get("_ply_raw", {})
+        for element, attributes, shape in (("vertex", mesh.vertex, (-1, 1)), ("face", mesh.triangle, (-1,))):
+            data = raw.get(element, {}).get("data")
+            if data is not None and data.dtype.names and "part" in data.dtype.names:
+                attributes["part"] = o3d.core.Tensor(np.asarray(data["part"]).reshape(shape).astype(np.int32))
+    return mesh

@@ -1,4 +1,4 @@
-"""primkit as a VTK filter, and as a ParaView Python plugin (the same file).
+"""primkit as a VTK filter, on pip's VTK (the one pyvista uses).
 
 :class:`PrimkitSegmentation` is a ``VTKPythonAlgorithmBase``: a ``vtkPolyData`` in (a mesh, or a
 point cloud); out on port 0 the same surface with ``part`` cell data (the part index of each face)
@@ -16,13 +16,8 @@ Properties (``Set<Name>``/``Get<Name>``, or keywords of the constructor): ``Mode
 model's name or a model file, default ``"chair"``), ``RefineSteps`` (gradient steps per shape,
 default 0), ``Up`` and ``Front`` (the input's axes, default ``"+y"`` and ``"+x"``).
 
-**In ParaView** (5.10 or later; its Python must see primkit: ``pip install primkit`` into the
-Python ParaView runs, or put primkit's site-packages on ``PYTHONPATH`` before starting ParaView):
-*Tools > Manage Plugins > Load New*, choose this file (``python -c "import
-primkit.plugins.vtk_filter as m; print(m.__file__)"`` prints where it is), then apply the filter
-*primkit segmentation* to a surface. The ParaView decorators (``paraview.util.vtkAlgorithm``) are
-used when ParaView is there and replaced by inert stand-ins otherwise, so plain VTK needs nothing
-of ParaView. The file uses absolute imports because ParaView loads it by path.
+For ParaView see :mod:`primkit.plugins.paraview_plugin`: ParaView's Python carries its own VTK,
+which cannot share a process with pip's, so its plugin is a separate, NumPy-only file.
 """
 
 from __future__ import annotations
@@ -30,37 +25,17 @@ from __future__ import annotations
 import numpy as np
 from vtkmodules.util.vtkAlgorithm import VTKPythonAlgorithmBase
 
-from primkit.model.abstraction import load_model
-from primkit.plugins.common import label_shapes
-from primkit.plugins.pyvista_accessor import segmented_copy
-from primkit.viz.backend import pyvista_module
-from primkit.viz.interop import from_pyvista, to_pyvista
-
-try:  # inside ParaView: its decorators describe the filter's proxy (name, input, properties)
-    from paraview.util.vtkAlgorithm import smdomain, smhint, smproperty, smproxy
-except ImportError:  # plain VTK
-
-    class _Inert:
-        """Stands in for ParaView's decorator namespaces: every decorator leaves its target unchanged."""
-
-        def __getattr__(self, name):
-            def decorator(*args, **kwargs):
-                return lambda target: target
-
-            return decorator
-
-    smproxy = smproperty = smdomain = smhint = _Inert()
+from ..model.abstraction import load_model
+from ..viz.backend import pyvista_module
+from ..viz.interop import from_pyvista, to_pyvista
+from .common import label_shapes
+from .pyvista_accessor import segmented_copy
 
 __all__ = ["PrimkitSegmentation"]
 
 AXES = ["+x", "-x", "+y", "-y", "+z", "-z"]
-_AXIS_DOMAIN = "<StringListDomain name='list'>" + "".join(f"<String value='{a}'/>" for a in AXES) + "</StringListDomain>"
 
 
-@smproxy.filter(name="PrimkitSegmentation", label="primkit segmentation")
-@smhint.xml("<ShowInMenu category='primkit'/>")
-@smproperty.input(name="Input", port_index=0)
-@smdomain.datatype(dataTypes=["vtkPolyData"], composite_data_supported=False)
 class PrimkitSegmentation(VTKPythonAlgorithmBase):
     """Co-segment a surface or point cloud by its cuboids (see the module notes)."""
 
@@ -77,7 +52,6 @@ class PrimkitSegmentation(VTKPythonAlgorithmBase):
 
     # ---- properties --------------------------------------------------------------------------
 
-    @smproperty.stringvector(name="Model", default_values="chair")
     def SetModel(self, model) -> None:
         if str(model) != self._model:
             self._model = str(model)
@@ -86,8 +60,6 @@ class PrimkitSegmentation(VTKPythonAlgorithmBase):
     def GetModel(self) -> str:
         return self._model
 
-    @smproperty.intvector(name="RefineSteps", default_values=0)
-    @smdomain.intrange(min=0, max=2000)
     def SetRefineSteps(self, steps) -> None:
         steps = int(steps)
         if steps < 0:
@@ -99,16 +71,12 @@ class PrimkitSegmentation(VTKPythonAlgorithmBase):
     def GetRefineSteps(self) -> int:
         return self._refine
 
-    @smproperty.stringvector(name="Up", default_values="+y")
-    @smdomain.xml(_AXIS_DOMAIN)
     def SetUp(self, axis) -> None:
         self._set_axis("_up", axis)
 
     def GetUp(self) -> str:
         return self._up
 
-    @smproperty.stringvector(name="Front", default_values="+x")
-    @smdomain.xml(_AXIS_DOMAIN)
     def SetFront(self, axis) -> None:
         self._set_axis("_front", axis)
 

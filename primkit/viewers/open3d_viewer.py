@@ -13,12 +13,15 @@ existing file.
 
 The geometry is Open3D's tensor geometry (:mod:`primkit.plugins.open3d_geometry`): part ``k``'s
 surface is ``select_faces_by_mask(triangle["part"] == k)`` of the segmented mesh (for a cloud,
-``select_by_mask(point["part"] == k)``), each cuboid a tensor mesh and its 12 edges a line set.
+``select_by_mask(point["part"][:, 0] == k)``), each cuboid a tensor mesh and its 12 edges a line set.
 Like the pyvista viewers, :func:`open3d_viewer` builds the scene and the actions and returns them
 (:class:`Open3DViewer`); the actions take the window (``O3DVisualizer``) as Open3D passes it, so
 tests call them directly; :meth:`Open3DViewer.show` opens the window. Open3D's window renders with
 Filament on Vulkan: on machines without a GPU, Mesa's CPU Vulkan driver (Debian:
 ``mesa-vulkan-drivers``, which ``scripts/setup.sh`` installs) does it, under X (or ``xvfb-run``).
+:meth:`Open3DViewer.picture` (``primkit view open3d ... --png``) needs no display: it draws the
+same scene with Open3D's ``OffscreenRenderer`` (:meth:`Open3DViewer.render`), on the same Vulkan
+driver with no window (``--png --window``: the window's own frame, under X).
 """
 
 from __future__ import annotations
@@ -89,7 +92,7 @@ class Open3DViewer:
         if type(g).__name__ == "TriangleMesh":
             part = g.select_faces_by_mask(g.triangle["part"] == k)
             return o3d.t.geometry.TriangleMesh(part.vertex.positions, part.triangle.indices)
-        return o3d.t.geometry.PointCloud(g.select_by_mask(g.point["part"] == k).point.positions)
+        return o3d.t.geometry.PointCloud(g.select_by_mask(g.point["part"][:, 0] == k).point.positions)
 
     def _cuboid_of(self, k: int):
         mesh, edges = self.segmentation.cuboid_mesh, self.segmentation.cuboid_edges
@@ -229,6 +232,11 @@ class Open3DViewer:
         return app, w
 
     def _look(self, window, width: int, height: int) -> None:
+        """Point the window's camera (:meth:`_aim`)."""
+        self._aim(window.scene.camera, width, height)
+        window.post_redraw()
+
+    def _aim(self, cam, width: int, height: int) -> None:
         """The camera convention of every primkit picture (:data:`primkit.viz.camera.CAMERA`'s direction
         and up), perspective here, the shape's bounding sphere filling the view."""
         from open3d.visualization import rendering
@@ -239,24 +247,56 @@ class Open3DViewer:
         d = np.asarray(CAMERA.direction, float) / np.linalg.norm(CAMERA.direction)
         fov = 30.0
         distance = 1.1 * radius / np.tan(np.radians(fov / 2))
-        cam = window.scene.camera
         cam.look_at(centre.astype(np.float32), (centre + distance * d).astype(np.float32), np.asarray(CAMERA.up, np.float32))
         cam.set_projection(fov, width / max(height, 1), 0.01 * distance, 10.0 * distance,
                            rendering.Camera.FovType.Vertical)
-        window.post_redraw()
+
+    def render(self, *, width: int = 1280, height: int = 900) -> np.ndarray:
+        """The scene as the window shows it (visible geometry, white background, the same camera),
+        drawn by Open3D's ``OffscreenRenderer``, which needs no display: Filament on EGL or, here,
+        Vulkan (Mesa's llvmpipe on the CPU). Returns ``(height, width, 3) uint8``."""
+        from open3d.visualization import rendering
+
+        renderer = rendering.OffscreenRenderer(int(width), int(height))
+        try:
+            scene = renderer.scene
+            scene.set_background([1.0, 1.0, 1.0, 1.0])
+            scene.view.set_post_processing(False)  # plain colours on white, as in the window
+            scene.set_lighting(rendering.Open3DScene.LightingProfile.NO_SHADOWS, -np.asarray(CAMERA.direction, np.float32))
+            for g in self.geometries():
+                if g["is_visible"]:
+                    scene.add_geometry(g["name"], g["geometry"], g["material"])
+            self._aim(scene.camera, width, height)
+            return np.asarray(renderer.render_to_image()).copy()
+        finally:
+            del renderer
 
     def show(self, *, width: int = 1280, height: int = 900) -> None:
         """Open the window and run it until it is closed."""
         app, _ = self.window(width=width, height=height)
         app.run()
 
-    def picture(self, path, *, width: int = 1280, height: int = 900, timeout: float = 60.0, overwrite: bool = False):
-        """Draw the window's first frames and write them to the PNG ``path`` (needs a display, e.g.
-        ``xvfb-run``); the window then closes. Returns the path."""
+    def picture(self, path, *, width: int = 1280, height: int = 900, timeout: float = 60.0, overwrite: bool = False,
+                offscreen: bool | None = None):
+        """Write the scene to the PNG ``path``; returns the path.
+
+        ``offscreen`` (default: when there is no ``DISPLAY``/``WAYLAND_DISPLAY``) draws it with
+        :meth:`render`, no window; otherwise the window's first frames are taken (under X or
+        ``xvfb-run``) and the window then closes."""
+        import os
         import time
 
         path = Path(path)
         io.refuse_existing(path, overwrite)
+        if offscreen is None:
+            offscreen = not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+        if offscreen:
+            from PIL import Image
+
+            image = self.render(width=width, height=height)
+            with io.atomic_output(path, overwrite=overwrite) as tmp:
+                Image.fromarray(image).save(tmp, format="PNG")
+            return path
         app, w = self.window(width=width, height=height, settings=False)
         with io.atomic_output(path, overwrite=overwrite) as tmp:
             target = Path(tmp).with_name(Path(tmp).stem + ".open3d.png")  # Open3D writes it when a frame is drawn

@@ -8,6 +8,7 @@ from __future__ import annotations
 import importlib.util
 import json
 import os
+import re
 import subprocess
 import sys
 import types
@@ -153,9 +154,9 @@ def test_vtk_filter_reports_bad_input_in_one_line(capfd, caplog):
     assert f.GetOutputDataObject(0).GetNumberOfCells() == 0
 
 
-def test_the_filter_file_declares_a_paraview_proxy_when_paraview_is_there(monkeypatch):
+def test_the_paraview_plugin_file_declares_a_proxy_and_imports_nothing_of_primkit(monkeypatch):
     """ParaView loads the file by path with its decorators importable; a recording stand-in for
-    ``paraview.util.vtkAlgorithm`` checks what the file declares (ParaView is not on PyPI)."""
+    ``paraview.util.vtkAlgorithm`` checks what the file declares (the real ParaView: test_paraview.py)."""
     calls = []
 
     class Recorder:
@@ -176,15 +177,18 @@ def test_the_filter_file_declares_a_paraview_proxy_when_paraview_is_there(monkey
     monkeypatch.setitem(sys.modules, "paraview", types.ModuleType("paraview"))
     monkeypatch.setitem(sys.modules, "paraview.util", types.ModuleType("paraview.util"))
     monkeypatch.setitem(sys.modules, "paraview.util.vtkAlgorithm", fake)
-    from primkit.plugins import vtk_filter
+    from primkit import plugins
 
-    spec = importlib.util.spec_from_file_location("primkit_paraview_plugin", vtk_filter.__file__)
+    path = os.path.join(os.path.dirname(plugins.__file__), "paraview_plugin.py")
+    spec = importlib.util.spec_from_file_location("paraview_plugin", path)
     plugin = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(plugin)
+    source = open(path).read()
+    assert not re.search(r"^\s*(from|import) (primkit|pyvista|vtk)\b", source, re.M)  # ParaView's VTK only
     proxies = [c for c in calls if c[:2] == ("smproxy", "filter")]
     assert proxies and proxies[0][2]["name"] == "PrimkitSegmentation" and proxies[0][3] == "PrimkitSegmentation"
     properties = {c[2]["name"]: c for c in calls if c[0] == "smproperty" and c[1] != "input"}
-    assert set(properties) == {"Model", "RefineSteps", "Up", "Front"}
+    assert set(properties) == {"Model", "RefineSteps", "Up", "Front", "Align", "Python"}
     assert properties["Model"][2]["default_values"] == "chair" and properties["RefineSteps"][1] == "intvector"
     assert ("smdomain", "datatype") in {c[:2] for c in calls}
     assert plugin.PrimkitSegmentation().GetNumberOfOutputPorts() == 2
@@ -216,6 +220,6 @@ def test_open3d_tensor_mesh_carries_part_through_select_faces_by_mask(chair_file
     cloud = o3d.t.geometry.PointCloud(o3d.core.Tensor(points.astype(np.float32)))
     seg = open3d_geometry.segment(cloud, model=model)
     a = abstract(points.astype(np.float32).astype(float), model)
-    assert np.array_equal(seg.geometry.point["part"].numpy(), point_labels(points, a.cuboids))
+    assert np.array_equal(seg.geometry.point["part"].numpy()[:, 0], point_labels(points, a.cuboids))
     with pytest.raises(TypeError, match="TriangleMesh or PointCloud"):
         open3d_geometry.segment(o3d.geometry.LineSet(), model=model)

@@ -1,0 +1,82 @@
+"""The half of the ParaView plugin that runs in primkit's own Python: NumPy arrays in, labels out.
+
+ParaView's Python carries its own VTK (Debian 12: ParaView 5.11 on VTK 9.2), and primkit's needs
+pip's VTK (9.3 or later, through pyvista): the two cannot live in one process (pip's VTK first on
+the path crashes ``pvpython``; ParaView's first makes pyvista refuse to import). So the plugin
+(:mod:`primkit.plugins.paraview_plugin`, which imports nothing of primkit) converts ParaView's
+polydata to NumPy, and runs this module with the Python primkit is installed in::
+
+    python -m primkit.plugins.paraview_worker IN.npz OUT.npz
+    python -m primkit.plugins.paraview_worker --where      # prints the plugin file's path
+
+``IN.npz`` holds ``points`` ((n, 3) float), ``faces`` ((f, 3) int, empty for a point cloud) and
+``options`` (a JSON object: ``model``, ``up``, ``front``, ``align``, ``refine``, the keywords of
+:func:`primkit.plugins.common.label_shapes`). ``OUT.npz`` (written atomically) holds
+``face_labels`` ((f,) int64, empty for a cloud), ``point_labels`` ((n,) int64), ``part_names``
+((m,) str), ``colors`` ((m, 3) uint8, :func:`primkit.viz.palette.part_colors`), and the present
+cuboids as a triangle mesh in the input's frame: ``cuboid_vertices`` ((8c, 3) float64),
+``cuboid_faces`` ((12c, 3) int64), ``cuboid_part`` ((12c,) int64, the slot of each triangle).
+
+On a bad input or option it prints one line to stderr (``primkit segmentation: <reason>``) and
+exits with status 2; the plugin shows that line in ParaView's output window.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["run", "main"]
+
+
+def run(points: np.ndarray, faces: np.ndarray, options: dict) -> dict:
+    """Label one shape held as arrays; the arrays of ``OUT.npz`` (see the module notes)."""
+    from ..viz.palette import part_colors
+    from .common import label_shape
+
+    options = dict(options)
+    model = options.pop("model", "chair")
+    points = np.asarray(points, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    shape = (points, faces) if len(faces) else points
+    labelled = label_shape(shape, model, name="input", **options)
+    v, f, part = labelled.cuboids.to_mesh()
+    empty = np.zeros(0, np.int64)
+    return {
+        "face_labels": empty if labelled.face_labels is None else labelled.face_labels.astype(np.int64),
+        "point_labels": labelled.point_labels.astype(np.int64),
+        "part_names": np.array(labelled.part_names, dtype=str),
+        "colors": part_colors(len(labelled.part_names)).astype(np.uint8),
+        "cuboid_vertices": np.asarray(v, np.float64).reshape(-1, 3),
+        "cuboid_faces": np.asarray(f, np.int64).reshape(-1, 3),
+        "cuboid_part": np.asarray(part, np.int64),
+    }
+
+
+def main(argv=None) -> int:
+    from ..io import atomic_output
+
+    argv = sys.argv[1:] if argv is None else argv
+    if argv == ["--where"]:  # the plugin file, for ParaView's Load New and LoadPlugin
+        print(Path(__file__).with_name("paraview_plugin.py"))
+        return 0
+    if len(argv) != 2:
+        print("usage: python -m primkit.plugins.paraview_worker IN.npz OUT.npz", file=sys.stderr)
+        return 2
+    try:
+        with np.load(argv[0], allow_pickle=False) as given:
+            out = run(given["points"], given["faces"], json.loads(str(given["options"])))
+    except (ValueError, TypeError, OSError, KeyError) as exc:
+        print(f"primkit segmentation: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}", file=sys.stderr)
+        return 2
+    with atomic_output(argv[1], overwrite=True) as tmp:
+        with open(tmp, "wb") as fh:
+            np.savez(fh, **out)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
