@@ -573,13 +573,81 @@ def _load_trimesh(path, data: bytes):
                 maintain_order=True,
                 skip_materials=True,
             )
+        if kind in ("glb", "gltf"):
+            _check_gltf_faces(path, data)
         if kind == "gltf":  # buffers may live in separate files beside it
             return trimesh.load(str(p), process=False)
         return trimesh.load(BytesIO(data), file_type=kind, process=False)
+    except ShapeFileError:
+        raise
     except Exception as exc:  # trimesh raises many types for malformed input
         if kind == "obj" and isinstance(exc, IndexError):
             raise ShapeFileError(path, "face index out of range") from exc
         raise ShapeFileError(path, f"cannot parse as {kind.upper()}: {_short(exc)}") from exc
+
+
+def _gltf_json(data: bytes):
+    """The JSON document of GLB or glTF bytes, or None when it cannot be found (trimesh then says why)."""
+    import json
+    import struct
+
+    try:
+        if data[:4] == b"glTF":
+            length, kind = struct.unpack("<I4s", data[12:20])
+            if kind != b"JSON":
+                return None
+            data = data[20 : 20 + length]
+        document = json.loads(data)
+    except (ValueError, struct.error):
+        return None
+    return document if isinstance(document, dict) else None
+
+
+def _check_gltf_faces(path, data: bytes) -> None:
+    """Refuse a GLB/glTF whose declared faces exceed the bound before trimesh decodes anything.
+
+    trimesh builds one mesh per glTF mesh (even when they share their accessors) and primkit one
+    per node placing a mesh, so both counts are bounded: the faces of every mesh of the file, and
+    the faces of every mesh placement reached from the scenes (a node reached twice counts twice).
+    Counted from the accessors' declared ``count`` (triangles: indices / 3; strips and fans: n - 2).
+    """
+    document = _gltf_json(data)
+    if document is None:
+        return
+    try:
+        accessors = document.get("accessors", [])
+        mesh_faces = []
+        for mesh in document.get("meshes", []):
+            faces = 0
+            for primitive in mesh.get("primitives", []):
+                mode = primitive.get("mode", 4)
+                index = primitive.get("indices", primitive.get("attributes", {}).get("POSITION"))
+                count = int(accessors[index]["count"]) if index is not None else 0
+                faces += count // 3 if mode == 4 else max(count - 2, 0) if mode in (5, 6) else 0
+            mesh_faces.append(faces)
+        nodes = document.get("nodes", [])
+        roots = [n for scene in document.get("scenes", []) for n in scene.get("nodes", [])]
+    except (AttributeError, IndexError, KeyError, TypeError, ValueError):
+        return  # malformed: trimesh's own error says so
+    bound = limits.max_faces()
+    limits.check_faces(path, sum(mesh_faces))
+    placed, stack, visits = 0, list(roots), 0
+    while stack and placed <= bound:
+        visits += 1
+        if visits > len(nodes) + 1_000_000:  # a graph that reaches its nodes again and again (a cycle)
+            break
+        node = stack.pop()
+        if not isinstance(node, int) or not 0 <= node < len(nodes) or not isinstance(nodes[node], dict):
+            continue
+        mesh = nodes[node].get("mesh")
+        if isinstance(mesh, int) and 0 <= mesh < len(mesh_faces):
+            placed += mesh_faces[mesh]
+        children = nodes[node].get("children", [])
+        if isinstance(children, list):
+            stack.extend(children)
+    if stack:
+        placed = max(placed, bound + 1)
+    limits.check_faces(path, placed, "after instancing")
 
 
 def _scene_parts(scene):
