@@ -108,6 +108,27 @@ def test_off_and_obj_numbers_equal_pythons_float(tmp_path, fmt):
     assert same_bits(a.points, expected) and same_bits(b.points, expected)
 
 
+EDGE_NUMBERS = [
+    "0.1", "0.3", "1e22", "1e23", "1e-22", "1e-23", "9007199254740992", "9007199254740993",
+    "123456789012345678", "1234567890123456789012", "0.000000000000000000000000001", "4.9e-324",
+    "2.2250738585072014e-308", "1.7976931348623157e308", "1e309", "-0", "-0.0e5", ".5", "5.", "00001.5000",
+    "1E+5", "+7", "3.14159265358979323846", "0.30000000000000004", "1e-400", "100000000000000000000000",
+    "8.589973e9", "1.0000000000000002", "0.1000000000000000055511151231257827",
+]
+
+
+def test_edge_numbers_equal_pythons_float(tmp_path):
+    tokens = EDGE_NUMBERS + ["1"] * (-len(EDGE_NUMBERS) % 3)
+    path = tmp_path / "edge.xyz"
+    path.write_text("\n".join(" ".join(tokens[k:k + 3]) for k in range(0, len(tokens), 3)) + "\n")
+    kernels = io.formats._kernels()
+    status, values, _ = kernels.parse_rows(np.frombuffer(path.read_bytes(), np.uint8))
+    assert status == kernels.OK  # all of them go through the compiled parser (some left to Python)
+    expected = np.array([float(t) for t in tokens]).reshape(-1, 3)
+    got = io.formats._parse_rows_text(path.read_bytes())
+    assert same_bits(got, expected)
+
+
 TET = "0 0 0\n1 0 0\n0 1 0\n0 0 1\n"
 TET_FACES = "3 0 1 2\n3 0 3 1\n3 0 2 3\n3 1 3 2\n"
 
