@@ -11,7 +11,11 @@ What it measures, all in one run, on the same meshes:
    at every cell; and through Open3D's BVH) against libigl's AABB (``igl.point_mesh_squared_distance``,
    the exact reference), a brute-force NumPy loop over all triangles, and a Euclidean distance
    transform of a 256^3 voxelisation, with their errors. 2b: the whole ``prepare`` of every
-   10k-20k-face mesh against libigl's distances alone.
+   10k-20k-face mesh against libigl's distances alone. 2c (``--only path`` runs it alone): the
+   whole preparation **from the path** (``primkit.data.prepare_file``: read the file and its labels,
+   frame, occupancy, distance grid, samples) against libigl's distances alone on the already-loaded
+   mesh, on every PSB and COSEG mesh, on a quiet machine and with one core kept busy by another
+   process, in alternating rounds; prints each condition's median ratio and the load.
 3. Occupancy: primkit's region-sampled winding numbers against libigl's at every cell; 3b: the
    surface cells, primkit's compiled triangle-box test against Open3D's voxeliser.
 4. Peak memory (``ru_maxrss`` of a fresh spawned process per method) and throughput of
@@ -32,6 +36,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import sys
 import tempfile
@@ -127,6 +132,8 @@ def warm_up() -> None:
 
     s = synthetic.chair(seed=0)
     data.prepare(io.Mesh(s.vertices, s.faces))
+    with tempfile.TemporaryDirectory() as folder:  # and the compiled text reader
+        data.prepare_file(io.write_mesh(Path(folder) / "chair.off", s.vertices, s.faces))
 
 
 # --------------------------------------------------------------------------------------------
@@ -435,6 +442,95 @@ def bench_distances(paths, bf_cells: int, repeats: int) -> None:
     )
 
 
+def path_inputs() -> list[tuple[str, Path]]:
+    """(group, path) of the Princeton (PSB) and COSEG meshes of the shared data."""
+    psb = sorted(DATA.glob("psb_seg_benchmark/*/off/*.off"))
+    coseg = sorted(DATA.glob("coseg_*/**/shapes/*.off"))
+    return [("psb", p) for p in psb] + [("coseg", p) for p in coseg]
+
+
+def _busy_core():
+    """Another process spinning on one core until it is terminated (the 'one core busy' condition)."""
+    import subprocess
+
+    return subprocess.Popen([sys.executable, "-c", "while True: pass"])
+
+
+def bench_from_path(items, repeats: int, rounds: int) -> dict:
+    """The issue's ratio from the path: ``prepare_file(path)`` against ``igl.point_mesh_squared_distance``
+    of the 32^3 cell centres to the already-loaded mesh (canonical frame), per mesh the fastest of
+    ``repeats`` calls each (alternating), in ``rounds`` rounds that alternate quiet and one core
+    busy. Returns {condition: {group: [ratio per mesh]}}."""
+    import igl
+
+    from primkit import data, geometry, io
+
+    centres = geometry.grid_centres(RESOLUTION).reshape(-1, 3)
+    loaded = {}
+    for _, path in items:  # the reference's input, loaded once (not timed)
+        mesh = io.read_mesh(path)
+        loaded[path] = (geometry.canonical_frame(mesh.vertices).to_canonical(mesh.vertices), mesh.faces)
+    best = {c: {path: [np.inf, np.inf] for _, path in items} for c in ("quiet", "busy")}
+    reads = {path: [np.inf, np.inf] for _, path in items}  # quiet: read_mesh, and with engine="trimesh"
+    loads = {"quiet": [], "busy": []}
+    conditions = [("quiet", "busy")[r % 2] for r in range(2 * rounds)]
+    for condition in conditions:
+        busy = _busy_core() if condition == "busy" else None
+        try:
+            if busy is not None:
+                time.sleep(0.5)  # let it start spinning
+            loads[condition].append(os.getloadavg()[0])
+            for _, path in items:
+                v, f = loaded[path]
+                for _ in range(repeats):
+                    _, t_igl = timed(igl.point_mesh_squared_distance, centres, v, f)
+                    _, t_prep = timed(data.prepare_file, path)
+                    b = best[condition][path]
+                    b[0], b[1] = min(b[0], t_igl), min(b[1], t_prep)
+                    if condition == "quiet":
+                        _, t_new = timed(io.read_mesh, path)
+                        _, t_old = timed(io.read_mesh, path, engine="trimesh")
+                        r = reads[path]
+                        r[0], r[1] = min(r[0], t_new), min(r[1], t_old)
+            loads[condition].append(os.getloadavg()[0])
+        finally:
+            if busy is not None:
+                busy.terminate()
+                busy.wait()
+    ratios = {c: {} for c in best}
+    rows = []
+    for group, path in items:
+        row = [f"{path.parent.parent.name}/{path.name}", len(loaded[path][1])]
+        for c in ("quiet", "busy"):
+            t_igl, t_prep = best[c][path]
+            ratios[c].setdefault(group, []).append(t_prep / t_igl)
+            row += [ms(t_igl), ms(t_prep), f"{t_prep / t_igl:.2f}"]
+        rows.append(row)
+    summary = []
+    for group in sorted({g for g, _ in items}, reverse=True):
+        line = f"{group} ({len(ratios['quiet'][group])} meshes): "
+        line += "; ".join(
+            f"{c} median ratio {np.median(ratios[c][group]):.2f} (range {min(ratios[c][group]):.2f}-"
+            f"{max(ratios[c][group]):.2f})" for c in ("quiet", "busy"))
+        summary.append(line)
+        igl_quiet = [best["quiet"][p][0] for g, p in items if g == group]
+        new, old = ([reads[p][k] for g, p in items if g == group] for k in (0, 1))
+        summary.append(f"  reading alone (quiet), median ratio to libigl's step: read_mesh {np.median(np.divide(new, igl_quiet)):.3f}, "
+                       f"engine='trimesh' (the reader before issue 37) {np.median(np.divide(old, igl_quiet)):.3f}; "
+                       f"median read {ms(np.median(new))} against {ms(np.median(old))} ms")
+    table(
+        f"2c. whole preparation from the path (prepare_file) against libigl's distances alone, quiet and one core busy",
+        ["mesh", "faces", "quiet igl ms", "prepare_file ms", "ratio", "busy igl ms", "prepare_file ms", "ratio"],
+        rows,
+        "\n".join(summary) + "\n"
+        f"per mesh the fastest of {repeats} alternating calls in each of {rounds} rounds per condition (rounds alternate "
+        "quiet / busy);\n'busy' = another process spinning on one core. 1-min load average at the start and end of "
+        "each round: quiet " + ", ".join(f"{x:.2f}" for x in loads["quiet"]) + "; busy "
+        + ", ".join(f"{x:.2f}" for x in loads["busy"]) + f" ({os.cpu_count()} cores).",
+    )
+    return ratios
+
+
 def bench_whole_preparation(paths, repeats: int) -> None:
     """The issue's ratio: the whole ``prepare`` of each 10k-20k-face mesh against libigl's exact
     distances alone at the same cell centres, and the largest far-cell error of its grid."""
@@ -716,8 +812,10 @@ def main(argv=None) -> int:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--before", default=None, metavar="REV",
                         help="also time binvox preparation with primkit at this git revision (e.g. 7f3df5b, before issue 20)")
-    parser.add_argument("--only", choices=("binvox", "training"), default=None,
-                        help="run section 1b alone, or section 6 (training on both preparations; not in the default run)")
+    parser.add_argument("--only", choices=("binvox", "path", "training"), default=None,
+                        help="run section 1b alone, section 2c alone (from the path, quiet and busy), or section 6 "
+                             "(training on both preparations; not in the default run)")
+    parser.add_argument("--rounds", type=int, default=None, help="section 2c: rounds per condition (default 2; quick 1)")
     parser.add_argument("--iterations", default="1000,300", metavar="S1,S2", help="section 6's training stages")
     args = parser.parse_args(argv)
     quick = args.quick
@@ -737,6 +835,17 @@ def main(argv=None) -> int:
     if args.only == "training":
         s1, s2 = (int(x) for x in args.iterations.split(","))
         bench_training(args.collection or (36 if quick else 360), s1, s2, seeds=(0, 1) if quick else (0, 1, 2))
+        print(f"\n# {load_line()} at end; benchmark took {time.perf_counter() - t_start:.0f} s")
+        return 0
+    rounds = args.rounds or (1 if quick else 2)
+    if args.only == "path":
+        items = path_inputs()
+        if quick:
+            items = items[::6]
+        if items:
+            bench_from_path(items, max(repeats, 3), rounds)
+        else:
+            print("\n(no PSB or COSEG meshes in the shared data: nothing to time)")
         print(f"\n# {load_line()} at end; benchmark took {time.perf_counter() - t_start:.0f} s")
         return 0
     if args.only == "binvox":
@@ -763,6 +872,8 @@ def main(argv=None) -> int:
     pick = [order[int(round(i))] for i in np.linspace(0, len(order) - 1, min(n_distance, len(order)))]
     bench_distances([r["path"] for r in pick], bf_cells, repeats)
     bench_whole_preparation([r["path"] for r in records if 10000 <= r["faces"] <= 20000], max(repeats, 3))
+    if path_inputs():
+        bench_from_path(path_inputs()[:: 6 if quick else 1], max(repeats, 3), rounds)
     bench_occupancy([r["path"] for r in records], repeats)
 
     biggest = order[-1]

@@ -163,6 +163,9 @@ def atomic_output(path, *, overwrite=False):
     ------
     temporary : Path
       An empty file to write to.
+
+    An ``OSError`` raised inside the block without a file name (``No space left on device`` from a
+    write) comes out as the same error naming ``path``.
     """
     path = Path(path)
     refuse_existing(path, overwrite)
@@ -178,11 +181,14 @@ def atomic_output(path, *, overwrite=False):
         # some writers (safetensors) make their file 0600 whatever was there
         os.chmod(temporary, mode)
         os.replace(temporary, path)
-    except BaseException:
+    except BaseException as exc:
         try:
             temporary.unlink()
         except FileNotFoundError:
             pass
+        if isinstance(exc, OSError) and exc.errno is not None and exc.filename is None:
+            # a write that fails (a full disk, a quota) names no file: name the output
+            raise OSError(exc.errno, exc.strerror or os.strerror(exc.errno), str(path)) from exc
         raise
 
 

@@ -3,11 +3,15 @@ formats, the face order and why trimesh reads and writes them)."""
 
 from __future__ import annotations
 
+import codecs
+import os
+import stat
 from io import BytesIO, StringIO
 from pathlib import Path
 
 import numpy as np
 
+from . import limits
 from .files import atomic_output
 from .values import Mesh, PointCloud, ShapeFileError, VoxelGrid
 
@@ -57,13 +61,23 @@ def is_shape_file(path) -> bool:
     return Path(path).suffix.lower() in MESH_SUFFIXES + POINT_SUFFIXES + VOXEL_SUFFIXES
 
 
-def read_mesh(path) -> Mesh:
+#: the readers' engines: "auto" parses plain OFF, OBJ, XYZ and SEG text with a compiled parser
+#: (:mod:`primkit.io._text_kernels`) and everything else as "trimesh" does (trimesh's loaders,
+#: NumPy's ``loadtxt``); both give the same arrays to the last bit
+ENGINES = ("auto", "trimesh")
+
+
+def read_mesh(path, *, engine: str = "auto") -> Mesh:
     """Read a triangle mesh, keeping vertex and face order.
 
     Parameters
     ----------
     path : str or Path
       ``.obj .ply .off .stl .glb .gltf``.
+    engine : {"auto", "trimesh"}
+      ``"auto"`` parses plain OFF and OBJ text (ASCII, triangles, three coordinates a vertex, no
+      comments) with a compiled parser and hands every other file to trimesh; ``"trimesh"`` always
+      uses trimesh's loader. The arrays are the same either way (tested on every shared mesh).
 
     Returns
     -------
@@ -74,13 +88,18 @@ def read_mesh(path) -> Mesh:
     ------
     ShapeFileError
       Missing, unreadable, empty or unparsable file, unsupported suffix, no faces, NaN or inf
-      coordinates, face indices out of range, or zero total area.
+      coordinates, face indices out of range, zero total area, or more faces than
+      :func:`primkit.io.limits.max_faces` (a scene's instances counted before they are expanded).
     """
+    _check_engine(engine)
     data = _read_checked(path, MESH_SUFFIXES, "mesh")
+    parsed = _parse_mesh_text(path, data) if engine == "auto" else None
+    if parsed is not None:
+        return _checked_mesh(path, *parsed)
     return _mesh_from_loaded(path, _load_trimesh(path, data))
 
 
-def read_points(path) -> PointCloud:
+def read_points(path, *, engine: str = "auto") -> PointCloud:
     """Read a point cloud.
 
     Parameters
@@ -88,12 +107,16 @@ def read_points(path) -> PointCloud:
     path : str or Path
       ``.xyz`` (whitespace text, 3 columns or 6 with normals), ``.npy`` ((n, 3) or (n, 6)),
       or ``.ply`` without faces (normals from ``nx ny nz`` when present).
+    engine : {"auto", "trimesh"}
+      As for :func:`read_mesh`: ``"auto"`` parses plain ``.xyz`` text with the compiled parser,
+      ``"trimesh"`` always with NumPy's ``loadtxt``.
 
     Returns
     -------
     cloud : PointCloud
       ``points : (n, 3) float64``, ``normals : (n, 3) float64`` or None.
     """
+    _check_engine(engine)
     data = _read_checked(path, POINT_SUFFIXES, "point cloud")
     suffix = Path(path).suffix.lower()
     if suffix == ".ply":
@@ -106,11 +129,13 @@ def read_points(path) -> PointCloud:
         if not (np.issubdtype(array.dtype, np.integer) or np.issubdtype(array.dtype, np.floating)):
             raise ShapeFileError(path, f"expected a real-valued array, got dtype {array.dtype}")
     else:
-        text = data.decode("utf-8", errors="replace").replace(",", " ")
-        try:
-            array = np.loadtxt(StringIO(text), dtype=np.float64, comments="#", ndmin=2)
-        except ValueError as exc:
-            raise ShapeFileError(path, f"cannot parse as XYZ: {_short(exc)}") from exc
+        array = _parse_rows_text(data) if engine == "auto" else None
+        if array is None:
+            text = data.decode("utf-8", errors="replace").replace(",", " ")
+            try:
+                array = np.loadtxt(StringIO(text), dtype=np.float64, comments="#", ndmin=2)
+            except ValueError as exc:
+                raise ShapeFileError(path, f"cannot parse as XYZ: {_short(exc)}") from exc
     if array.ndim != 2 or array.shape[1] not in (3, 6):
         raise ShapeFileError(path, f"expected (n, 3) or (n, 6) values, got shape {array.shape}")
     array = array.astype(np.float64)
@@ -141,6 +166,7 @@ def read_voxels(path) -> VoxelGrid:
         shape = " ".join(map(str, dims))
         raise ShapeFileError(path, f"non-cubic grid dim {shape} is not supported")
     r = dims[0]
+    limits.check_grid(path, r)  # before the run lengths are expanded: a few MB can declare 1024^3
     if len(payload) % 2:
         raise ShapeFileError(path, "run-length data has an odd number of bytes")
     pairs = np.frombuffer(payload, dtype=np.uint8).reshape(-1, 2)
@@ -160,15 +186,17 @@ def read_voxels(path) -> VoxelGrid:
     return VoxelGrid(occupancy, header["translate"], header["scale"])
 
 
-def read_shape(path) -> Mesh | PointCloud | VoxelGrid:
+def read_shape(path, *, engine: str = "auto") -> Mesh | PointCloud | VoxelGrid:
     """Read any supported shape file, choosing the type by suffix.
 
     A ``.ply`` with faces is a :class:`Mesh`; one without faces a :class:`PointCloud`.
+    ``engine`` as for :func:`read_mesh`.
 
     Returns
     -------
     shape : Mesh, PointCloud or VoxelGrid
     """
+    _check_engine(engine)
     suffix = Path(path).suffix.lower()
     if suffix == ".ply":
         data = _read_checked(path, (".ply",), "shape")
@@ -177,15 +205,15 @@ def read_shape(path) -> Mesh | PointCloud | VoxelGrid:
             return _mesh_from_loaded(path, loaded)
         return _points_from_loaded(path, loaded)
     if suffix in MESH_SUFFIXES:
-        return read_mesh(path)
+        return read_mesh(path, engine=engine)
     if suffix in POINT_SUFFIXES:
-        return read_points(path)
+        return read_points(path, engine=engine)
     if suffix in VOXEL_SUFFIXES:
         return read_voxels(path)
     raise _unsupported(path, MESH_SUFFIXES + POINT_SUFFIXES + VOXEL_SUFFIXES, "shape")
 
 
-def read_labels(path, face_count: int | None = None) -> np.ndarray:
+def read_labels(path, face_count: int | None = None, *, engine: str = "auto") -> np.ndarray:
     """Read per-face labels, one integer per line in face order.
 
     Parameters
@@ -194,16 +222,22 @@ def read_labels(path, face_count: int | None = None) -> np.ndarray:
       ``.seg`` file.
     face_count : int or None
       When given, the number of lines must equal it (the mesh's face count).
+    engine : {"auto", "trimesh"}
+      ``"auto"`` parses plain files (one integer a line) with the compiled parser, ``"trimesh"``
+      always with NumPy's ``loadtxt``; the same labels either way.
 
     Returns
     -------
     labels : (f,) int64
     """
+    _check_engine(engine)
     data = _read_checked(path, LABEL_SUFFIXES, "label")
-    try:
-        labels = np.loadtxt(BytesIO(data), dtype=np.int64, ndmin=1)
-    except ValueError as exc:
-        raise ShapeFileError(path, f"cannot parse as SEG: {_short(exc)}") from exc
+    labels = _parse_labels_text(data) if engine == "auto" else None
+    if labels is None:
+        try:
+            labels = np.loadtxt(BytesIO(data), dtype=np.int64, ndmin=1)
+        except ValueError as exc:
+            raise ShapeFileError(path, f"cannot parse as SEG: {_short(exc)}") from exc
     if labels.ndim != 1:
         raise ShapeFileError(path, f"expected one integer per line, got {labels.shape[1]} columns")
     if face_count is not None and len(labels) != face_count:
@@ -409,22 +443,98 @@ def _unsupported(path, suffixes, what) -> ShapeFileError:
     )
 
 
+# text formats whose leading UTF-8 byte-order mark is dropped (it is not part of the first line)
+_TEXT_SUFFIXES = (".obj", ".off", ".xyz", ".seg")
+
+
 def _read_checked(path, suffixes, what) -> bytes:
-    """Bytes of ``path`` after checking suffix, existence and emptiness."""
+    """Bytes of ``path`` after checking suffix, existence and emptiness; a UTF-8 byte-order mark
+    at the start of a text format is dropped. Every failure is a ShapeFileError naming ``path``."""
     p = Path(path)
     if p.suffix.lower() not in suffixes:
         raise _unsupported(path, suffixes, what)
-    if not p.exists():
-        raise ShapeFileError(path, "no such file")
-    if p.is_dir():
+    try:
+        # os.stat, not Path.exists: that raises its own OSError for a name too long or a folder
+        # that cannot be searched, naming no reader
+        st = os.stat(p)
+    except FileNotFoundError:
+        raise ShapeFileError(path, "no such file") from None
+    except NotADirectoryError:
+        raise ShapeFileError(path, "no such file (a parent is not a folder)") from None
+    except (OSError, ValueError) as exc:
+        raise ShapeFileError(path, f"cannot read: {getattr(exc, 'strerror', None) or _short(exc)}") from exc
+    if stat.S_ISDIR(st.st_mode):
         raise ShapeFileError(path, "is a directory")
     try:
         data = p.read_bytes()
     except OSError as exc:
         raise ShapeFileError(path, f"cannot read: {exc.strerror or _short(exc)}") from exc
+    if p.suffix.lower() in _TEXT_SUFFIXES and data.startswith(codecs.BOM_UTF8):
+        data = data[len(codecs.BOM_UTF8):]
     if not data.strip():
         raise ShapeFileError(path, "empty file")
     return data
+
+
+def _check_engine(engine) -> None:
+    if engine not in ENGINES:
+        raise ValueError(f"`engine` must be one of {', '.join(map(repr, ENGINES))}, got {engine!r}")
+
+
+def _kernels():
+    """The compiled text parsers, or None without Numba (the readers then use trimesh and NumPy)."""
+    try:
+        from . import _text_kernels
+    except ImportError:  # pragma: no cover - numba is a dependency
+        return None
+    return _text_kernels
+
+
+def _fill_slow(kernels, buf: np.ndarray, flat: np.ndarray, slow: np.ndarray) -> None:
+    """Convert the numbers the compiled parser left to Python (``slow``: (flat index, start, end)
+    rows of ``buf``) as trimesh and NumPy convert text (``np.array(tokens, float)``), into ``flat``."""
+    if len(slow):
+        tokens = kernels.gather_tokens(buf, slow).tobytes().decode("ascii").split()
+        flat[slow[:, 0]] = np.array(tokens, dtype=np.float64)
+
+
+def _parse_mesh_text(path, data: bytes):
+    """(vertices, faces) of a plain OFF or OBJ file by the compiled parser, or None (not plain,
+    another format, or no Numba): the caller then reads it with trimesh."""
+    kind = Path(path).suffix.lower()
+    kernels = _kernels() if kind in (".off", ".obj") else None
+    if kernels is None:
+        return None
+    parse = kernels.parse_off if kind == ".off" else kernels.parse_obj
+    buf = np.frombuffer(data, dtype=np.uint8)
+    status, vertices, faces, slow = parse(buf)
+    if status != kernels.OK:
+        return None
+    limits.check_faces(path, len(faces))
+    _fill_slow(kernels, buf, vertices.reshape(-1), slow)
+    return vertices, faces
+
+
+def _parse_rows_text(data: bytes):
+    """(rows, columns) float64 of plain whitespace-separated text by the compiled parser, or None."""
+    kernels = _kernels()
+    if kernels is None:
+        return None
+    buf = np.frombuffer(data, dtype=np.uint8)
+    status, values, slow = kernels.parse_rows(buf)
+    if status != kernels.OK:
+        return None
+    _fill_slow(kernels, buf, values.reshape(-1), slow)
+    return values
+
+
+def _parse_labels_text(data: bytes):
+    """(rows,) int64 of a plain one-integer-a-line file by the compiled parser, or None."""
+    kernels = _kernels()
+    if kernels is None:
+        return None
+    status, labels = kernels.parse_labels(np.frombuffer(data, dtype=np.uint8))
+    return labels if status == kernels.OK else None
 
 
 def _obj_geometry_only(text: str) -> str:
@@ -467,13 +577,81 @@ def _load_trimesh(path, data: bytes):
                 maintain_order=True,
                 skip_materials=True,
             )
+        if kind in ("glb", "gltf"):
+            _check_gltf_faces(path, data)
         if kind == "gltf":  # buffers may live in separate files beside it
             return trimesh.load(str(p), process=False)
         return trimesh.load(BytesIO(data), file_type=kind, process=False)
+    except ShapeFileError:
+        raise
     except Exception as exc:  # trimesh raises many types for malformed input
         if kind == "obj" and isinstance(exc, IndexError):
             raise ShapeFileError(path, "face index out of range") from exc
         raise ShapeFileError(path, f"cannot parse as {kind.upper()}: {_short(exc)}") from exc
+
+
+def _gltf_json(data: bytes):
+    """The JSON document of GLB or glTF bytes, or None when it cannot be found (trimesh then says why)."""
+    import json
+    import struct
+
+    try:
+        if data[:4] == b"glTF":
+            length, kind = struct.unpack("<I4s", data[12:20])
+            if kind != b"JSON":
+                return None
+            data = data[20 : 20 + length]
+        document = json.loads(data)
+    except (ValueError, struct.error):
+        return None
+    return document if isinstance(document, dict) else None
+
+
+def _check_gltf_faces(path, data: bytes) -> None:
+    """Refuse a GLB/glTF whose declared faces exceed the bound before trimesh decodes anything.
+
+    trimesh builds one mesh per glTF mesh (even when they share their accessors) and primkit one
+    per node placing a mesh, so both counts are bounded: the faces of every mesh of the file, and
+    the faces of every mesh placement reached from the scenes (a node reached twice counts twice).
+    Counted from the accessors' declared ``count`` (triangles: indices / 3; strips and fans: n - 2).
+    """
+    document = _gltf_json(data)
+    if document is None:
+        return
+    try:
+        accessors = document.get("accessors", [])
+        mesh_faces = []
+        for mesh in document.get("meshes", []):
+            faces = 0
+            for primitive in mesh.get("primitives", []):
+                mode = primitive.get("mode", 4)
+                index = primitive.get("indices", primitive.get("attributes", {}).get("POSITION"))
+                count = int(accessors[index]["count"]) if index is not None else 0
+                faces += count // 3 if mode == 4 else max(count - 2, 0) if mode in (5, 6) else 0
+            mesh_faces.append(faces)
+        nodes = document.get("nodes", [])
+        roots = [n for scene in document.get("scenes", []) for n in scene.get("nodes", [])]
+    except (AttributeError, IndexError, KeyError, TypeError, ValueError):
+        return  # malformed: trimesh's own error says so
+    bound = limits.max_faces()
+    limits.check_faces(path, sum(mesh_faces))
+    placed, stack, visits = 0, list(roots), 0
+    while stack and placed <= bound:
+        visits += 1
+        if visits > len(nodes) + 1_000_000:  # a graph that reaches its nodes again and again (a cycle)
+            break
+        node = stack.pop()
+        if not isinstance(node, int) or not 0 <= node < len(nodes) or not isinstance(nodes[node], dict):
+            continue
+        mesh = nodes[node].get("mesh")
+        if isinstance(mesh, int) and 0 <= mesh < len(mesh_faces):
+            placed += mesh_faces[mesh]
+        children = nodes[node].get("children", [])
+        if isinstance(children, list):
+            stack.extend(children)
+    if stack:
+        placed = max(placed, bound + 1)
+    limits.check_faces(path, placed, "after instancing")
 
 
 def _scene_parts(scene):
@@ -505,6 +683,8 @@ def _mesh_from_loaded(path, loaded) -> Mesh:
             # trimesh returns an empty scene when none of its loaders understood the bytes
             kind = Path(path).suffix.lower()[1:].upper()
             raise ShapeFileError(path, f"cannot parse as {kind}: no geometry found")
+        # counted before the instances are expanded: a 1 MB GLB can place one mesh 3,000 times
+        limits.check_faces(path, _scene_face_count(loaded), "after instancing")
         parts = _scene_parts(loaded)
         if not parts:
             raise ShapeFileError(path, "no faces (no triangle mesh in the scene)")
@@ -518,7 +698,27 @@ def _mesh_from_loaded(path, loaded) -> Mesh:
         raise ShapeFileError(path, "no faces (a point cloud? use read_points)")
     if len(faces) == 0:
         raise ShapeFileError(path, "no faces (a point cloud? use read_points)")
+    limits.check_faces(path, len(faces))
+    return _checked_mesh(path, vertices, faces)
 
+
+def _scene_face_count(scene) -> int:
+    """Faces of every mesh node of a trimesh Scene, each instance counted (nothing expanded)."""
+    import trimesh
+
+    total = 0
+    for node in scene.graph.nodes_geometry:
+        geometry = scene.geometry.get(scene.graph[node][1])
+        if isinstance(geometry, trimesh.Trimesh):
+            total += len(geometry.faces)
+    return total
+
+
+def _checked_mesh(path, vertices, faces) -> Mesh:
+    """The readers' checks on (vertices, faces) from any parser: finite coordinates, indices in
+    range, STL's equal corners merged, a non-zero area."""
+    if len(faces) == 0:
+        raise ShapeFileError(path, "no faces (a point cloud? use read_points)")
     _require_finite(path, vertices, "vertices")
     if faces.min() < 0 or faces.max() >= len(vertices):
         raise ShapeFileError(

@@ -66,9 +66,15 @@ class Mesh:
         -------
         areas : (f,) float
         """
-        corners = self.vertices[self.faces]
-        cross = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-        return 0.5 * np.linalg.norm(cross, axis=1)
+        # np.cross and np.linalg.norm spelt out: the same operations in the same order, so the
+        # same bits, in half the time (the readers check every mesh's area)
+        v, f = self.vertices, self.faces
+        a = v[f[:, 0]]
+        u, w = v[f[:, 1]] - a, v[f[:, 2]] - a
+        cx = u[:, 1] * w[:, 2] - u[:, 2] * w[:, 1]
+        cy = u[:, 2] * w[:, 0] - u[:, 0] * w[:, 2]
+        cz = u[:, 0] * w[:, 1] - u[:, 1] * w[:, 0]
+        return 0.5 * np.sqrt(cx * cx + cy * cy + cz * cz)
 
     def area(self) -> float:
         """Total surface area."""
