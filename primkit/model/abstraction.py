@@ -31,7 +31,7 @@ import numpy as np
 from .. import data, io, parallel
 from ..viz import interop
 from . import orientation
-from .abstractor import AbstractionResult, Abstractor
+from .abstractor import MIN_EXTENT, AbstractionResult, Abstractor
 
 __all__ = ["Abstraction", "Abstractions", "as_shape", "abstract_shapes", "abstract", "load_model"]
 
@@ -201,6 +201,7 @@ def abstract_shapes(
     refine: int = 0,
     existence_threshold: float = 0.5,
     prune_threshold: float | None = 0.6,
+    min_extent: float | None = MIN_EXTENT,
     settings: data.PrepareSettings | None = None,
     names=None,
     cache=None,
@@ -225,8 +226,10 @@ def abstract_shapes(
         ShapeNet's +X front both work without flags, and a symmetric stool is never laid on its
         side); ``up`` declared -> ``"front"``; both declared -> ``"none"``. What was chosen is
         recorded in each result's ``alignment``.
-    refine, existence_threshold, prune_threshold
-        As :meth:`Abstractor.predict` (``refine=N`` runs N gradient steps per shape).
+    refine, existence_threshold, prune_threshold, min_extent
+        As :meth:`Abstractor.predict` (``refine=N`` runs N gradient steps per shape; parts whose
+        longest side is under ``min_extent`` of the shape's size, or that are nearest to none of
+        its surface samples, are not present).
     settings : data.PrepareSettings, optional
         How to prepare (resolution, samples, axes); default the model's.
     names : one name per in-memory shape (default ``shape<i>``, ``i`` its position in ``inputs``).
@@ -252,7 +255,8 @@ def abstract_shapes(
     if settings.resolution != abstractor.resolution:
         raise ValueError(f"settings.resolution is {settings.resolution} but the model reads {abstractor.resolution}^3")
     options = {"align": None if mode == "none" else mode, "refine": refine,
-               "existence_threshold": existence_threshold, "prune_threshold": prune_threshold}
+               "existence_threshold": existence_threshold, "prune_threshold": prune_threshold,
+               "min_extent": min_extent}
     items = _inputs(inputs)
     files, memory, errors = [], [], []
     order = []  # ("file", position in files) or ("memory", position in memory), in input order
