@@ -14,7 +14,8 @@ data. It re-executes when its input or its properties change, like any VTK filte
 
 Properties (``Set<Name>``/``Get<Name>``, or keywords of the constructor): ``Model`` (a bundled
 model's name or a model file, default ``"chair"``), ``RefineSteps`` (gradient steps per shape,
-default 0), ``Up`` and ``Front`` (the input's axes, default ``"+y"`` and ``"+x"``).
+default 0), ``Up`` and ``Front`` (the input's axes; default ``"auto"``: found by the model, as
+``primkit segment`` finds them without ``--up``/``--front``; :func:`primkit.model.orientation.resolve_align`).
 
 **In ParaView** (5.10 or later; its Python must see primkit: ``pip install primkit`` into the
 Python ParaView runs, or put primkit's site-packages on ``PYTHONPATH`` before starting ParaView):
@@ -53,7 +54,7 @@ except ImportError:  # plain VTK
 
 __all__ = ["PrimkitSegmentation"]
 
-AXES = ["+x", "-x", "+y", "-y", "+z", "-z"]
+AXES = ["auto", "+x", "-x", "+y", "-y", "+z", "-z"]  # "auto": not declared, found by the model
 _AXIS_DOMAIN = "<StringListDomain name='list'>" + "".join(f"<String value='{a}'/>" for a in AXES) + "</StringListDomain>"
 
 
@@ -67,7 +68,7 @@ class PrimkitSegmentation(VTKPythonAlgorithmBase):
     def __init__(self, **properties):
         VTKPythonAlgorithmBase.__init__(self, nInputPorts=1, inputType="vtkPolyData", nOutputPorts=2,
                                         outputType="vtkPolyData")
-        self._model, self._refine, self._up, self._front = "chair", 0, "+y", "+x"
+        self._model, self._refine, self._up, self._front = "chair", 0, "auto", "auto"
         self._loaded = None  # (model name, Abstractor): loaded once per model
         for name, value in properties.items():
             setter = getattr(self, f"Set{name}", None)
@@ -99,7 +100,7 @@ class PrimkitSegmentation(VTKPythonAlgorithmBase):
     def GetRefineSteps(self) -> int:
         return self._refine
 
-    @smproperty.stringvector(name="Up", default_values="+y")
+    @smproperty.stringvector(name="Up", default_values="auto")
     @smdomain.xml(_AXIS_DOMAIN)
     def SetUp(self, axis) -> None:
         self._set_axis("_up", axis)
@@ -107,7 +108,7 @@ class PrimkitSegmentation(VTKPythonAlgorithmBase):
     def GetUp(self) -> str:
         return self._up
 
-    @smproperty.stringvector(name="Front", default_values="+x")
+    @smproperty.stringvector(name="Front", default_values="auto")
     @smdomain.xml(_AXIS_DOMAIN)
     def SetFront(self, axis) -> None:
         self._set_axis("_front", axis)
