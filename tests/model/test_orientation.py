@@ -167,3 +167,30 @@ def test_the_vtk_filter_takes_the_command_lines_frame_on_a_coseg_chair(shared_da
     declared.SetInputConnection(source.GetOutputPort())
     declared.Update()
     assert not np.array_equal(np.asarray(pv.wrap(declared.GetOutputDataObject(0)).cell_data["part"]), expected)
+
+
+def _stool(seed: int):
+    """A square seat on four round legs: symmetric enough that a chair model could explain it on a side."""
+    import trimesh
+
+    from primkit import io
+
+    rng = np.random.default_rng(seed)
+    w, h, t, r = rng.uniform(0.35, 0.45), rng.uniform(0.4, 0.6), rng.uniform(0.04, 0.07), rng.uniform(0.02, 0.03)
+    move = trimesh.transformations.translation_matrix
+    parts = [trimesh.creation.box((w, t, w), move((0, h + t / 2, 0)))]
+    stand = trimesh.transformations.rotation_matrix(np.pi / 2, (1, 0, 0))
+    for sx in (-1, 1):
+        for sz in (-1, 1):
+            parts.append(trimesh.creation.cylinder(r, h, transform=move((sx * (w / 2 - r), h / 2, sz * (w / 2 - r))) @ stand))
+    m = trimesh.util.concatenate(parts)
+    return io.Mesh(m.vertices, m.faces)
+
+
+def test_stools_are_not_laid_on_their_side(chair_model_for_frames, procedural_prepared):
+    from primkit import data
+
+    stools = [data.prepare(_stool(s), name=f"stool{s}") for s in range(2)]
+    for shapes in (stools[:1], stools, list(procedural_prepared[:3]) + stools):
+        for r in chair_model_for_frames.predict(shapes, align="auto"):
+            assert orientation.axis_name(r.frame.rotation[1]) == "+y", r.name
