@@ -202,6 +202,7 @@ def abstract_shapes(
     existence_threshold: float = 0.5,
     prune_threshold: float | None = 0.6,
     min_extent: float | None = MIN_EXTENT,
+    adapt=None,
     settings: data.PrepareSettings | None = None,
     names=None,
     cache=None,
@@ -230,6 +231,11 @@ def abstract_shapes(
         As :meth:`Abstractor.predict` (``refine=N`` runs N gradient steps per shape; parts whose
         longest side is under ``min_extent`` of the shape's size, or that are nearest to none of
         its surface samples, are not present).
+    adapt : None, int or :class:`primkit.model.adaptation.AdaptConfig`
+        Adapt the model to these inputs first, without labels (:func:`primkit.model.adaptation.adapt`;
+        an int is the number of steps, with the other settings at their defaults); the shapes are
+        then abstracted by the adapted model, which ``Abstractions.model`` holds. Experimental: every
+        prepared shape is held in memory while adapting.
     settings : data.PrepareSettings, optional
         How to prepare (resolution, samples, axes); default the model's.
     names : one name per in-memory shape (default ``shape<i>``, ``i`` its position in ``inputs``).
@@ -289,6 +295,15 @@ def abstract_shapes(
         usable = {str(p): j for j, p in enumerate(coll.paths)}
         order = [(kind, usable.get(str(files[k])) if kind == "file" else k) for kind, k in order]
         order = [(kind, k) for kind, k in order if k is not None]
+    if adapt:
+        from .adaptation import AdaptConfig, adapt as adapt_model
+
+        config = adapt if isinstance(adapt, AdaptConfig) else AdaptConfig(steps=int(adapt))
+        everything = [coll[k] if kind == "file" else memory[k][1] for kind, k in order]
+        named = str(model) if isinstance(model, (str, os.PathLike)) else None
+        if everything:
+            with parallel.torch_threads(parallel.choose_threads(interval=0.05)):
+                abstractor = adapt_model(abstractor, everything, config, parent_name=named, progress=progress)
     shapes = []
     # torch on the cores free (an explicit setting wins), the caller's thread count back afterwards
     with parallel.torch_threads(parallel.choose_threads(interval=0.05)), \

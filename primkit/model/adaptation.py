@@ -42,7 +42,6 @@ import torch
 
 from .abstractor import Abstractor
 from .losses import LossWeights, MovingBaseline, reinforce_surrogate, shape_losses
-from .training import ShapeTensors
 
 __all__ = ["AdaptConfig", "adapt", "collection_digest", "index_agreement"]
 
@@ -74,6 +73,28 @@ def collection_digest(shapes) -> str:
     return h.hexdigest()[:16]
 
 
+class _Batches:
+    """Random batches of prepared shapes held in memory, as :meth:`primkit.model.training.ShapeTensors.batch`
+    draws them (the same layout: closest points planar in memory). Written here rather than
+    imported so that inference (``abstract_shapes(..., adapt=N)``) never imports the training module."""
+
+    def __init__(self, shapes):
+        n = min(len(s.points) for s in shapes)
+        self.occupancy = torch.from_numpy(np.stack([s.occupancy for s in shapes]).astype(np.float32))
+        planar = np.stack([np.moveaxis(np.asarray(s.closest, np.float32), -1, 0) for s in shapes])
+        self.closest = torch.from_numpy(planar).permute(0, 2, 3, 4, 1)
+        self.points = torch.from_numpy(np.stack([s.points[:n] for s in shapes]).astype(np.float32))
+
+    def __len__(self) -> int:
+        return len(self.occupancy)
+
+    def batch(self, index, points_per_shape: int, generator: torch.Generator):
+        occ = self.occupancy.index_select(0, index).unsqueeze(1)
+        closest = self.closest.permute(0, 4, 1, 2, 3).index_select(0, index).permute(0, 2, 3, 4, 1)
+        pick = torch.randint(0, self.points.shape[1], (len(index), points_per_shape), generator=generator)
+        return occ, closest, torch.gather(self.points[index], 1, pick[..., None].expand(-1, -1, 3))
+
+
 def _freeze_batch_norm(net) -> None:
     for m in net.modules():
         if isinstance(m, torch.nn.modules.batchnorm._BatchNorm):
@@ -89,7 +110,7 @@ def _steps(net, data, optimizer, generator, baseline, weights, parsimony, parent
         _freeze_batch_norm(net)
     for _ in tqdm(range(config.steps), desc="adapting", unit="step", disable=not progress):
         index = torch.randint(0, len(data), (config.batch_size,), generator=generator)
-        occ, closest, pts = data.batch(index, config.points_per_shape, generator, "cpu")
+        occ, closest, pts = data.batch(index, config.points_per_shape, generator)
         pred = net(occ)
         u = torch.rand(pred.existence.shape, generator=generator)
         present = (u < pred.existence.detach()).to(pred.existence.dtype)
@@ -111,8 +132,8 @@ def _steps(net, data, optimizer, generator, baseline, weights, parsimony, parent
     net.eval()
 
 
-def adapt(model, shapes, config: AdaptConfig = AdaptConfig(), *, parent_name: str | None = None,
-          progress: bool = False) -> Abstractor:
+def adapt(model, shapes, config: AdaptConfig = AdaptConfig(), *, align: str | None = "auto",
+          parent_name: str | None = None, progress: bool = False) -> Abstractor:
     """A copy of ``model`` whose network continued stage-2 training on ``shapes``, without labels.
 
     Parameters
@@ -121,8 +142,11 @@ def adapt(model, shapes, config: AdaptConfig = AdaptConfig(), *, parent_name: st
         The parent (unchanged).
     shapes : list of primkit.data.PreparedShape
         The collection, as prepared (meshes, point clouds and voxel grids alike); turned here into
-        the frame the parent finds for it (:meth:`Abstractor.orient`, ``"auto"``).
+        the frame the parent finds for it (:meth:`Abstractor.orient` with ``align``).
     config : AdaptConfig
+    align : str or None
+        How the frames are found (:data:`primkit.model.orientation.ALIGN_MODES`); None or
+        ``"none"``: as prepared.
     parent_name : str, optional
         How the parent is named in the new model's metadata (a bundled model's name, a file).
     progress : bool
@@ -140,8 +164,8 @@ def adapt(model, shapes, config: AdaptConfig = AdaptConfig(), *, parent_name: st
     if not shapes:
         raise ValueError("no shapes to adapt to")
     t0 = time.perf_counter()
-    turned, _ = model.orient(shapes, "auto")
-    data = ShapeTensors(turned)
+    turned = shapes if align in (None, "none") else model.orient(shapes, align)[0]
+    data = _Batches(turned)
     training = (model.metadata.get("training") or {}).get("config") or {}
     weights = LossWeights(float(training.get("coverage_weight", 1.0)), float(training.get("consistency_weight", 1.0)),
                           float(training.get("symmetry_weight", 0.0)))
