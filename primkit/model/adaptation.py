@@ -8,8 +8,8 @@ parent's weights, and returns a new :class:`~primkit.model.abstractor.Abstractor
 is still the parent's part ``k`` (nothing renumbers the slots; how far the answer moves is measured
 by :func:`index_agreement`).
 
-Status: experimental, off by default (``primkit adapt`` and this function; ``--adapt`` on the other
-commands is not done). On the 10 COSEG chairs in ``../shared``, paper protocol, face accuracy: the
+Status: experimental, off by default (``primkit adapt``, ``--adapt [STEPS]`` on the commands that
+abstract, ``abstract_shapes(..., adapt=)``, ``Segmenter(..., adapt=)``). On the 10 COSEG chairs in ``../shared``, paper protocol, face accuracy: the
 parent 0.908; 600 steps without the pull 0.876 (every setting without it lowered it); with the
 pull toward the parent's answer (``pull=1``, the default) 0.918, no chair lower than the parent's
 by more than 0.001, 97.6% of surface samples keeping their part index (``docs/frames-and-parts.md``,
