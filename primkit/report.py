@@ -244,16 +244,16 @@ def _deformation(shapes, similarity, folder: Path, overwrite: bool) -> dict:
 
 def build_report(paths, model, output, *, refine: int = 0, align=None, up=None, front=None, overwrite: bool = False,
                  settings=None, model_label: str | None = None,
-                 cache_dir=None, workers=None, progress: bool = True) -> tuple[Report, list]:
+                 cache_dir=None, workers=None, progress: bool = True, adapt=None) -> tuple[Report, list]:
     """Abstract, segment, embed and deform the shapes of ``paths`` with ``model`` and write the report.
 
     ``settings``: :class:`primkit.data.PrepareSettings`; default the model's. ``up``, ``front``,
     ``align``: the inputs' axes when known, and how orientations are found, as
-    :func:`primkit.model.abstraction.abstract_shapes`.
+    :func:`primkit.model.abstraction.abstract_shapes`, as is ``adapt`` (experimental).
     Returns ``(report, errors)``; ``errors`` has one line per unusable input (the rest goes on).
     """
     out = abstract_shapes(paths, model, settings=settings, align=align, up=up, front=front, refine=refine,
-                          cache=cache_dir, workers=workers, progress=progress)
+                          cache=cache_dir, workers=workers, progress=progress, adapt=adapt)
     if not out.shapes:
         raise ValueError("no usable shapes for the report")
     shapes = []

@@ -39,6 +39,7 @@ __all__ = [
     "add_png",
     "add_prepare_options",
     "add_abstraction_options",
+    "add_adapt",
     "SHARED_OPTIONS",
 ]
 
@@ -164,6 +165,8 @@ def abstraction_options(args) -> dict:
     if getattr(args, "shard", None) is not None:
         options["shard"] = parse_shard_option(args)
     options.update({k: getattr(args, k) for k in ("up", "front") if getattr(args, k, None) is not None})
+    if getattr(args, "adapt", None):
+        options["adapt"] = args.adapt
     return options
 
 
@@ -261,3 +264,10 @@ def add_abstraction_options(p) -> None:
     add_refine(p)
     add_cache(p)
     add_workers(p)
+    add_adapt(p)
+
+
+def add_adapt(p) -> None:
+    p.add_argument("--adapt", type=int, nargs="?", const=600, default=None, metavar="STEPS",
+                   help="adapt the model to these inputs first, without labels (experimental; 600 steps when "
+                        "given without a number; primkit adapt writes the adapted model to a file)")

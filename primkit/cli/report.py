@@ -30,7 +30,7 @@ def _run(args) -> int:
     report, errors = build_report(files, model, args.output, refine=args.refine,
                                   settings=settings_from_args(args, model.settings), model_label=args.model,
                                   align=args.align, up=args.up, front=args.front, overwrite=args.force,
-                                  cache_dir=args.cache, workers=args.workers)
+                                  cache_dir=args.cache, workers=args.workers, adapt=args.adapt)
     for note in report.notes.values():
         print(f"primkit: note: {note}")
     print(f"wrote {report.path} ({report.shapes} shapes)")

@@ -247,7 +247,8 @@ def _cmd_segment(args) -> int:
         return 2
     archives = _voxel_archives(sources)
     evaluations = {"meshes": out / "evaluation.json", "voxels": out / "evaluation-voxels.json"}
-    segmenter = Segmenter(args.model, up=args.up, front=args.front, align=args.align, refine=args.refine)
+    segmenter = Segmenter(args.model, up=args.up, front=args.front, align=args.align, refine=args.refine,
+                          adapt=getattr(args, "adapt", None))
     files = collect(args.inputs)
     # with --shard, this shard's outputs only, named as one run over all the inputs names them
     mine, names = shard_of(args, files), shard_of(args, output_names(files))
@@ -359,7 +360,8 @@ def _cmd_name_parts(args) -> int:
     out = Path(args.output)
     sources = [(args.labels, args.names)] if args.labels else []
     archives = _voxel_archives(sources)
-    segmenter = Segmenter(args.model, up=args.up, front=args.front, align=args.align, refine=args.refine)
+    segmenter = Segmenter(args.model, up=args.up, front=args.front, align=args.align, refine=args.refine,
+                          adapt=getattr(args, "adapt", None))
     files = collect(args.inputs)
     check_outputs(args, [check_suffix(out, ".safetensors", "a model file")],
                   input_paths(files, _model_path(args.model), args.labels))

@@ -31,7 +31,7 @@ import numpy as np
 from .. import data, io, parallel
 from ..viz import interop
 from . import orientation
-from .abstractor import AbstractionResult, Abstractor
+from .abstractor import MIN_EXTENT, AbstractionResult, Abstractor
 
 __all__ = ["Abstraction", "Abstractions", "as_shape", "abstract_shapes", "abstract", "load_model"]
 
@@ -201,6 +201,8 @@ def abstract_shapes(
     refine: int = 0,
     existence_threshold: float = 0.5,
     prune_threshold: float | None = 0.6,
+    min_extent: float | None = MIN_EXTENT,
+    adapt=None,
     settings: data.PrepareSettings | None = None,
     names=None,
     cache=None,
@@ -225,8 +227,15 @@ def abstract_shapes(
         ShapeNet's +X front both work without flags, and a symmetric stool is never laid on its
         side); ``up`` declared -> ``"front"``; both declared -> ``"none"``. What was chosen is
         recorded in each result's ``alignment``.
-    refine, existence_threshold, prune_threshold
-        As :meth:`Abstractor.predict` (``refine=N`` runs N gradient steps per shape).
+    refine, existence_threshold, prune_threshold, min_extent
+        As :meth:`Abstractor.predict` (``refine=N`` runs N gradient steps per shape; parts whose
+        longest side is under ``min_extent`` of the shape's size, or that are nearest to none of
+        its surface samples, are not present).
+    adapt : None, int or :class:`primkit.model.adaptation.AdaptConfig`
+        Adapt the model to these inputs first, without labels (:func:`primkit.model.adaptation.adapt`;
+        an int is the number of steps, with the other settings at their defaults); the shapes are
+        then abstracted by the adapted model, which ``Abstractions.model`` holds. Experimental: every
+        prepared shape is held in memory while adapting.
     settings : data.PrepareSettings, optional
         How to prepare (resolution, samples, axes); default the model's.
     names : one name per in-memory shape (default ``shape<i>``, ``i`` its position in ``inputs``).
@@ -252,7 +261,8 @@ def abstract_shapes(
     if settings.resolution != abstractor.resolution:
         raise ValueError(f"settings.resolution is {settings.resolution} but the model reads {abstractor.resolution}^3")
     options = {"align": None if mode == "none" else mode, "refine": refine,
-               "existence_threshold": existence_threshold, "prune_threshold": prune_threshold}
+               "existence_threshold": existence_threshold, "prune_threshold": prune_threshold,
+               "min_extent": min_extent}
     items = _inputs(inputs)
     files, memory, errors = [], [], []
     order = []  # ("file", position in files) or ("memory", position in memory), in input order
@@ -285,6 +295,15 @@ def abstract_shapes(
         usable = {str(p): j for j, p in enumerate(coll.paths)}
         order = [(kind, usable.get(str(files[k])) if kind == "file" else k) for kind, k in order]
         order = [(kind, k) for kind, k in order if k is not None]
+    if adapt:
+        from .adaptation import AdaptConfig, adapt as adapt_model
+
+        config = adapt if isinstance(adapt, AdaptConfig) else AdaptConfig(steps=int(adapt))
+        everything = [coll[k] if kind == "file" else memory[k][1] for kind, k in order]
+        named = str(model) if isinstance(model, (str, os.PathLike)) else None
+        if everything:
+            with parallel.torch_threads(parallel.choose_threads(interval=0.05)):
+                abstractor = adapt_model(abstractor, everything, config, parent_name=named, progress=progress)
     shapes = []
     # torch on the cores free (an explicit setting wins), the caller's thread count back afterwards
     with parallel.torch_threads(parallel.choose_threads(interval=0.05)), \

@@ -47,8 +47,9 @@ UPRIGHT = np.array([np.allclose(r[1], [0.0, 1.0, 0.0]) for r in AXIS_ROTATIONS])
 ALIGN_MODES = {
     "none": "as given (or as declared with up/front)",
     "front": "the 4 turns about the up axis; the one the model explains best",
-    "auto": "the 4 turns about the up axis, and another up axis only when the shape is clearly lying down "
-    "(the best orientation with another up axis explained with under `up_margin` of the best upright loss)",
+    "auto": "the 4 turns about the up axis (+Y, or the collection's when two thirds of it agree), and another "
+    "up axis only when the shape is clearly lying down (the best orientation with another up axis explained "
+    "with under `up_margin` of the best upright loss)",
     "any": "all 24 axis-aligned orientations; the one the model explains best",
 }
 
@@ -91,19 +92,23 @@ def candidate_rotations(mode: str) -> np.ndarray:
     raise ValueError(f"align must be one of {', '.join(ALIGN_MODES)}, got {mode!r}")
 
 
-def choose_orientation(losses, candidates, mode: str, up_margin: float = UP_MARGIN) -> int:
+def choose_orientation(losses, candidates, mode: str, up_margin: float = UP_MARGIN, up=(0.0, 1.0, 0.0)) -> int:
     """The chosen index into :data:`AXIS_ROTATIONS`, from the fit loss of each candidate.
 
-    ``losses`` (k,) float for ``candidates`` (k,) int. ``"auto"`` keeps the best upright turn
-    unless the best of the others has a loss below ``up_margin`` times it: a chair model explains
-    a lying-down chair far better once it is stood up, while a symmetric stool on its side is at
-    best a little better explained, and is kept upright.
+    ``losses`` (k,) float for ``candidates`` (k,) int. ``"auto"`` keeps the best turn that leaves
+    ``up`` ((3,) float, an input axis in the shape's prepared frame; +Y by default, or the
+    collection's up axis) as the up axis, unless the best of the others has a loss below
+    ``up_margin`` times it: a chair model explains a lying-down chair far better once it is stood
+    up, while a symmetric stool on its side is at best a little better explained, and is kept
+    upright.
     """
     losses = np.asarray(losses, float)
     candidates = np.asarray(candidates)
     if mode != "auto":
         return int(candidates[int(np.argmin(losses))])
-    upright = UPRIGHT[candidates]
+    upright = np.all(np.isclose(AXIS_ROTATIONS[candidates][:, 1], np.asarray(up, float)), axis=1)
+    if not upright.any():
+        raise ValueError(f"no candidate keeps {axis_name(up)} up")
     best_up = int(np.flatnonzero(upright)[np.argmin(losses[upright])])
     if upright.all():
         return int(candidates[best_up])

@@ -14,7 +14,8 @@ data. It re-executes when its input or its properties change, like any VTK filte
 
 Properties (``Set<Name>``/``Get<Name>``, or keywords of the constructor): ``Model`` (a bundled
 model's name or a model file, default ``"chair"``), ``RefineSteps`` (gradient steps per shape,
-default 0), ``Up`` and ``Front`` (the input's axes, default ``"+y"`` and ``"+x"``).
+default 0), ``Up`` and ``Front`` (the input's axes; default ``"auto"``: found by the model, as
+``primkit segment`` finds them without ``--up``/``--front``; :func:`primkit.model.orientation.resolve_align`).
 
 For ParaView see :mod:`primkit.plugins.paraview_plugin`: ParaView's Python carries its own VTK,
 which cannot share a process with pip's, so its plugin is a separate, NumPy-only file.
@@ -33,7 +34,7 @@ from .pyvista_accessor import segmented_copy
 
 __all__ = ["PrimkitSegmentation"]
 
-AXES = ["+x", "-x", "+y", "-y", "+z", "-z"]
+AXES = ["auto", "+x", "-x", "+y", "-y", "+z", "-z"]  # "auto": not declared, found by the model
 
 
 class PrimkitSegmentation(VTKPythonAlgorithmBase):
@@ -42,7 +43,7 @@ class PrimkitSegmentation(VTKPythonAlgorithmBase):
     def __init__(self, **properties):
         VTKPythonAlgorithmBase.__init__(self, nInputPorts=1, inputType="vtkPolyData", nOutputPorts=2,
                                         outputType="vtkPolyData")
-        self._model, self._refine, self._up, self._front = "chair", 0, "+y", "+x"
+        self._model, self._refine, self._up, self._front = "chair", 0, "auto", "auto"
         self._loaded = None  # (model name, Abstractor): loaded once per model
         for name, value in properties.items():
             setter = getattr(self, f"Set{name}", None)

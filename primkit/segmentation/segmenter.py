@@ -52,6 +52,9 @@ class Segmenter:
         clearly lies on a side, and the front searched).
     refine, existence_threshold, prune_threshold
         Passed to :meth:`primkit.model.abstractor.Abstractor.predict`.
+    adapt : None, int or AdaptConfig
+        Adapt the model to each run's inputs first, without labels
+        (:func:`primkit.model.abstraction.abstract_shapes`'s ``adapt``; experimental).
 
     Examples
     --------
@@ -61,11 +64,11 @@ class Segmenter:
     """
 
     def __init__(self, model, *, up: str | None = None, front: str | None = None, align=None, refine: int = 0,
-                 existence_threshold: float = 0.5, prune_threshold: float | None = 0.6):
+                 existence_threshold: float = 0.5, prune_threshold: float | None = 0.6, adapt=None):
         self.abstractor = load_model(model)
         self.up, self.front = up, front
         self.predict_options = {"align": align, "refine": refine, "existence_threshold": existence_threshold,
-                                "prune_threshold": prune_threshold}
+                                "prune_threshold": prune_threshold, "adapt": adapt}
 
     @property
     def part_names(self) -> list:

@@ -17,7 +17,10 @@ def test_files_meshes_and_arrays_give_the_same_abstraction_in_input_order(tmp_pa
     assert len(out.errors) == 1 and "missing.off" in out.errors[0]
     first = out[0]
     for other in out.shapes[1:]:  # the same mesh, from a file or from memory: the same cuboids
-        np.testing.assert_allclose(other.cuboids.translations, first.cuboids.translations, atol=1e-9)
+        # (parts grown to their surface samples follow the samples, which differ by up to 5e-4
+        # between the routes: the file holds the vertices rounded)
+        np.testing.assert_array_equal(other.cuboids.existence, first.cuboids.existence)
+        np.testing.assert_allclose(other.cuboids.translations, first.cuboids.translations, atol=2e-3)
     assert first.mesh.faces.shape == mesh.faces.shape and first.prepared.occupancy.shape == (32, 32, 32)
     np.testing.assert_allclose(first.canonical_vertices(), first.result.frame.to_canonical(mesh.vertices))
     one = primkit.abstract(path, model=out.model, workers=1, cache=tmp_path / "cache")  # options pass through

@@ -88,3 +88,109 @@ def test_resolve_align_follows_what_was_declared():
     assert orientation.resolve_align("any", up="+z", front="+x") == "any"
     with pytest.raises(ValueError):
         orientation.resolve_align("sideways")
+
+
+# ---- the default frame search (issue 32) -------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def chair_model_for_frames():
+    from primkit.model.abstractor import Abstractor
+
+    return Abstractor.load("chair")
+
+
+@pytest.fixture(scope="module")
+def procedural_prepared():
+    from primkit import data, io, synthetic
+
+    shapes = synthetic.generate("chair", 6, seed=123)
+    return [data.prepare(io.Mesh(s.vertices, s.faces), name=f"c{i}") for i, s in enumerate(shapes)]
+
+
+def test_auto_keeps_the_expected_up_unless_another_cuts_the_loss_by_the_margin():
+    rot = orientation.AXIS_ROTATIONS
+    everything = np.arange(24)
+    up_z = np.flatnonzero(np.all(np.isclose(rot[:, 1], [0.0, 0.0, 1.0]), axis=1))
+    losses = np.ones(24)
+    losses[up_z[2]] = 0.75  # +Z up a little better than every +Y turn: kept +Y (a stool on its side)
+    assert np.allclose(rot[orientation.choose_orientation(losses, everything, "auto")][1], [0, 1, 0])
+    assert orientation.choose_orientation(losses, everything, "any") == up_z[2]
+    losses[up_z[2]] = 0.65  # clearly lying down: turned
+    assert orientation.choose_orientation(losses, everything, "auto") == up_z[2]
+    # the expected up axis may be the collection's: then +Y must cut the loss by the margin
+    losses = np.ones(24)
+    losses[0] = 0.75  # identity (+Y up) a little better than every +Z-up turn
+    assert orientation.choose_orientation(losses, everything, "auto", up=(0.0, 0.0, 1.0)) in up_z
+    losses[0] = 0.65
+    assert orientation.choose_orientation(losses, everything, "auto", up=(0.0, 0.0, 1.0)) == 0
+
+
+def test_a_chair_lying_down_among_upright_ones_is_stood_up(chair_model_for_frames, procedural_prepared):
+    """The collection's up axis is expected, not imposed: one chair of six on its side is found."""
+    shapes = list(procedural_prepared)
+    lying = orientation.AXIS_ROTATIONS[7]
+    assert not np.allclose(lying[1], [0, 1, 0])
+    shapes[2] = orientation.rotate_prepared(shapes[2], lying)
+    results = chair_model_for_frames.predict(shapes, align="auto")
+    ups = [r.frame.rotation[1] for r in results]
+    originals = [s.frame.rotation[1] for s in procedural_prepared]
+    assert np.allclose(ups[2], originals[2])  # canonical Y of the result is the original's Y
+    assert sum(np.allclose(u, o) for u, o in zip(ups, originals)) >= 5
+    assert results[2].alignment["up_decided_by"].startswith("shape: lying down")
+
+
+def test_the_vtk_filter_takes_the_command_lines_frame_on_a_coseg_chair(shared_data, tmp_path):
+    """Without axes declared the filter finds the frame as ``primkit segment`` does: the same face
+    labels on a COSEG chair (+Z front, so the filter's former +X front assumption fails it)."""
+    pv = pytest.importorskip("pyvista")
+    from primkit import io
+    from primkit.cli import main
+    from vtkmodules.vtkCommonExecutionModel import vtkTrivialProducer
+
+    from primkit.plugins.vtk_filter import PrimkitSegmentation
+
+    path = shared_data / "coseg_chairs" / "large_chairs" / "shapes" / "13.off"
+    code = main(["segment", str(path), "--model", "chair", "-o", str(tmp_path / "out"), "--workers", "1"])
+    assert code == 0
+    expected = io.read_labels(tmp_path / "out" / "13.seg")
+    mesh = io.read_mesh(path)
+    surface = pv.PolyData(mesh.vertices, np.hstack([np.full((len(mesh.faces), 1), 3), mesh.faces]).ravel())
+    source = vtkTrivialProducer()
+    source.SetOutput(surface)
+    f = PrimkitSegmentation(Model="chair")
+    f.SetInputConnection(source.GetOutputPort())
+    f.Update()
+    labels = np.asarray(pv.wrap(f.GetOutputDataObject(0)).cell_data["part"])
+    assert np.array_equal(labels, expected)
+    declared = PrimkitSegmentation(Model="chair", Up="+y", Front="+x")  # the former default: another answer
+    declared.SetInputConnection(source.GetOutputPort())
+    declared.Update()
+    assert not np.array_equal(np.asarray(pv.wrap(declared.GetOutputDataObject(0)).cell_data["part"]), expected)
+
+
+def _stool(seed: int):
+    """A square seat on four round legs: symmetric enough that a chair model could explain it on a side."""
+    import trimesh
+
+    from primkit import io
+
+    rng = np.random.default_rng(seed)
+    w, h, t, r = rng.uniform(0.35, 0.45), rng.uniform(0.4, 0.6), rng.uniform(0.04, 0.07), rng.uniform(0.02, 0.03)
+    move = trimesh.transformations.translation_matrix
+    parts = [trimesh.creation.box((w, t, w), move((0, h + t / 2, 0)))]
+    stand = trimesh.transformations.rotation_matrix(np.pi / 2, (1, 0, 0))
+    for sx in (-1, 1):
+        for sz in (-1, 1):
+            parts.append(trimesh.creation.cylinder(r, h, transform=move((sx * (w / 2 - r), h / 2, sz * (w / 2 - r))) @ stand))
+    m = trimesh.util.concatenate(parts)
+    return io.Mesh(m.vertices, m.faces)
+
+
+def test_stools_are_not_laid_on_their_side(chair_model_for_frames, procedural_prepared):
+    from primkit import data
+
+    stools = [data.prepare(_stool(s), name=f"stool{s}") for s in range(2)]
+    for shapes in (stools[:1], stools, list(procedural_prepared[:3]) + stools):
+        for r in chair_model_for_frames.predict(shapes, align="auto"):
+            assert orientation.axis_name(r.frame.rotation[1]) == "+y", r.name

@@ -136,7 +136,7 @@ def test_vtk_filter_in_a_pipeline_follows_its_input(chair_file, expected, model)
     parts2, boxes2 = pv.wrap(f.GetOutputDataObject(0)), pv.wrap(f.GetOutputDataObject(1))
     np.testing.assert_allclose(boxes2.points, before + [2.0, 0.0, -1.0], atol=1e-4)  # the cuboids moved with it
     assert np.array_equal(parts2.cell_data["part"], labels)
-    assert f.GetUp() == "+y" and f.GetRefineSteps() == 0
+    assert f.GetUp() == "auto" and f.GetFront() == "auto" and f.GetRefineSteps() == 0
     with pytest.raises(ValueError, match="one of"):
         f.SetUp("up")
 
