@@ -22,6 +22,7 @@ import os
 import secrets
 import shutil
 import sys
+import warnings
 import zlib
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field
@@ -337,6 +338,10 @@ def prepare(
     face_labels : (f,) int, optional
         Per-face part labels of a mesh.
     """
+    # the one check of every shape's values, however it came: compiled kernels below read what it lets through
+    shape, dropped = io.values.usable_shape(shape)
+    if dropped:
+        warnings.warn(f"{source or name}: {dropped} vertices referenced by no face left out", stacklevel=2)
     if isinstance(shape, io.VoxelGrid):
         return _prepare_voxels(shape, settings, name, source)
     if isinstance(shape, io.PointCloud):

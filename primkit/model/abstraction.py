@@ -141,7 +141,11 @@ def load_model(model="chair", device: str | None = None) -> Abstractor:
 
 
 def _is_array_like(obj) -> bool:
-    return isinstance(obj, (np.ndarray, list)) and not isinstance(obj, (str, os.PathLike))
+    return isinstance(obj, (np.ndarray, list)) or _is_tensor(obj)
+
+
+def _is_tensor(obj) -> bool:
+    return type(obj).__module__.split(".")[0] == "torch" and hasattr(obj, "detach")
 
 
 def as_shape(obj):
@@ -169,10 +173,12 @@ def as_shape(obj):
         vertices, faces = interop.from_pyvista(obj)
         return io.Mesh(vertices, faces) if len(faces) else io.PointCloud(vertices)
     if isinstance(obj, tuple) and len(obj) == 2:
-        return io.Mesh(*obj)
+        return io.Mesh(*(x.detach().cpu().numpy() if _is_tensor(x) else x for x in obj))
     if _is_array_like(obj):
-        a = np.asarray(obj)
-        if a.ndim == 3 and a.dtype == bool:
+        a = obj.detach().cpu().numpy() if _is_tensor(obj) else np.asarray(obj)
+        if a.ndim == 3:
+            if a.dtype != bool:
+                raise TypeError(f"a voxel grid must be (R, R, R) bool, got dtype {a.dtype}")
             return io.VoxelGrid(a, np.zeros(3), 1.0)
         return io.PointCloud(a)
     raise TypeError(f"cannot abstract a {type(obj).__name__}: give a path, an io.Mesh / PointCloud / VoxelGrid, "
@@ -270,9 +276,12 @@ def abstract_shapes(
                 files.append(p)
         else:
             name = names[len(memory)] if names is not None else f"shape{i}"
-            shape = as_shape(item)
             try:
+                # the values are checked here (io.values) and in data.prepare (io.values.usable_shape)
+                shape = as_shape(item)
                 prepared = data.prepare(shape, settings, name=name)
+            except TypeError as exc:  # not a shape at all, or the wrong dtype: the caller's mistake
+                raise TypeError(f"{name}: {exc}") from None
             except (ValueError, RuntimeError) as exc:
                 errors.append(f"{name}: cannot prepare: {exc}")
                 continue
