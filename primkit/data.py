@@ -895,8 +895,10 @@ class PreparedCollection:
         return occ, codes, near, pts
 
 
-def _one_thread_worker() -> None:
-    """Worker-process initialiser: native thread pools (OpenMP, BLAS, torch) on one thread."""
+def _one_thread_worker(parent: int | None = None) -> None:
+    """Worker-process initialiser: native thread pools (OpenMP, BLAS, torch) on one thread, and
+    the worker ends with its parent (:func:`primkit.parallel.die_with_parent`)."""
+    parallel.die_with_parent(parent)
     os.environ["OMP_NUM_THREADS"] = "1"
     os.environ["PRIMKIT_THREADS_AUTO"] = "1"
     try:
@@ -943,11 +945,18 @@ def parallel_map(func, jobs, *, workers: int | None = None, progress: bool = Tru
 
             ctx = mp.get_context("fork") if sys.platform.startswith("linux") else None
             chunk = max(1, min(64, len(jobs) // (workers * 8) or 1))
-            with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=ctx,
-                                     initializer=_one_thread_worker) as pool:
-                for res in pool.map(func, jobs, chunksize=chunk):
-                    yield res
-                    bar.update()
+            # SIGTERM stops the run as Ctrl-C does; on either the workers are ended at once (and a
+            # parent killed outright takes them with it: die_with_parent)
+            with parallel.sigterm_as_interrupt(), \
+                    ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=ctx,
+                                        initializer=_one_thread_worker, initargs=(os.getpid(),)) as pool:
+                try:
+                    for res in pool.map(func, jobs, chunksize=chunk):
+                        yield res
+                        bar.update()
+                except BaseException:
+                    parallel.terminate_pool(pool)
+                    raise
     finally:
         bar.close()
 

@@ -65,6 +65,13 @@ def _cmd_prepare(args) -> int:
 
 
 def _cmd_train(args) -> int:
+    from ..model.training import claim_output
+
+    with claim_output(args.output, args.force):  # a second run into the same -o is refused before any work
+        return _train_claimed(args)
+
+
+def _train_claimed(args) -> int:
     from ..data import PrepareSettings, prepare_collection, split_files
     from ..model.network import NetworkConfig
     from ..model.presets import recipe
