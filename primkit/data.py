@@ -383,8 +383,14 @@ def prepare_file(path, settings: PrepareSettings = PrepareSettings()) -> Prepare
     if isinstance(shape, io.Mesh):
         seg = _labels_path(path)
         if seg is not None:
-            labels = io.read_labels(seg, face_count=len(shape.faces))
-            info["labels"] = str(seg)
+            try:
+                labels = io.read_labels(seg, face_count=len(shape.faces))
+                info["labels"] = str(seg)
+            except io.ShapeFileError as exc:
+                # labels are for the commands that evaluate or train on them: a stale .seg beside a
+                # mesh must not keep the mesh from being abstracted; it is prepared without labels
+                warnings.warn(f"{exc} (prepared without labels)", stacklevel=2)
+                info["labels_error"] = str(exc)
     try:
         prepared = prepare(shape, settings, face_labels=labels, name=shape_name(path), source=str(path))
     except (ValueError, RuntimeError) as exc:
@@ -1062,7 +1068,9 @@ def prepare_collection(
         for path, key, rec, error in parallel_map(_prepare_row, jobs, workers=workers, progress=progress,
                                                   desc="preparing", unit="shape", executor=pool):
             if error is not None:
-                errors.update(dict.fromkeys(misses[key], error))
+                # files of the same bytes are prepared once; each is reported under its own name
+                for other in misses[key]:
+                    errors[other] = other + error[len(path):] if error.startswith(path) else f"{other}: {error}"
                 continue
             pending.append((path, key, rec))
             if len(pending) >= SEGMENT_SHAPES:

@@ -393,6 +393,11 @@ def main(argv=None) -> int:
 
     parser = build_parser()
     args = parser.parse_args(argv)
+    for stream in (sys.stdout, sys.stderr):  # file names that are not UTF-8 are printed with their bytes
+        try:
+            stream.reconfigure(errors="surrogateescape")
+        except (AttributeError, ValueError, OSError):  # a stream that is not a TextIOWrapper
+            pass
     try:
         return int(args.func(args) or 0)
     except KeyboardInterrupt:

@@ -178,11 +178,15 @@ def atomic_output(path, *, overwrite=False):
         # some writers (safetensors) make their file 0600 whatever was there
         os.chmod(temporary, mode)
         os.replace(temporary, path)
-    except BaseException:
+    except BaseException as exc:
         try:
             temporary.unlink()
         except FileNotFoundError:
             pass
+        if isinstance(exc, OSError) and exc.errno and exc.filename in (None, str(temporary)) \
+                and str(path) not in str(exc):
+            # a write's error (ENOSPC, EIO) names no file, or the hidden temporary: name the output
+            raise OSError(exc.errno, f"cannot write {path} ({exc.strerror or exc})") from exc
         raise
 
 
