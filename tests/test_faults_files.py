@@ -111,3 +111,28 @@ def test_threshold_one_writes_both_files_of_the_pair(chairs, tmp_path):
     assert written == [f"{stem}.cuboids.json", f"{stem}.cuboids.ply"]
     mesh = (tmp_path / "out" / f"{stem}.cuboids.ply").read_bytes()
     assert b"element face 0" in mesh
+
+
+def test_a_model_of_another_category_is_said_once(tmp_path, capsys):
+    """Chairs segmented with the airplane model were labelled "fuselage" and "wings" without a word;
+    the model's losses on them are far above its card's: said once on stderr and in the summary.
+    The chair model on the same chairs says nothing."""
+    from primkit.model.abstraction import CARD_LOSS_RATIO, CardMismatchWarning
+
+    shapes = [(s.vertices, s.faces) for s in synthetic.generate("chair", 3, seed=2)]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        plane = abstract_shapes(shapes, "airplane", progress=False)
+        chair = abstract_shapes(shapes, "chair", progress=False)
+    said = [w for w in caught if issubclass(w.category, CardMismatchWarning)]
+    assert len(said) == 1 and str(said[0].message) == plane.card_warning
+    assert plane.card_ratio > CARD_LOSS_RATIO and chair.card_ratio < CARD_LOSS_RATIO and chair.card_warning is None
+
+    folder = tmp_path / "in"
+    for i, (v, f) in enumerate(shapes):
+        io.write_mesh(folder / f"chair{i}.ply", v, f)
+    assert main(["segment", str(folder), "--model", "airplane", "-o", str(tmp_path / "seg"), "--workers", "1",
+                 "--cache", str(tmp_path / "cache")]) == 0
+    printed = capsys.readouterr()
+    assert printed.err.count("times worse than its training data") == 1, printed.err
+    assert "summary: " in printed.out and "warning: the model fits these 3 shape(s)" in printed.out
