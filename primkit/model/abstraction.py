@@ -11,12 +11,15 @@ Inputs, each one of:
 * a path: a shape file (mesh, point cloud or binvox grid, :func:`primkit.io.read_shape`) or a
   folder of them (searched recursively, sorted); prepared through the cache, in parallel;
 * a :class:`primkit.io.Mesh`, :class:`~primkit.io.PointCloud` or :class:`~primkit.io.VoxelGrid`;
-* ``(vertices, faces)``: ``(n, 3) float`` and ``(f, 3) int``; or ``(n, 3) float`` points;
+* ``(vertices, faces)``: ``(n, 3) float`` and ``(f, 3) int``; or ``(n, 3) float`` points; or an
+  ``(R, R, R) bool`` voxel grid; NumPy arrays, lists or torch tensors;
 * a ``trimesh.Trimesh`` / ``trimesh.PointCloud``, a ``pyvista.PolyData`` (any VTK surface), or an
   Open3D ``TriangleMesh`` / ``PointCloud``.
 
 Shapes given in memory are prepared here (no cache); their names are ``shape<i>`` unless ``names``
-says otherwise.
+says otherwise. Every shape is checked before a compiled kernel sees it (dtypes, shapes, face
+indices, finite coordinates, emptiness; vertices no face references are left out, with a warning:
+``docs/faults.md``).
 """
 
 from __future__ import annotations
