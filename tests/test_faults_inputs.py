@@ -175,3 +175,22 @@ def test_each_compiled_kernel_refuses_hostile_arrays_through_its_caller(sandbox,
     assert answer[0] != "died", f"{case}: the interpreter died or hung ({answer[1]})"
     assert answer[0] == "raised" and answer[2], answer
     assert answer[3] and "\n" not in answer[3], answer
+
+
+def test_a_stray_vertex_beside_a_coseg_chair(shared_data, tmp_path):
+    """The case as reported: one unreferenced vertex at x=100 beside a 4-unit COSEG chair gave
+    cuboids 67 units tall (rc 0). Now the same cuboids as the chair alone, inside its bounds."""
+    src = sorted((shared_data / "coseg_chairs" / "chairs_101-120" / "shapes").glob("*.off"))[0]
+    mesh = io.read_mesh(src)
+    _write_off(tmp_path / "chair.off", mesh.vertices, mesh.faces)
+    _write_off(tmp_path / "stray.off", np.vstack([mesh.vertices, [100.0, 0.0, 0.0]]), mesh.faces)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        out = abstract_shapes([tmp_path / "chair.off", tmp_path / "stray.off"], "chair", workers=1, progress=False,
+                              cache=tmp_path / "cache")
+    clean, stray = (a.cuboids for a in out)
+    assert np.allclose(stray.translations, clean.translations, atol=1e-9)
+    assert np.allclose(stray.half_extents, clean.half_extents, atol=1e-9)
+    lo, hi = mesh.bounds()
+    present = stray.existence.astype(bool)
+    assert np.all(2 * stray.half_extents[present].max(axis=1) <= 1.5 * (hi - lo).max())

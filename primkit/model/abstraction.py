@@ -338,12 +338,15 @@ def _fit_losses(results, prepared) -> list:
     its abstraction, in the frame the network saw; a cheap estimate (1000 points)."""
     from .fitting import fit_losses
 
-    # a shape left with no part (a high existence threshold) says nothing of the model's fit
-    pairs = [(r, p) for r, p in zip(results, prepared) if r.canonical.existence.any()]
+    # the network's own fit: a refined shape's loss before refinement (fit_losses too), and a shape
+    # left with no part (a high existence threshold) says nothing of the model
+    refined = [r.refinement["loss_before"] for r in results if r.refinement is not None]
+    pairs = [(r, p) for r, p in zip(results, prepared) if r.refinement is None and r.canonical.existence.any()]
     if not pairs:
-        return []
+        return refined
     shapes = [r.canonical_shape(p) for r, p in pairs]
-    return list(fit_losses([r.canonical for r, _ in pairs], shapes, points=1000, samples_per_cuboid=96)["total"])
+    return refined + list(fit_losses([r.canonical for r, _ in pairs], shapes, points=1000,
+                                     samples_per_cuboid=96)["total"])
 
 
 def _card_check(abstractor, losses) -> tuple:
