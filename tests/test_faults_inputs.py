@@ -11,6 +11,7 @@ import warnings
 import numpy as np
 import pytest
 import torch
+import trimesh
 
 import primkit
 from primkit import io, synthetic
@@ -47,6 +48,8 @@ CASES = {
     "a full voxel grid": (np.ones((8, 8, 8), bool), None, ""),
     "tensors (v, f)": ((torch.as_tensor(BOX_V), torch.as_tensor(BOX_F)), None, ""),
     "an unreferenced NaN vertex": ((_with_row(BOX_V, [np.nan] * 3), BOX_F), None, ""),
+    "a trimesh with faces past the vertices": (
+        trimesh.Trimesh(BOX_V, BOX_F + 5, process=False, validate=False), ValueError, "face index out of range"),
 }
 
 SEGMENT_CASES = ["faces below 0 (segfaulted)", "faces past the vertices (hung)", "a NaN vertex", "tensors (v, f)"]
@@ -59,11 +62,9 @@ def sandbox():
     box.close()
 
 
-@pytest.mark.parametrize("entry", ["primkit.abstract", "primkit.segment"])
-@pytest.mark.parametrize("case", list(CASES))
+@pytest.mark.parametrize("case, entry", [(c, "primkit.abstract") for c in CASES]
+                         + [(c, "primkit.segment") for c in SEGMENT_CASES])  # segment abstracts first
 def test_in_memory_input_gives_a_result_or_one_line_naming_it(sandbox, entry, case):
-    if entry == "primkit.segment" and case not in SEGMENT_CASES:
-        pytest.skip("abstract covers it: segment abstracts first")
     shape, expected, words = CASES[case]
     answer = sandbox.call(entry, shape, model="chair")
     assert answer[0] != "died", f"{entry}({case}): the interpreter died or hung ({answer[1]})"

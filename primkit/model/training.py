@@ -399,8 +399,11 @@ def claim_output(output, overwrite: bool = False):
     try:
         yield lock
     finally:
-        if not mine:
-            lock.unlink(missing_ok=True)
+        try:  # removed if still ours (a --force run may have taken it over meanwhile)
+            if not mine and lock.read_text().split()[0] == str(os.getpid()):
+                lock.unlink()
+        except (OSError, IndexError):
+            pass
 
 
 def _process_alive(pid: int) -> bool:
