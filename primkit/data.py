@@ -22,6 +22,7 @@ import os
 import secrets
 import shutil
 import sys
+import warnings
 import zlib
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass, field
@@ -337,6 +338,10 @@ def prepare(
     face_labels : (f,) int, optional
         Per-face part labels of a mesh.
     """
+    # the one check of every shape's values, however it came: compiled kernels below read what it lets through
+    shape, dropped = io.values.usable_shape(shape)
+    if dropped:
+        warnings.warn(f"{source or name}: {dropped} vertices referenced by no face left out", stacklevel=2)
     if isinstance(shape, io.VoxelGrid):
         return _prepare_voxels(shape, settings, name, source)
     if isinstance(shape, io.PointCloud):
@@ -378,8 +383,14 @@ def prepare_file(path, settings: PrepareSettings = PrepareSettings()) -> Prepare
     if isinstance(shape, io.Mesh):
         seg = _labels_path(path)
         if seg is not None:
-            labels = io.read_labels(seg, face_count=len(shape.faces))
-            info["labels"] = str(seg)
+            try:
+                labels = io.read_labels(seg, face_count=len(shape.faces))
+                info["labels"] = str(seg)
+            except io.ShapeFileError as exc:
+                # labels are for the commands that evaluate or train on them: a stale .seg beside a
+                # mesh must not keep the mesh from being abstracted; it is prepared without labels
+                warnings.warn(f"{exc} (prepared without labels)", stacklevel=2)
+                info["labels_error"] = str(exc)
     try:
         prepared = prepare(shape, settings, face_labels=labels, name=shape_name(path), source=str(path))
     except (ValueError, RuntimeError) as exc:
@@ -890,8 +901,10 @@ class PreparedCollection:
         return occ, codes, near, pts
 
 
-def _one_thread_worker() -> None:
-    """Worker-process initialiser: native thread pools (OpenMP, BLAS, torch) on one thread."""
+def _one_thread_worker(parent: int | None = None) -> None:
+    """Worker-process initialiser: native thread pools (OpenMP, BLAS, torch) on one thread, and
+    the worker ends with its parent (:func:`primkit.parallel.die_with_parent`)."""
+    parallel.die_with_parent(parent)
     os.environ["OMP_NUM_THREADS"] = "1"
     os.environ["PRIMKIT_THREADS_AUTO"] = "1"
     try:
@@ -938,11 +951,18 @@ def parallel_map(func, jobs, *, workers: int | None = None, progress: bool = Tru
 
             ctx = mp.get_context("fork") if sys.platform.startswith("linux") else None
             chunk = max(1, min(64, len(jobs) // (workers * 8) or 1))
-            with ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=ctx,
-                                     initializer=_one_thread_worker) as pool:
-                for res in pool.map(func, jobs, chunksize=chunk):
-                    yield res
-                    bar.update()
+            # SIGTERM stops the run as Ctrl-C does; on either the workers are ended at once (and a
+            # parent killed outright takes them with it: die_with_parent)
+            with parallel.sigterm_as_interrupt(), \
+                    ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=ctx,
+                                        initializer=_one_thread_worker, initargs=(os.getpid(),)) as pool:
+                try:
+                    for res in pool.map(func, jobs, chunksize=chunk):
+                        yield res
+                        bar.update()
+                except BaseException:
+                    parallel.terminate_pool(pool)
+                    raise
     finally:
         bar.close()
 
@@ -1048,7 +1068,9 @@ def prepare_collection(
         for path, key, rec, error in parallel_map(_prepare_row, jobs, workers=workers, progress=progress,
                                                   desc="preparing", unit="shape", executor=pool):
             if error is not None:
-                errors.update(dict.fromkeys(misses[key], error))
+                # files of the same bytes are prepared once; each is reported under its own name
+                for other in misses[key]:
+                    errors[other] = other + error[len(path):] if error.startswith(path) else f"{other}: {error}"
                 continue
             pending.append((path, key, rec))
             if len(pending) >= SEGMENT_SHAPES:

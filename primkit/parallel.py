@@ -40,6 +40,9 @@ __all__ = [
     "shard_indices",
     "ExecutorError",
     "executor_from",
+    "die_with_parent",
+    "sigterm_as_interrupt",
+    "terminate_pool",
 ]
 
 #: set by primkit when it chose ``OMP_NUM_THREADS`` itself (so that the value is not taken as the user's)
@@ -423,3 +426,69 @@ def executor_from(address):
         yield client.get_executor()
     finally:
         client.close()
+
+
+def die_with_parent(parent: int | None = None) -> None:
+    """In a worker process: end it when its parent process ends, however the parent ends (SIGKILL
+    included), so that no worker is left running as an orphan. Linux: ``prctl(PR_SET_PDEATHSIG,
+    SIGTERM)`` (the kernel signals the worker when the thread that forked it exits); elsewhere
+    nothing. ``parent``: the parent's process id, to catch a parent already gone before the call."""
+    if not sys.platform.startswith("linux"):
+        return
+    import ctypes
+    import signal
+
+    # a forked worker inherits the parent's Python handler (sigterm_as_interrupt), which would turn
+    # the signal into an exception the worker's loop catches: the default action ends it
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, int(signal.SIGTERM), 0, 0, 0)  # 1 = PR_SET_PDEATHSIG (linux/prctl.h)
+    except (OSError, AttributeError):  # pragma: no cover - no libc prctl
+        return
+    if parent is not None and os.getppid() != parent:  # the parent died before the call
+        os._exit(1)
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM received: raised where Ctrl-C raises KeyboardInterrupt, so that a run stops the same
+    way (its pool ended, outputs left whole, the one-line "interrupted" and exit status 130)."""
+
+
+@contextlib.contextmanager
+def sigterm_as_interrupt():
+    """Within the block, SIGTERM raises :class:`Terminated` (a KeyboardInterrupt) in the main
+    thread instead of ending the process at once; elsewhere (another thread) nothing changes."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def _raise(signum, frame):
+        raise Terminated()
+
+    previous = signal.signal(signal.SIGTERM, _raise)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def terminate_pool(pool) -> None:
+    """End a ``concurrent.futures.ProcessPoolExecutor``'s workers now (SIGTERM, then SIGKILL after a
+    second), for when the run stops: ``shutdown`` alone would wait for the shapes in progress. The
+    executor has no public way to reach its processes; ``_processes`` has been there since 3.2."""
+    processes = list((getattr(pool, "_processes", None) or {}).values())
+    pool.shutdown(wait=False, cancel_futures=True)
+    for proc in processes:
+        with contextlib.suppress(Exception):
+            proc.terminate()
+    deadline = time.monotonic() + 1.0
+    for proc in processes:
+        with contextlib.suppress(Exception):
+            proc.join(max(0.0, deadline - time.monotonic()))
+            if proc.is_alive():
+                proc.kill()
+                proc.join(1.0)

@@ -299,7 +299,7 @@ def write_report(output, shapes, results, part_names, *, overwrite: bool = False
         Path(tmp).write_text(json.dumps(summary, indent=1))
     text = _page(shapes, part_names, thumbs, similarity, deform, notes, scene, out, meta or {})
     with io.atomic_output(page, overwrite=overwrite) as tmp:
-        Path(tmp).write_text(text, encoding="utf-8")
+        Path(tmp).write_text(text, encoding="utf-8", errors="surrogateescape")  # file names that are not UTF-8
     return Report(page, len(shapes), notes)
 
 

@@ -188,3 +188,108 @@ def test_killed_at_random_moments_then_rerun_gives_identical_outputs(reference, 
     """12 kills of ``prepare`` and 12 of ``abstract`` (24 in all), each followed by the checks above."""
     killed = kill_rounds(reference, tmp_path, kind, rounds=12, seed=2019 if kind == "prepare" else 2020)
     assert killed >= 6, f"only {killed} of 12 kills landed while {kind} was running"
+
+
+# ------------------------------------------------------------------ SIGTERM (issue 36)
+# SLURM, Kubernetes and ``timeout`` send SIGTERM to the main process alone. A run stops as on Ctrl-C:
+# training checkpoints its last finished iteration; no pool worker is left behind as an orphan.
+
+def _start(args, cwd=None):
+    return subprocess.Popen(command(*args), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=ENV,
+                            start_new_session=True, cwd=cwd)
+
+
+def _stderr_reader(proc) -> tuple[list, threading.Thread]:
+    chunks = []
+
+    def read():
+        for chunk in iter(lambda: proc.stderr.read1(4096), b""):
+            chunks.append(chunk)
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
+    return chunks, reader
+
+
+def _wait_for(condition, timeout: float = 300.0) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if condition():
+            return True
+        time.sleep(0.05)
+    return False
+
+
+def _no_orphans(procs, proc) -> list:
+    """The processes of ``procs`` still running 15 s after their parent ended (killed afterwards)."""
+    psutil = pytest.importorskip("psutil")
+    gone, alive = psutil.wait_procs(procs, timeout=15)
+    left = [p.pid for p in alive]
+    try:
+        os.killpg(proc.pid, signal.SIGKILL)
+    except ProcessLookupError:
+        pass
+    return left
+
+
+@pytest.fixture(scope="module")
+def few_chairs(tmp_path_factory):
+    root = tmp_path_factory.mktemp("term")
+    synthetic.write_collection(root / "shapes", "chair", 8, seed=5)
+    return root
+
+
+@pytest.mark.parametrize("how", [signal.SIGTERM, signal.SIGINT, signal.SIGKILL])
+def test_prepare_workers_end_with_their_parent(few_chairs, tmp_path, how):
+    """SIGTERM, SIGINT or SIGKILL to ``prepare --workers 2``'s main process alone: its pool workers
+    end too (they were left running, about 380 MB each, after SIGTERM and SIGKILL)."""
+    psutil = pytest.importorskip("psutil")
+    proc = _start(["prepare", few_chairs / "shapes", "--cache", tmp_path / "cache", "--workers", "2"])
+    chunks, reader = _stderr_reader(proc)
+    main = psutil.Process(proc.pid)
+    assert _wait_for(lambda: len(main.children(recursive=True)) >= 2 or proc.poll() is not None), "no workers"
+    workers = main.children(recursive=True)
+    if proc.poll() is not None or len(workers) < 2:
+        pytest.skip("prepare finished before its workers could be seen")
+    time.sleep(0.5)  # the workers are at work
+    proc.send_signal(how)
+    code = proc.wait(60)
+    reader.join(10)
+    assert _no_orphans(workers, proc) == [], b"".join(chunks).decode(errors="replace")[-2000:]
+    if how != signal.SIGKILL:
+        assert code == 130, (code, b"".join(chunks).decode(errors="replace")[-2000:])
+
+
+def _tensors(path) -> dict:
+    from safetensors.numpy import load_file
+
+    return load_file(str(path))
+
+
+def test_sigterm_to_train_checkpoints_and_the_resumed_model_is_bit_identical(few_chairs, tmp_path):
+    """SIGTERM to ``primkit train`` finishes the iteration, writes the checkpoint, exits 130 as Ctrl-C
+    does (it ended with status 143, nothing saved, up to 499 iterations lost); resuming from that
+    checkpoint gives the model an undisturbed run gives, bit for bit."""
+    common = [few_chairs / "shapes", "--stage1", "150", "--stage2", "150", "--parts", "4", "--batch-size", "3",
+              "--workers", "1", "--cache", few_chairs / "cache"]
+    run(["train", *common, "-o", tmp_path / "ref.safetensors"])
+    out = tmp_path / "m.safetensors"
+    proc = _start(["train", *common, "-o", out])
+    chunks, reader = _stderr_reader(proc)
+    assert _wait_for(lambda: b"training:" in b"".join(chunks) or proc.poll() is not None)
+    time.sleep(1.0)
+    proc.send_signal(signal.SIGTERM)
+    code = proc.wait(120)
+    reader.join(10)
+    err = b"".join(chunks).decode(errors="replace")
+    if code == 0:
+        pytest.skip("training finished before SIGTERM came")
+    ckpt = out.with_name(out.name + ".checkpoint.safetensors")
+    assert code == 130 and "interrupted after iteration" in err and str(ckpt) in err, (code, err[-2000:])
+    assert ckpt.is_file() and not out.exists()
+    assert not out.with_name(out.name + ".lock").exists()
+    run(["train", *common, "-o", out, "--resume", ckpt])
+    got, want = _tensors(out), _tensors(tmp_path / "ref.safetensors")
+    assert sorted(got) == sorted(want)
+    for name in want:
+        assert np.array_equal(got[name], want[name]), name

@@ -65,6 +65,13 @@ def _cmd_prepare(args) -> int:
 
 
 def _cmd_train(args) -> int:
+    from ..model.training import claim_output
+
+    with claim_output(args.output, args.force):  # a second run into the same -o is refused before any work
+        return _train_claimed(args)
+
+
+def _train_claimed(args) -> int:
     from ..data import PrepareSettings, prepare_collection, split_files
     from ..model.network import NetworkConfig
     from ..model.presets import recipe
@@ -405,6 +412,11 @@ def main(argv=None) -> int:
 
     parser = build_parser()
     args = parser.parse_args(argv)
+    for stream in (sys.stdout, sys.stderr):  # file names that are not UTF-8 are printed with their bytes
+        try:
+            stream.reconfigure(errors="surrogateescape")
+        except (AttributeError, ValueError, OSError):  # a stream that is not a TextIOWrapper
+            pass
     try:
         return int(args.func(args) or 0)
     except KeyboardInterrupt:

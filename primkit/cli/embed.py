@@ -69,11 +69,16 @@ def _thumb_meshes(results, grids, kind, selected):
     return meshes
 
 
-def _write_text(path, text, force):
+def _write_csv(path, rows, force):
+    """Rows through the csv module (a name holding a comma or a quote stays one field); names from
+    file names that are not UTF-8 keep their bytes (surrogateescape)."""
+    import csv
+
     from ..io import atomic_output
 
     with atomic_output(path, overwrite=force) as tmp:
-        Path(tmp).write_text(text)
+        with open(tmp, "w", newline="", encoding="utf-8", errors="surrogateescape") as fh:
+            csv.writer(fh).writerows(rows)
 
 
 def _describe(args, abstractor, results, grids, queries=None):
@@ -123,8 +128,8 @@ def _cmd_embed(args) -> int:
     out.mkdir(parents=True, exist_ok=True)
     if D is not None:
         write_array(out / "distances.npy", D, overwrite=args.force)
-        rows = ["name," + ",".join(names)] + [f"{n}," + ",".join(f"{v:.6g}" for v in row) for n, row in zip(names, D)]
-        _write_text(out / "distances.csv", "\n".join(rows) + "\n", args.force)
+        rows = [["name", *names]] + [[n, *(f"{v:.6g}" for v in row)] for n, row in zip(names, D)]
+        _write_csv(out / "distances.csv", rows, args.force)
     else:
         print(f"{s} shapes: no full distance matrix written (--distances yes asks for it)", file=sys.stderr)
     if X is not None:
@@ -133,7 +138,8 @@ def _cmd_embed(args) -> int:
         coords = embedding.tsne_map(distances=D, perplexity=args.perplexity, random_state=args.seed)
     else:
         coords = embedding.tsne_map(X, perplexity=args.perplexity, random_state=args.seed)
-    _write_text(out / "map.csv", "name,x,y\n" + "".join(f"{n},{x:.6g},{y:.6g}\n" for n, (x, y) in zip(names, coords)), args.force)
+    _write_csv(out / "map.csv", [["name", "x", "y"]] + [[n, f"{x:.6g}", f"{y:.6g}"] for n, (x, y) in zip(names, coords)],
+               args.force)
     what = "voxel IoU" if X is None else f"parts {args.parts or 'all'} ({len(desc.parts_)} indices), {','.join(desc.what_)}"
     if args.png or args.svg:
         meshes = _thumb_meshes(results, grids, args.thumbnails, None if desc is None else desc.parts_)
@@ -173,10 +179,10 @@ def _cmd_similar(args) -> int:
     else:
         nn = embedding.nearest_neighbors(X, k, queries=Q)
         order, dist = nn.indices[0], nn.distances[0]
-    lines = ["rank,name,distance,source\n"] + [f"{i + 1},{results[j].name},{dv:.6g},{results[j].source}\n"
-                                                for i, (j, dv) in enumerate(zip(order, dist))]
+    rows = [["rank", "name", "distance", "source"]] + [[i + 1, results[j].name, f"{dv:.6g}", results[j].source]
+                                                       for i, (j, dv) in enumerate(zip(order, dist))]
     out.mkdir(parents=True, exist_ok=True)
-    _write_text(out / "similar.csv", "".join(lines), args.force)
+    _write_csv(out / "similar.csv", rows, args.force)
     for i, (j, dv) in enumerate(zip(order, dist)):
         print(f"{i + 1:3d}  {dv:10.4g}  {results[j].name}")
     if args.png:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -230,6 +231,7 @@ def _segment_outputs(args, files, names, out: Path, evaluations: dict, sources, 
 def _cmd_segment(args) -> int:
     from ..io import atomic_output
     from ..parallel import executor_from
+    from ..model.abstraction import CardMismatchWarning
     from ..segmentation import (PointSegmentation, Segmenter, VoxelSegmentation, evaluate, evaluate_voxels,
                                 read_ground_truth, write_summary)
 
@@ -272,9 +274,17 @@ def _cmd_segment(args) -> int:
     # before any work: nothing written over an input (the shapes' own .seg labels, the --gt files)
     check_outputs(args, _segment_outputs(args, mine, names, out, evaluations, sources, shard, codes),
                   input_paths(files, _model_path(args.model), *(folder for folder, _ in sources)))
-    with executor_from(args.executor) as pool:
+    with executor_from(args.executor) as pool, warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", CardMismatchWarning)
         segs, errors = segmenter.segment_files(files, cache_dir=args.cache, workers=args.workers, executor=pool,
                                                shard=selection)
+    mismatch = None
+    for w in caught:  # the model-card warning on one line (and again in the summary); the others as they came
+        if issubclass(w.category, CardMismatchWarning):
+            mismatch = str(w.message)
+            print(f"primkit: warning: {mismatch}", file=sys.stderr)
+        else:
+            warnings.showwarning(w.message, w.category, w.filename, w.lineno)
     failed = list(errors)
     written = []
     for s in segs:
@@ -308,7 +318,8 @@ def _cmd_segment(args) -> int:
     if args.png:
         _picture(segs, args.png)
     print(("summary" if shard is None else f"summary of shard {shard[0]}/{shard[1]}") + ": "
-          + ", ".join(map(str, summaries)) + (f"; picture: {args.png}" if args.png else ""))
+          + ", ".join(map(str, summaries)) + (f"; picture: {args.png}" if args.png else "")
+          + (f"; warning: {mismatch}" if mismatch else ""))
 
     if sources and meshes:
         pairs, names = [], []

@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from .grids import grid_centres
+from .grids import canonical_mesh, grid_centres
 
 __all__ = ["closest_points_on_triangles", "DistanceGrid", "distance_grid", "lookup_distance_sq"]
 
@@ -116,10 +116,11 @@ def distance_grid(vertices: np.ndarray, faces: np.ndarray, resolution: int = 32,
     """
     if engine not in ("auto", "open3d"):
         raise ValueError(f"engine must be 'auto' or 'open3d', got {engine!r}")
-    vertices = np.asarray(vertices, np.float64)
-    faces = np.asarray(faces, np.int64)
-    if faces.ndim != 2 or faces.shape[1] != 3 or len(faces) == 0:
+    vertices, faces = canonical_mesh(vertices, faces, resolution)
+    if len(faces) == 0:
         raise ValueError(f"a distance grid needs (f, 3) faces, f > 0; got shape {faces.shape}")
+    if surface is not None and np.shape(surface) != (resolution,) * 3:
+        raise ValueError(f"`surface` must be {(resolution,) * 3} bool, got shape {np.shape(surface)}")
     centres = grid_centres(resolution).reshape(-1, 3)
     closest = None
     if engine == "auto":

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..io.values import mesh_arrays
+
 __all__ = ["grid_centres", "surface_voxels", "occupancy_grid", "voxel_boundary_mesh", "fill_voxels"]
 
 
@@ -21,6 +23,26 @@ def grid_centres(resolution: int = 32) -> np.ndarray:
     """
     c = -0.5 + (np.arange(resolution) + 0.5) / resolution
     return np.stack(np.meshgrid(c, c, c, indexing="ij"), axis=-1)
+
+
+#: how far from the canonical cube vertices may lie: cell indices computed from them must fit int64
+CANONICAL_LIMIT = 1e6
+
+
+def canonical_mesh(vertices, faces, resolution: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """``(vertices, faces)`` checked for the compiled kernels: ``(n, 3) float64`` canonical-frame
+    vertices, finite and within +-:data:`CANONICAL_LIMIT`, ``(f, 3) int64`` faces indexing them
+    (:func:`primkit.io.values.mesh_arrays`), and ``resolution`` an int >= 1. TypeError or
+    ValueError naming the problem, before any kernel can read past an array."""
+    v, f = mesh_arrays(vertices, faces)
+    bad = ~(np.abs(v) <= CANONICAL_LIMIT).all(axis=1)  # NaN fails the comparison too
+    if bad.any():
+        raise ValueError(f"{int(bad.sum())} of {len(v)} vertices are NaN, inf or beyond +-{CANONICAL_LIMIT:g} "
+                         "(canonical-frame vertices expected)")
+    if resolution is not None and (isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer))
+                                   or resolution < 1):
+        raise ValueError(f"`resolution` must be an int >= 1, got {resolution!r}")
+    return v, f
 
 
 def _o3d_mesh(vertices, faces):
@@ -48,6 +70,7 @@ def surface_voxels(vertices: np.ndarray, faces: np.ndarray, resolution: int = 32
     """
     if engine not in ("auto", "open3d"):
         raise ValueError(f"engine must be 'auto' or 'open3d', got {engine!r}")
+    vertices, faces = canonical_mesh(vertices, faces, resolution)
     if engine == "auto":
         try:
             from ._mesh_kernels import surface_cells
@@ -113,10 +136,11 @@ def occupancy_grid(
     """
     if engine not in ("auto", "igl"):
         raise ValueError(f"engine must be 'auto' or 'igl', got {engine!r}")
-    vertices = np.asarray(vertices, np.float64)
-    faces = np.asarray(faces, np.int64)
+    vertices, faces = canonical_mesh(vertices, faces, resolution)
     centres = grid_centres(resolution).reshape(-1, 3)
     shape = (resolution,) * 3
+    if surface is not None and np.shape(surface) != shape:
+        raise ValueError(f"`surface` must be {shape} bool, got shape {np.shape(surface)}")
     occupancy = None
     if engine == "auto":
         try:

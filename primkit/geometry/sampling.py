@@ -6,6 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..io.values import mesh_arrays
+
 __all__ = ["SurfaceSamples", "sample_surface"]
 
 
@@ -28,6 +30,7 @@ def sample_surface(vertices: np.ndarray, faces: np.ndarray, count: int = 10000, 
     """Draw ``count`` points uniformly by area on the triangle mesh, with their face ids."""
     import trimesh
 
-    mesh = trimesh.Trimesh(np.asarray(vertices, np.float64), np.asarray(faces, np.int64), process=False)
+    vertices, faces = mesh_arrays(vertices, faces, empty=False)
+    mesh = trimesh.Trimesh(vertices, faces, process=False)
     points, face_index = trimesh.sample.sample_surface(mesh, count, seed=np.random.default_rng(seed))
     return SurfaceSamples(np.asarray(points, np.float64), np.asarray(face_index, np.int64))

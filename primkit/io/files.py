@@ -186,8 +186,9 @@ def atomic_output(path, *, overwrite=False):
             temporary.unlink()
         except FileNotFoundError:
             pass
-        if isinstance(exc, OSError) and exc.errno is not None and exc.filename is None:
-            # a write that fails (a full disk, a quota) names no file: name the output
+        if isinstance(exc, OSError) and exc.errno and exc.filename in (None, str(temporary)) \
+                and str(path) not in str(exc):
+            # a write's error (ENOSPC, EIO) names no file, or the hidden temporary: name the output
             raise OSError(exc.errno, exc.strerror or os.strerror(exc.errno), str(path)) from exc
         raise
 

@@ -730,7 +730,8 @@ def _checked_mesh(path, vertices, faces) -> Mesh:
         vertices, faces = _merge_equal_vertices(vertices, faces)
 
     mesh = Mesh(vertices, faces)
-    extent = float(np.ptp(vertices, axis=0).max()) if len(vertices) else 0.0
+    used = vertices[np.unique(faces)]  # a vertex no face references says nothing of the area's scale
+    extent = float(np.ptp(used, axis=0).max()) if len(used) else 0.0
     if not mesh.area() > 1e-12 * extent**2:
         raise ShapeFileError(path, "zero total area (all faces are degenerate)")
     return mesh

@@ -7,7 +7,67 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ShapeFileError", "Mesh", "PointCloud", "VoxelGrid"]
+__all__ = ["ShapeFileError", "Mesh", "PointCloud", "VoxelGrid", "COORDINATE_LIMIT", "mesh_arrays",
+           "check_coordinates", "usable_shape"]
+
+#: the largest coordinate magnitude a shape may have: the frames scale shapes by their extent and
+#: the cuboid transforms take the cube root of their matrix's determinant, so an extent cubed must
+#: stay a finite float64 (1e100 ** 3 = 1e300); from about 1e103 it overflows to inf. No real shape
+#: comes near; a file that does holds garbage.
+COORDINATE_LIMIT = 1e100
+
+
+def _numeric(values, what: str, shape: str) -> np.ndarray:
+    """``values`` as an array of real numbers, or TypeError naming ``what`` and its dtype."""
+    try:
+        a = np.asarray(values)
+    except (ValueError, TypeError) as exc:  # ragged nested lists
+        raise TypeError(f"`{what}` must be {shape}, got {type(values).__name__} ({exc})") from None
+    if a.dtype == bool or not (np.issubdtype(a.dtype, np.integer) or np.issubdtype(a.dtype, np.floating)):
+        raise TypeError(f"`{what}` must be {shape}, got dtype {a.dtype}")
+    return a
+
+
+def mesh_arrays(vertices, faces, *, empty: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """``(vertices, faces)`` as ``(n, 3) float64`` and ``(f, 3) int64`` with every face index in
+    ``0..n-1``: the structure every compiled mesh kernel relies on (an index out of range would
+    read past the vertex array).
+
+    TypeError for a dtype that is not real numbers (faces: integers), ValueError for a shape or an
+    index out of range; ``empty=False`` also refuses meshes without faces.
+    """
+    v = _numeric(vertices, "vertices", "(n, 3) float").astype(np.float64, copy=False)
+    if v.ndim != 2 or v.shape[1] != 3:
+        raise ValueError(f"`vertices` must be (n, 3) float, got shape {v.shape}")
+    f = np.asarray(faces)
+    if f.size == 0 and f.dtype.kind in "fOU":  # [] and np.array([]) are no faces, whatever their dtype
+        f = f.astype(np.int64)
+    f = _numeric(f, "faces", "(f, 3) int")
+    if f.size and not np.issubdtype(f.dtype, np.integer):  # ValueError as before: a float array is numbers
+        raise ValueError(f"`faces` must be (f, 3) int, got dtype {f.dtype}")
+    if f.size == 0:
+        f = f.reshape((0, 3))
+    if f.ndim != 2 or f.shape[1] != 3:
+        raise ValueError(f"`faces` must be (f, 3) int, got shape {f.shape}")
+    if not empty and len(f) == 0:
+        raise ValueError("no faces")
+    if f.size:
+        lo, hi = int(f.min()), int(f.max())
+        if lo < 0 or hi >= len(v):
+            raise ValueError(f"face index out of range ({lo}..{hi} for {len(v)} vertices)")
+    return v, f.astype(np.int64, copy=False)
+
+
+def check_coordinates(values: np.ndarray, what: str) -> None:
+    """ValueError unless every coordinate of ``values`` ((n, 3) float) is finite and within
+    :data:`COORDINATE_LIMIT`; the message says how many rows are not."""
+    finite = np.isfinite(values).all(axis=1)
+    if not finite.all():
+        raise ValueError(f"NaN or inf coordinates in {int((~finite).sum())} of {len(values)} {what}")
+    far = (np.abs(values) > COORDINATE_LIMIT).any(axis=1)
+    if far.any():
+        raise ValueError(f"coordinates beyond +-{COORDINATE_LIMIT:g} in {int(far.sum())} of {len(values)} {what} "
+                         f"(largest {float(np.abs(values).max()):.3g})")
 
 
 class ShapeFileError(ValueError):
@@ -43,18 +103,9 @@ class Mesh:
     faces: np.ndarray
 
     def __post_init__(self):
-        vertices = np.asarray(self.vertices, dtype=np.float64)
-        if vertices.ndim != 2 or vertices.shape[1] != 3:
-            raise ValueError(f"`vertices` must be (n, 3) float, got shape {vertices.shape}")
-        faces = np.asarray(self.faces)
-        if faces.size == 0:
-            faces = faces.reshape((0, 3))
-        if faces.ndim != 2 or faces.shape[1] != 3:
-            raise ValueError(f"`faces` must be (f, 3) int, got shape {faces.shape}")
-        if faces.size and not np.issubdtype(faces.dtype, np.integer):
-            raise ValueError(f"`faces` must be (f, 3) int, got dtype {faces.dtype}")
+        vertices, faces = mesh_arrays(self.vertices, self.faces)
         object.__setattr__(self, "vertices", vertices)
-        object.__setattr__(self, "faces", faces.astype(np.int64, copy=False))
+        object.__setattr__(self, "faces", faces)
 
     def __repr__(self):
         return f"Mesh(vertices={self.vertices.shape}, faces={self.faces.shape})"
@@ -107,12 +158,12 @@ class PointCloud:
     normals: np.ndarray | None = None
 
     def __post_init__(self):
-        points = np.asarray(self.points, dtype=np.float64)
+        points = _numeric(self.points, "points", "(n, 3) float").astype(np.float64, copy=False)
         if points.ndim != 2 or points.shape[1] != 3:
             raise ValueError(f"`points` must be (n, 3) float, got shape {points.shape}")
         object.__setattr__(self, "points", points)
         if self.normals is not None:
-            normals = np.asarray(self.normals, dtype=np.float64)
+            normals = _numeric(self.normals, "normals", "(n, 3) float").astype(np.float64, copy=False)
             if normals.shape != points.shape:
                 raise ValueError(
                     f"`normals` must be (n, 3) float like `points` {points.shape}, "
@@ -146,15 +197,21 @@ class VoxelGrid:
     scale: float
 
     def __post_init__(self):
-        occupancy = np.asarray(self.occupancy, dtype=bool)
+        occupancy = np.asarray(self.occupancy)
+        if occupancy.dtype != bool:
+            # a float grid (a distance field, probabilities) cast to bool would be silently all True
+            raise TypeError(f"`occupancy` must be (R, R, R) bool, got dtype {occupancy.dtype}")
         if occupancy.ndim != 3 or len(set(occupancy.shape)) != 1:
             raise ValueError(f"`occupancy` must be (R, R, R) bool, got shape {occupancy.shape}")
         translate = np.asarray(self.translate, dtype=np.float64)
         if translate.shape != (3,):
             raise ValueError(f"`translate` must be (3,) float, got shape {translate.shape}")
+        scale = float(self.scale)
+        if not (np.isfinite(translate).all() and np.isfinite(scale) and scale > 0):
+            raise ValueError(f"a voxel grid needs a finite `translate` and a `scale` > 0, got {translate.tolist()}, {scale}")
         object.__setattr__(self, "occupancy", occupancy)
         object.__setattr__(self, "translate", translate)
-        object.__setattr__(self, "scale", float(self.scale))
+        object.__setattr__(self, "scale", scale)
 
     def __repr__(self):
         return (
@@ -178,3 +235,44 @@ class VoxelGrid:
         r = self.resolution
         index = np.stack(np.meshgrid(*(np.arange(r),) * 3, indexing="ij"), axis=-1)
         return self.translate + (index + 0.5) / r * self.scale
+
+
+def usable_shape(shape):
+    """The check every shape passes before it is prepared, however it came (a file, arrays, a
+    trimesh, pyvista or Open3D object): ``(shape, dropped)`` with ``dropped`` the number of
+    vertices no face references, left out of a returned copy of a mesh (a stray vertex would
+    otherwise stretch the canonical frame built from the vertices' bounding box).
+
+    ValueError (one line, without the input's name: the caller adds it) for an empty shape, NaN or
+    inf coordinates, coordinates beyond :data:`COORDINATE_LIMIT`, zero extent or zero area.
+    The value constructors have already checked dtypes, shapes and face indices.
+    """
+    if isinstance(shape, VoxelGrid):
+        if not shape.occupancy.any():
+            raise ValueError("empty voxel grid (no occupied voxel)")
+        check_coordinates(shape.translate[None], "translations")
+        if shape.scale > COORDINATE_LIMIT:
+            raise ValueError(f"voxel grid scale {shape.scale:.3g} beyond {COORDINATE_LIMIT:g}")
+        return shape, 0
+    if isinstance(shape, PointCloud):
+        if len(shape.points) == 0:
+            raise ValueError("no points")
+        check_coordinates(shape.points, "points")
+        if not np.ptp(shape.points, axis=0).max() > 0:
+            raise ValueError("zero extent (all points are equal)")
+        return shape, 0
+    if not isinstance(shape, Mesh):
+        raise TypeError(f"expected a Mesh, PointCloud or VoxelGrid, got {type(shape).__name__}")
+    if len(shape.faces) == 0:
+        raise ValueError("no faces")
+    used = np.zeros(len(shape.vertices), bool)
+    used[shape.faces.ravel()] = True
+    dropped = int(len(used) - used.sum())
+    if dropped:
+        renumber = np.cumsum(used) - 1
+        shape = Mesh(shape.vertices[used], renumber[shape.faces])
+    check_coordinates(shape.vertices, "vertices")
+    extent = float(np.ptp(shape.vertices, axis=0).max())
+    if not shape.area() > 1e-12 * extent**2 or extent == 0:
+        raise ValueError("zero total area (all faces are degenerate)")
+    return shape, dropped

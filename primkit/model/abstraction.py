@@ -11,18 +11,22 @@ Inputs, each one of:
 * a path: a shape file (mesh, point cloud or binvox grid, :func:`primkit.io.read_shape`) or a
   folder of them (searched recursively, sorted); prepared through the cache, in parallel;
 * a :class:`primkit.io.Mesh`, :class:`~primkit.io.PointCloud` or :class:`~primkit.io.VoxelGrid`;
-* ``(vertices, faces)``: ``(n, 3) float`` and ``(f, 3) int``; or ``(n, 3) float`` points;
+* ``(vertices, faces)``: ``(n, 3) float`` and ``(f, 3) int``; or ``(n, 3) float`` points; or an
+  ``(R, R, R) bool`` voxel grid; NumPy arrays, lists or torch tensors;
 * a ``trimesh.Trimesh`` / ``trimesh.PointCloud``, a ``pyvista.PolyData`` (any VTK surface), or an
   Open3D ``TriangleMesh`` / ``PointCloud``.
 
 Shapes given in memory are prepared here (no cache); their names are ``shape<i>`` unless ``names``
-says otherwise.
+says otherwise. Every shape is checked before a compiled kernel sees it (dtypes, shapes, face
+indices, finite coordinates, emptiness; vertices no face references are left out, with a warning:
+``docs/faults.md``).
 """
 
 from __future__ import annotations
 
 import functools
 import os
+import warnings
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -33,7 +37,20 @@ from ..viz import interop
 from . import orientation
 from .abstractor import MIN_EXTENT, AbstractionResult, Abstractor
 
-__all__ = ["Abstraction", "Abstractions", "as_shape", "abstract_shapes", "abstract", "load_model"]
+__all__ = ["Abstraction", "Abstractions", "as_shape", "abstract_shapes", "abstract", "load_model",
+           "CardMismatchWarning", "CARD_LOSS_RATIO"]
+
+#: how far above its card's final training loss (coverage + consistency) a model's median loss on
+#: the inputs may be before :func:`abstract_shapes` warns. Measured (10 shapes each, fit losses at
+#: 1000 points): the right category's median 0.78-1.47 times the card (chair on COSEG and
+#: ShapeNet chairs, airplane and table on their own), single shapes up to 2.13; a wrong category's
+#: median 3.0-28.9 times (table on chairs 3.0, airplane on COSEG chairs 28.9).
+CARD_LOSS_RATIO = 2.5
+
+
+class CardMismatchWarning(UserWarning):
+    """The model explains the inputs far worse than the data it was trained on (wrong category,
+    wrong scale or frame): its labels and parts mean little there."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -119,6 +136,9 @@ class Abstractions:
     shapes: list
     errors: list
     model: Abstractor
+    #: the model's median fit loss on the inputs over its card's, and the warning said (None: fine)
+    card_ratio: float | None = None
+    card_warning: str | None = None
 
     def __len__(self) -> int:
         return len(self.shapes)
@@ -141,7 +161,11 @@ def load_model(model="chair", device: str | None = None) -> Abstractor:
 
 
 def _is_array_like(obj) -> bool:
-    return isinstance(obj, (np.ndarray, list)) and not isinstance(obj, (str, os.PathLike))
+    return isinstance(obj, (np.ndarray, list)) or _is_tensor(obj)
+
+
+def _is_tensor(obj) -> bool:
+    return type(obj).__module__.split(".")[0] == "torch" and hasattr(obj, "detach")
 
 
 def as_shape(obj):
@@ -169,10 +193,12 @@ def as_shape(obj):
         vertices, faces = interop.from_pyvista(obj)
         return io.Mesh(vertices, faces) if len(faces) else io.PointCloud(vertices)
     if isinstance(obj, tuple) and len(obj) == 2:
-        return io.Mesh(*obj)
+        return io.Mesh(*(x.detach().cpu().numpy() if _is_tensor(x) else x for x in obj))
     if _is_array_like(obj):
-        a = np.asarray(obj)
-        if a.ndim == 3 and a.dtype == bool:
+        a = obj.detach().cpu().numpy() if _is_tensor(obj) else np.asarray(obj)
+        if a.ndim == 3:
+            if a.dtype != bool:
+                raise TypeError(f"a voxel grid must be (R, R, R) bool, got dtype {a.dtype}")
             return io.VoxelGrid(a, np.zeros(3), 1.0)
         return io.PointCloud(a)
     raise TypeError(f"cannot abstract a {type(obj).__name__}: give a path, an io.Mesh / PointCloud / VoxelGrid, "
@@ -280,9 +306,12 @@ def abstract_shapes(
                 files.append(p)
         else:
             name = names[len(memory)] if names is not None else f"shape{i}"
-            shape = as_shape(item)
             try:
+                # the values are checked here (io.values) and in data.prepare (io.values.usable_shape)
+                shape = as_shape(item)
                 prepared = data.prepare(shape, settings, name=name)
+            except TypeError as exc:  # not a shape at all, or the wrong dtype: the caller's mistake
+                raise TypeError(f"{name}: {exc}") from None
             except (ValueError, RuntimeError) as exc:
                 errors.append(f"{name}: cannot prepare: {exc}")
                 continue
@@ -304,20 +333,58 @@ def abstract_shapes(
         if everything:
             with parallel.torch_threads(parallel.choose_threads(interval=0.05)):
                 abstractor = adapt_model(abstractor, everything, config, parent_name=named, progress=progress)
-    shapes = []
+    shapes, fit = [], []
     # torch on the cores free (an explicit setting wins), the caller's thread count back afterwards
     with parallel.torch_threads(parallel.choose_threads(interval=0.05)), \
             tqdm(total=len(order), desc="abstracting", unit="shape", disable=not progress or len(order) <= batch_size) as bar:
         for start in range(0, len(order), batch_size):
             chunk = order[start : start + batch_size]
             prepared = [coll[k] if kind == "file" else memory[k][1] for kind, k in chunk]
-            for (kind, k), result in zip(chunk, abstractor.predict(prepared, **options)):
+            predicted = abstractor.predict(prepared, **options)
+            fit.extend(_fit_losses(predicted, prepared))
+            for (kind, k), result in zip(chunk, predicted):
                 if kind == "file":
                     shapes.append(Abstraction(result, collection=coll, index=k))
                 else:
                     shapes.append(Abstraction(result, given=memory[k][0], shape=memory[k][1]))
             bar.update(len(chunk))
-    return Abstractions(shapes, errors, abstractor)
+    ratio, warning = _card_check(abstractor, fit)
+    return Abstractions(shapes, errors, abstractor, ratio, warning)
+
+
+def _fit_losses(results, prepared) -> list:
+    """Each shape's fit loss (coverage + consistency, :func:`primkit.model.fitting.fit_losses`) on
+    its abstraction, in the frame the network saw; a cheap estimate (1000 points)."""
+    from .fitting import fit_losses
+
+    # the network's own fit: a refined shape's loss before refinement (fit_losses too), and a shape
+    # left with no part (a high existence threshold) says nothing of the model
+    refined = [r.refinement["loss_before"] for r in results if r.refinement is not None]
+    pairs = [(r, p) for r, p in zip(results, prepared) if r.refinement is None and r.canonical.existence.any()]
+    if not pairs:
+        return refined
+    shapes = [r.canonical_shape(p) for r, p in pairs]
+    return refined + list(fit_losses([r.canonical for r, _ in pairs], shapes, points=1000,
+                                     samples_per_cuboid=96)["total"])
+
+
+def _card_check(abstractor, losses) -> tuple:
+    """``(median loss / the card's, warning or None)``; the warning is issued once (stderr)."""
+    final = (abstractor.metadata.get("training") or {}).get("final") or {}
+    try:
+        card = float(final["coverage"]) + float(final["consistency"])
+    except (KeyError, TypeError, ValueError):
+        return None, None
+    if not losses or not card > 0:
+        return None, None
+    ratio = float(np.median(losses)) / card
+    if not ratio > CARD_LOSS_RATIO:
+        return ratio, None
+    warning = (f"the model fits these {len(losses)} shape(s) {ratio:.1f} times worse than its training data "
+               f"(median loss {np.median(losses):.2g} against {card:.2g} on its card): a different category, "
+               f"scale or frame? Its parts and labels may mean little here")
+    warnings.warn(warning, CardMismatchWarning, stacklevel=3)
+    return ratio, warning
 
 
 def abstract(shape, model="chair", **options) -> Abstraction:

@@ -158,11 +158,12 @@ class AbstractionResult:
         json_path = folder / f"{self.name}.cuboids.json"
         mesh_path = folder / f"{self.name}.cuboids{mesh_format}"
         io.refuse_existing((json_path, mesh_path), overwrite)
+        # the mesh first: the JSON marks the pair done (--skip-done), so it is never left alone
+        v, f, part = self.cuboids.to_mesh()
+        colors = part_colors(self.cuboids.count)[part] if len(f) else None  # no part present: an empty mesh
+        io.write_mesh(mesh_path, v, f, face_colors=colors, overwrite=overwrite)
         with io.atomic_output(json_path, overwrite=overwrite) as tmp:
             Path(tmp).write_text(json.dumps(self.to_dict(), indent=1))
-        v, f, part = self.cuboids.to_mesh()
-        colors = part_colors(self.cuboids.count)[part]
-        io.write_mesh(mesh_path, v, f, face_colors=colors, overwrite=overwrite)
         return json_path, mesh_path
 
 

@@ -46,6 +46,10 @@ def lookup_distance_sq(closest: torch.Tensor, points: torch.Tensor) -> torch.Ten
         raise ValueError("`closest` must be (B, R, R, R, 3)")
     if points.dim() != 3 or points.shape[-1] != 3:
         raise ValueError("`points` must be (B, n, 3)")
+    if closest.shape[1] != closest.shape[2] or closest.shape[1] != closest.shape[3] or closest.shape[1] < 1:
+        raise ValueError(f"`closest` must be (B, R, R, R, 3), got {tuple(closest.shape)}")
+    if points.shape[0] != closest.shape[0]:  # the compiled search would read grids past the last one
+        raise ValueError(f"`points` {tuple(points.shape)} and `closest` {tuple(closest.shape)} differ in batch size")
     batch, res = closest.shape[0], closest.shape[1]
     # Which of the 8 surrounding cells wins is found without building a graph; the distance is
     # then recomputed with gradients for the winner only. The minimum's gradient flows to its

@@ -52,6 +52,18 @@ __all__ = [
 _ABSENT = 1.0e2
 
 
+def _same_batch(**tensors) -> None:
+    """ValueError unless the tensors agree in batch size (and the cuboid ones in part count): the
+    compiled kernels index one by the other's sizes and would read past the smaller."""
+    sizes = {name: tuple(t.shape) for name, t in tensors.items()}
+    batch = {s[0] if len(s) else None for s in sizes.values()}
+    parts = {s[1] for name, s in sizes.items() if name in ("half_extents", "quaternions", "translations", "present")
+             and len(s) > 1}
+    if len(batch) != 1 or len(parts) > 1:
+        raise ValueError("tensors differ in batch size or part count: "
+                         + ", ".join(f"{name} {s}" for name, s in sizes.items()))
+
+
 def _union_distance_sq(points, half_extents, quaternions, translations, present, *, toggles: bool = False):
     """(B, n) squared distance of points to the union of present cuboids.
 
@@ -68,6 +80,8 @@ def _union_distance_sq(points, half_extents, quaternions, translations, present,
     with the winner's gradient in closed form (:mod:`primkit.model._union_kernels`; values to float
     rounding of this form's, which finds the distances with one batched matrix product).
     """
+    _same_batch(points=points, half_extents=half_extents, quaternions=quaternions, translations=translations,
+                present=present)
     if kernels("_union_kernels", points, half_extents, quaternions, translations, present, data=(points,)):
         rot = quaternion_to_matrix_torch(quaternions)
         offset = (rot.transpose(-1, -2) @ translations[..., None])[..., 0]  # R^T t, as _nearest_distance_sq
@@ -226,6 +240,7 @@ def surface_consistency(closest, half_extents, quaternions, translations, sample
     closest : (B, R, R, R, 3) tensor
     half_extents, quaternions, translations : (B, m, 3), (B, m, 4), (B, m, 3) tensors
     """
+    _same_batch(closest=closest, half_extents=half_extents, quaternions=quaternions, translations=translations)
     uv = surface_coefficients_torch(half_extents, quaternions, translations, samples_per_cuboid, generator)
     if not kernels("_field_kernels", closest, half_extents, quaternions, translations, data=(closest,)):
         samples, weights = surface_samples_from_coefficients_torch(half_extents, quaternions, translations, uv)

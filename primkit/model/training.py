@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import json
 import math
+import contextlib
 import os
 import signal
 import sys
@@ -38,7 +39,7 @@ from .losses import (LossWeights, MovingBaseline, SlotPlacement, local_existence
 from .network import AbstractionNet, NetworkConfig
 
 __all__ = ["TrainConfig", "ShapeTensors", "PreparedDataset", "TrainResult", "train", "isolated_torch_state",
-           "training_outputs", "check_training_outputs", "check_checkpoint"]
+           "training_outputs", "check_training_outputs", "check_checkpoint", "claim_output"]
 
 
 @dataclass(frozen=True)
@@ -337,14 +338,81 @@ def _restore_optimizer(optimizer, tensors: dict, scalars: dict) -> None:
 
 
 def _save_checkpoint(path, net, optimizer, generator, baseline, iteration, history, config, extra) -> bool:
-    """Write the checkpoint; on an OSError (a full disk, the folder gone) say so on stderr and return
-    False: the run goes on, and the previous checkpoint, if any, stands (writes are atomic)."""
+    """Write the checkpoint; on any failure of the writer (a full disk raises OSError or safetensors'
+    SafetensorError, the folder gone or read-only) say so on stderr and return False: the run goes
+    on, and the previous checkpoint, if any, stands (writes are atomic)."""
     try:
         _write_checkpoint(path, net, optimizer, generator, baseline, iteration, history, config, extra)
-    except OSError as exc:
+    except Exception as exc:  # noqa: BLE001 - whatever the writer raises, training must not be lost
+        reason = getattr(exc, "strerror", None) or str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        kept = f"the checkpoint {path} of an earlier iteration stands" if os.path.exists(path) else "no checkpoint yet"
         print(f"\nprimkit: warning: could not write the checkpoint {path} at iteration {iteration} "
-              f"({exc.strerror or exc}); training goes on", file=sys.stderr)
+              f"({type(exc).__name__}: {reason}); {kept}; training goes on", file=sys.stderr)
         return False
+    return True
+
+
+def _claim_output(output: Path, overwrite: bool) -> Path:
+    """Claim ``output`` for this run: create ``<output>.lock`` exclusively (holding this process's
+    id), so that a second run into the same model file is refused before it starts instead of both
+    writing it. A lock whose process is gone (a killed run) is taken over; ``overwrite`` takes over
+    any lock. Returns the lock's path; :func:`train` removes it at the end."""
+    lock = output.with_name(output.name + ".lock")
+    for _ in range(2):
+        try:
+            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+        except FileExistsError:
+            try:
+                pid = int(lock.read_text().split()[0])
+            except (OSError, ValueError, IndexError):
+                pid = None
+            alive = pid is not None and pid != os.getpid() and _process_alive(pid)
+            if alive and not overwrite:
+                raise FileExistsError(f"{output}: another training run (process {pid}) is writing it; wait for it, "
+                                      f"choose another -o, or remove {lock} if that run is gone") from None
+            lock.unlink(missing_ok=True)
+            continue
+        with os.fdopen(fd, "w") as fh:
+            fh.write(f"{os.getpid()}\n")
+        return lock
+    raise FileExistsError(f"{output}: could not claim {lock} (another run took it)")
+
+
+@contextlib.contextmanager
+def claim_output(output, overwrite: bool = False):
+    """Hold ``<output>.lock`` for a block (:func:`_claim_output`): the ``train`` command claims its
+    ``-o`` before preparing the shapes, :func:`train` before its first iteration; a claim this
+    process already holds is kept as it is (and left to its holder to remove)."""
+    output = Path(output)
+    lock = output.with_name(output.name + ".lock")
+    try:
+        mine = lock.read_text().split()[0] == str(os.getpid())
+    except (OSError, IndexError):
+        mine = False
+    if not mine:
+        try:
+            _claim_output(output, overwrite)
+        except FileExistsError:
+            raise
+        except OSError:  # a folder not made yet, or not writable: check_training_outputs says which
+            mine = True  # nothing claimed here, nothing to remove
+    try:
+        yield lock
+    finally:
+        try:  # removed if still ours (a --force run may have taken it over meanwhile)
+            if not mine and lock.read_text().split()[0] == str(os.getpid()):
+                lock.unlink()
+        except (OSError, IndexError):
+            pass
+
+
+def _process_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # someone else's process
+        return True
     return True
 
 
@@ -405,18 +473,22 @@ def _read_checkpoint(path, network: NetworkConfig, config: TrainConfig) -> tuple
 
 
 def _save_trained(output: Path, state: dict, meta: dict) -> None:
-    """Save the trained model; if its folder cannot be written any more (removed, full, made
-    read-only during the run), save it to the system's temporary folder instead and say where in
-    the error, so that the training is not lost."""
+    """Save the trained model; if that fails (its folder removed, full or made read-only during the
+    run; any error of the writer), save it to the system's temporary folder instead and raise an
+    OSError saying where it is (:func:`train` adds where its checkpoint is)."""
     try:
-        modelfile.save_model(output, state, meta, overwrite=True)  # checked before the first iteration
-    except OSError as exc:
+        modelfile.save_model(output, state, meta, overwrite=True)  # claimed before the first iteration
+    except Exception as exc:  # noqa: BLE001 - SafetensorError on a full disk is not an OSError
         import tempfile
 
-        rescue = Path(tempfile.mkdtemp(prefix="primkit-")) / output.name
-        modelfile.save_model(rescue, state, meta)
-        raise OSError(exc.errno, f"cannot write {output} ({exc.strerror or exc}); the trained model was saved to "
-                                 f"{rescue} instead") from None
+        reason = getattr(exc, "strerror", None) or (str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
+        try:
+            rescue = Path(tempfile.mkdtemp(prefix="primkit-")) / output.name
+            modelfile.save_model(rescue, state, meta)
+            saved = f"the trained model was saved to {rescue} instead"
+        except Exception:  # noqa: BLE001 - the temporary folder may be full too
+            saved = "it could not be saved elsewhere either"
+        raise OSError(getattr(exc, "errno", None) or 0, f"cannot write {output} ({reason}); {saved}") from None
 
 
 def _plot_history(history, path, stage1: int) -> None:
@@ -508,8 +580,15 @@ def train(
     if world > 1 and torch.device(device).type == "cuda":
         device = f"cuda:{int(os.environ.get('LOCAL_RANK', rank))}"
     output = Path(output) if output is not None else None
+    claim = contextlib.nullcontext()
     if output is not None and rank == 0:  # before the first iteration: hours of training must not end in "cannot write"
         check_training_outputs(output, overwrite=overwrite, resume=resume)
+        claim = claim_output(output, overwrite)
+    with claim:
+        return _train(shapes, output, config, device, resume, progress, description, threads, rank, world)
+
+
+def _train(shapes, output, config, device, resume, progress, description, threads, rank, world) -> TrainResult:
     outputs = training_outputs(output) if output is not None else None
     ckpt_path = outputs["checkpoint"] if output is not None else None
 
@@ -572,6 +651,8 @@ def train(
             stop["requested"] = True
 
         previous_handler = signal.signal(signal.SIGINT, _request_stop)
+        # SIGTERM (SLURM, Kubernetes, timeout) as Ctrl-C: finish the iteration, checkpoint, stop
+        previous_term = signal.signal(signal.SIGTERM, _request_stop)
     try:
         for it in range(start, total):
             governor.update()
@@ -651,6 +732,7 @@ def train(
         governor.close()
         if previous_handler is not None:
             signal.signal(signal.SIGINT, previous_handler)
+            signal.signal(signal.SIGTERM, previous_term)
     seconds = time.perf_counter() - t0
     net.eval()
     net.encoder.to(memory_format=torch.contiguous_format)  # inference layout (see channels_last)
@@ -674,7 +756,18 @@ def train(
             "metrics": {},
             "part_names": None,
         }
-        _save_trained(output, net.state_dict(), meta)
+        try:
+            _save_trained(output, net.state_dict(), meta)
+        except OSError as exc:
+            # a checkpoint of the finished run, so that no iteration is lost (resuming it writes the model)
+            if _save_checkpoint(ckpt_path, net, optimizer, generator, baseline, total, history, config,
+                                {"placement": placement.state_dict()}):
+                kept = f"a checkpoint of the finished run is in {ckpt_path} (--resume {ckpt_path} writes the model)"
+            elif ckpt_path.exists():
+                kept = f"the last checkpoint {ckpt_path} stands (--resume {ckpt_path})"
+            else:
+                kept = "no checkpoint could be written"
+            raise OSError(exc.errno, f"{exc.strerror}; {kept}") from None
         with io.atomic_output(outputs["history"], overwrite=True) as tmp:  # checked before the first iteration
             tmp.write_text(json.dumps(history))
         _plot_history(history, outputs["plot"], stage1)

@@ -148,7 +148,7 @@ def read_summary(path) -> tuple[list[str], dict[str, list[str]]]:
     """A summary written by :func:`write_summary`: its header and its rows by shape name (the row
     without the name). An absent or unreadable file reads as no columns and no rows."""
     try:
-        with open(path, newline="") as fh:
+        with open(path, newline="", encoding="utf-8", errors="surrogateescape") as fh:  # names as written
             table = list(csv.reader(fh))
     except (OSError, UnicodeDecodeError, csv.Error):
         return [], {}
@@ -191,7 +191,8 @@ def write_summary(segmentations, path, *, overwrite: bool = False, keep=None, or
         position = {name: i for i, name in enumerate(order)}
         rows = dict(sorted(rows.items(), key=lambda item: position.get(item[0], len(position))))
     with io.atomic_output(path, overwrite=overwrite) as tmp:
-        with open(tmp, "w", newline="") as fh:
+        # a name from a file name that is not UTF-8 keeps its bytes (surrogateescape), as the file's
+        with open(tmp, "w", newline="", encoding="utf-8", errors="surrogateescape") as fh:
             writer = csv.writer(fh)
             writer.writerow(header)
             for name, row in rows.items():

@@ -105,6 +105,11 @@ class Tile:
     layers: list = field(default_factory=list)
     frame: np.ndarray | None = None
 
+    def __post_init__(self):
+        # a shape named after a file name that is not UTF-8 (os.fsdecode's surrogates): U+FFFD
+        # for its undecodable bytes, which the text renderers can draw
+        self.title = str(self.title).encode("utf-8", "surrogateescape").decode("utf-8", "replace")
+
     def bounds(self) -> np.ndarray:
         """(2, 3) float: the framed box."""
         if self.frame is not None:
