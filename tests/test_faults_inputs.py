@@ -112,7 +112,10 @@ def test_a_stray_vertex_changes_nothing_and_is_said(tmp_path):
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         a = primkit.abstract((np.vstack([mesh.vertices, [100.0, 0, 0]]), mesh.faces), model="chair")
-    assert np.allclose(a.cuboids.translations, clean.translations, atol=1e-9)
+    # the memory route draws other surface samples than the file route, and a part grown to its
+    # samples (abstractor.drop_unsized_parts) follows them: within 2e-3, as tests/model/test_abstraction.py
+    assert np.array_equal(a.cuboids.present, clean.present)
+    assert np.allclose(a.cuboids.translations, clean.translations, atol=2e-3)
     assert any("shape0: 1 vertices referenced by no face" in str(w.message) for w in caught)
 
 
