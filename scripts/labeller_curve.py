@@ -76,6 +76,7 @@ class Chairs:
     """The cached chairs (``prepare``)."""
 
     def __init__(self, scratch: Path):
+        self.scratch = scratch
         meta = json.loads((scratch / "chairs.json").read_text())
         self.validation, self.test = meta["validation"], meta["test"]
         self.index_names, self.parts = meta["index_names"], meta["parts"]
@@ -85,6 +86,14 @@ class Chairs:
         for key in z.files:
             name, field = key.split("/")
             self.arrays.setdefault(name, {})[field] = z[key]
+
+    def full_features(self, name):
+        """Every feature (normals and local shape), float32, cached under ``scratch/features``."""
+        path = self.scratch / "features" / f"{name}.npy"
+        if not path.is_file():
+            path.parent.mkdir(exist_ok=True)
+            np.save(path, self.features(name, LabellerSettings(neighbours=16, normals=True)).astype(np.float32))
+        return np.load(path)
 
     def features(self, name, settings, position_only=False):
         a = self.arrays[name]
@@ -184,20 +193,14 @@ def _fit(data, parts, settings, position_only, **fit):
 #: (settings, classifier options) tried on the validation part
 CANDIDATES = {
     "frame (issue's features)": (LabellerSettings(neighbours=0, smooth=0, normals=False), {}),
-    "+normals": (LabellerSettings(neighbours=0, smooth=0, normals=True), {}),
     "+normals+local shape": (LabellerSettings(neighbours=16, smooth=0, normals=True), {}),
     "+normals+local shape+smooth 9x2": (LabellerSettings(neighbours=16, smooth_neighbours=9, smooth=2), {}),
     "+normals+local shape+smooth 27x2": (LabellerSettings(neighbours=16, smooth_neighbours=27, smooth=2), {}),
     "+normals+local shape+smooth 27x4": (LabellerSettings(neighbours=16, smooth_neighbours=27, smooth=4), {}),
-    "smooth 27x2, 100 trees/class, 15 leaves": (LabellerSettings(neighbours=16, smooth_neighbours=27, smooth=2),
-                                                {"max_iter": 100, "max_leaf_nodes": 15}),
-    "smooth 27x2, 100 trees/class, 15 leaves, lr 0.2": (
-        LabellerSettings(neighbours=16, smooth_neighbours=27, smooth=2),
-        {"max_iter": 100, "max_leaf_nodes": 15, "learning_rate": 0.2}),
-    "smooth 27x2, 50 trees/class, 15 leaves, lr 0.2": (
-        LabellerSettings(neighbours=16, smooth_neighbours=27, smooth=2),
-        {"max_iter": 50, "max_leaf_nodes": 15, "learning_rate": 0.2}),
+    "+normals": (LabellerSettings(neighbours=0, smooth=0, normals=True), {}),
 }
+#: the classifier options of every candidate unless it says otherwise
+FIT = {"per_shape": 1000, "max_iter": 100}
 
 
 def line(label, s):
@@ -244,7 +247,7 @@ def sweep(scratch: Path, sizes, only=None) -> dict:
     print(line("index naming (bundled model)", score(chairs, held, index_naming(chairs, held))))
     full = LabellerSettings(neighbours=16, normals=True)
     need = train_pool[: max(sizes)] + held
-    features = {n: chairs.features(n, full).astype(np.float32) for n in need}
+    features = {n: chairs.full_features(n) for n in need}
     out = {}
     for label, (settings, fit) in CANDIDATES.items():
         if only and label not in only:
@@ -253,7 +256,7 @@ def sweep(scratch: Path, sizes, only=None) -> dict:
         for n in sizes:
             t0 = time.perf_counter()
             labeller = Labeller.fit([(features[c][:, keep], chairs.arrays[c]["truth"].astype(np.int64))
-                                     for c in train_pool[:n]], NAMES, chairs.parts, settings=settings, **fit)
+                                     for c in train_pool[:n]], NAMES, chairs.parts, settings=settings, **{**FIT, **fit})
             t1 = time.perf_counter()
             known = np.array([NAMES.index(k) for k in labeller.names])
             predictions = {c: known[np.argmax(_smoothed(chairs, c, labeller.ensemble.predict_proba(features[c][:, keep]),

@@ -154,10 +154,11 @@ def _kind(path: Path) -> str:
 
 
 def _label_codes_text(segmenter) -> str:
-    """``labels.csv``: the 1-based code of each of the model's part names (``--semantic``)."""
+    """``labels.csv``: the 1-based code of each of the model's part names (``--semantic``): its
+    labeller's names when it has one, else the names of its part indices."""
     from ..model.parts import label_codes
 
-    names, _ = label_codes(segmenter.part_names)
+    names = list(segmenter.labeller.names) if segmenter.labeller is not None else label_codes(segmenter.part_names)[0]
     return "code,name\n" + "".join(f"{i + 1},{n}\n" for i, n in enumerate(names))
 
 
@@ -247,7 +248,8 @@ def _cmd_segment(args) -> int:
         return 2
     archives = _voxel_archives(sources)
     evaluations = {"meshes": out / "evaluation.json", "voxels": out / "evaluation-voxels.json"}
-    segmenter = Segmenter(args.model, up=args.up, front=args.front, align=args.align, refine=args.refine)
+    segmenter = Segmenter(args.model, up=args.up, front=args.front, align=args.align, refine=args.refine,
+                          labeller="auto" if args.semantic else None)
     files = collect(args.inputs)
     # with --shard, this shard's outputs only, named as one run over all the inputs names them
     mine, names = shard_of(args, files), shard_of(args, output_names(files))
@@ -355,17 +357,22 @@ def _cmd_name_parts(args) -> int:
     from ..model.modelfile import update_metadata
     from ..model.parts import names_from_labels
     from ..segmentation import Segmenter, VoxelSegmentation, read_ground_truth
+    from ..segmentation.labeller import write_labeller
+    from ..segmentation.segmenter import fit_labeller
 
     out = Path(args.output)
     sources = [(args.labels, args.names)] if args.labels else []
     archives = _voxel_archives(sources)
-    segmenter = Segmenter(args.model, up=args.up, front=args.front, align=args.align, refine=args.refine)
+    segmenter = Segmenter(args.model, up=args.up, front=args.front, align=args.align, refine=args.refine,
+                          labeller=None)
     files = collect(args.inputs)
     check_outputs(args, [check_suffix(out, ".safetensors", "a model file")],
                   input_paths(files, _model_path(args.model), args.labels))
-    segs, errors = segmenter.segment_files(files, cache_dir=args.cache, workers=args.workers)
+    results, errors = segmenter.abstract_files(files, cache_dir=args.cache, workers=args.workers)
+    segs, errors = segmenter.segment_results(results, workers=args.workers, errors=errors)
+    by_name = {r.name: r for r in results}
     failed = list(errors)
-    names, assignments, labels, weights, used = [], [], [], [], []
+    names, assignments, labels, weights, used, learned = [], [], [], [], [], []
     for s in segs:
         if isinstance(s, VoxelSegmentation):
             truth = _voxel_truth(s, archives)
@@ -381,6 +388,7 @@ def _cmd_name_parts(args) -> int:
             labels.append(np.array([names.index(short[c]) if c >= 0 else -1 for c in range(len(short))] + [-1])[truth.labels[occupied]])
             weights.append(None)  # one voxel, one vote
             used.append(s.name)
+            learned.append((s, by_name[s.name], labels[-1]))
             continue
         found = _find_truth(s, sources) if sources and not archives else None
         if found is None:
@@ -398,6 +406,7 @@ def _cmd_name_parts(args) -> int:
         labels.append(truth.labels)
         weights.append(s.face_areas)
         used.append(s.name)
+        learned.append((s, by_name[s.name], truth.labels))
     if not used:
         report_errors(failed)
         err("no labelled shape to learn names from")
@@ -416,9 +425,20 @@ def _cmd_name_parts(args) -> int:
               "area_by_label" if unit == "area" else "voxels_by_label": np.round(table, 6).tolist()}
     if archives:
         naming["labels_from"] = [str(a.path) for a in archives]
-    update_metadata(_model_path(args.model), out,
-                    {"part_names": part_names, "part_naming": naming}, overwrite=args.force)
-    print(f"wrote {out} with part names")
+    changes = {"part_names": part_names, "part_naming": naming}
+    if args.index_names_only:
+        update_metadata(_model_path(args.model), out, changes, overwrite=args.force)
+        print(f"wrote {out} with part names")
+        return report_errors(failed)
+    try:
+        labeller = fit_labeller(learned, names, segmenter.abstractor.parts, seed=args.seed)
+    except ValueError as exc:
+        err(f"cannot learn a labeller: {exc}")
+        return 2
+    write_labeller(_model_path(args.model), out, labeller, changes, overwrite=args.force)
+    print(f"labeller: {', '.join(labeller.names)} learned from {labeller.info['shapes']} shapes "
+          f"({labeller.info['elements']} elements); {len(labeller.ensemble.feature)} tree nodes")
+    print(f"wrote {out} with part names and a labeller")
     return report_errors(failed)
 
 
@@ -447,7 +467,8 @@ def register(sub) -> None:
                    help="leave out the inputs whose outputs are there (its three files, and its row in the summary "
                    "this run writes), e.g. when rerunning a shard after a lost worker or a killed job; the rest is "
                    "redone (what a cut run left of it replaced) and the summary rewritten with every row")
-    p.add_argument("--semantic", action="store_true", help="write the model's part names' codes (labels.csv) instead of indices")
+    p.add_argument("--semantic", action="store_true", help="write the codes of part names (labels.csv) instead of indices: each element named by the model's "
+                   "labeller when it has one (primkit name-parts), else by its part index's name")
     p.add_argument("--gt", action="append", metavar="PATH",
                    help="ground truth: a folder of .seg files for meshes (same stems), or for voxel grids a per-voxel "
                    "label archive (an .npz keyed by shape name, or a folder holding voxlabels.npz, e.g. "
@@ -470,5 +491,9 @@ def register(sub) -> None:
     p.add_argument("--names", default=None,
                    help="what the label values mean ('back,seat,legs' for values 1,2,3); default: the .json beside "
                    "procedural shapes (primkit generate), else the values")
+    p.add_argument("--index-names-only", action="store_true",
+                   help="only name the part indices (one name each); by default a labeller is learned as well, "
+                   "naming each face, voxel or point on its own (segment --semantic uses it)")
+    p.add_argument("--seed", type=int, default=0, help="the labeller's random state")
     add_force(p)
     p.set_defaults(func=_cmd_name_parts)

@@ -668,3 +668,4 @@ def label_elements(labeller: Labeller, elements: Elements, canonical: primitives
     if not canonical.existence.any():
         return np.full(len(elements.points), -1, np.int64)
     return labeller.predict(elements.points, canonical, elements.normals, elements.context)
+
