@@ -140,26 +140,25 @@ def index_naming(chairs: Chairs, names) -> dict:
 
 
 def learn_and_label(chairs, train, evaluate, settings, *, position_only=False, **fit) -> dict:
-    """Learn from ``train``, label ``evaluate``: name -> label codes."""
-    data = [(chairs.features(n, settings, position_only), chairs.arrays[n]["truth"].astype(np.int64)) for n in train]
-    if position_only:
-        settings = replace(settings, neighbours=0, normals=False)
-    labeller = _fit(data, chairs.parts, settings, position_only, **fit)
+    """Learn from ``train``, label ``evaluate`` as the library does (the classifier, smoothing over
+    each voxel's 3 x 3 x 3 neighbourhood, rare labels dropped): name -> label codes."""
+    from primkit.segmentation.labeller import decide, grid_neighbours
+
+    keep = _columns(chairs.parts, settings)
+    data = [(chairs.full_features(n)[:, keep] if not position_only else chairs.arrays[n]["points"].astype(float),
+             chairs.arrays[n]["truth"].astype(np.int64)) for n in train]
+    labeller = _fit(data, chairs.parts, settings, position_only, **{**FIT, **fit})
+    known = np.array([NAMES.index(k) for k in labeller.names])
     out = {}
     for n in evaluate:
         a = chairs.arrays[n]
-        points = a["points"].astype(float)
-        X = chairs.features(n, settings, position_only)
+        X = chairs.full_features(n)[:, keep] if not position_only else a["points"].astype(float)
         proba = labeller.ensemble.predict_proba(X)
         if settings.smooth:
-            from scipy.spatial import cKDTree
-
-            _, idx = cKDTree(points).query(points, k=min(settings.smooth_neighbours, len(points)))
-            idx = idx.reshape(len(points), -1)
+            idx = grid_neighbours(a["index"].astype(np.int64), (32, 32, 32))
             for _ in range(settings.smooth):
                 proba = proba[idx].mean(axis=1)
-        known = np.array([NAMES.index(k) for k in labeller.names])
-        out[n] = known[np.argmax(proba, axis=1)]
+        out[n] = known[decide(proba, settings.min_share)]
     return out
 
 
@@ -171,13 +170,15 @@ def _fit(data, parts, settings, position_only, **fit):
 
     from primkit.segmentation.labeller import TreeEnsemble
 
-    X = np.vstack([d[0] for d in data])
-    y = np.concatenate([d[1] for d in data])
-    w = np.concatenate([np.full(len(d[1]), 1.0 / len(d[1])) for d in data])
+    rng = np.random.default_rng(0)  # as Labeller.fit: at most per_shape elements of each shape
+    picks = [rng.choice(len(d[1]), min(len(d[1]), fit.get("per_shape", 1000)), replace=False) for d in data]
+    X = np.vstack([d[0][p] for d, p in zip(data, picks)])
+    y = np.concatenate([d[1][p] for d, p in zip(data, picks)])
+    w = np.concatenate([np.full(len(p), 1.0 / len(p)) for p in picks])
     present = np.unique(y)
     if len(present) < 2:
         present = np.array([present[0], (present[0] + 1) % 4])
-    model = HistGradientBoostingClassifier(max_iter=fit.get("max_iter", 200), early_stopping=False, random_state=0)
+    model = HistGradientBoostingClassifier(max_iter=fit.get("max_iter", 100), early_stopping=False, random_state=0)
     model.fit(X, np.searchsorted(present, y), sample_weight=w * len(data))
 
     class Fitted:
@@ -190,16 +191,18 @@ def _fit(data, parts, settings, position_only, **fit):
 # -- commands ----------------------------------------------------------------------------------
 
 
-#: (settings, classifier options) tried on the validation part
-CANDIDATES = {
-    "frame (issue's features)": (LabellerSettings(neighbours=0, smooth=0, normals=False), {}),
-    "+normals+local shape": (LabellerSettings(neighbours=16, smooth=0, normals=True), {}),
-    "+normals+local shape+smooth 9x2": (LabellerSettings(neighbours=16, smooth_neighbours=9, smooth=2), {}),
-    "+normals+local shape+smooth 27x2": (LabellerSettings(neighbours=16, smooth_neighbours=27, smooth=2), {}),
-    "+normals+local shape+smooth 27x4": (LabellerSettings(neighbours=16, smooth_neighbours=27, smooth=4), {}),
-    "+normals": (LabellerSettings(neighbours=0, smooth=0, normals=True), {}),
+#: the models tried on the validation part: (features read, classifier options)
+MODELS = {
+    "frame (issue's features)": (LabellerSettings(neighbours=0, normals=False), {}),
+    "+normals+local shape": (LabellerSettings(neighbours=16, normals=True), {}),
+    "+normals+local shape, 15 leaves, l2 1": (LabellerSettings(neighbours=16, normals=True),
+                                              {"max_leaf_nodes": 15, "l2_regularization": 1.0}),
 }
-#: the classifier options of every candidate unless it says otherwise
+#: the steps after the classifier, tried on each model without learning again: (smooth_neighbours,
+#: smooth, min_share)
+AFTER = [(9, 0, 0.0), (9, 2, 0.0), (27, 2, 0.0), (27, 4, 0.0), (9, 2, 0.01), (27, 2, 0.01), (27, 2, 0.02),
+         (27, 4, 0.01), (27, 4, 0.02)]
+#: the classifier options of every model unless it says otherwise
 FIT = {"per_shape": 1000, "max_iter": 100}
 
 
@@ -239,17 +242,36 @@ def _smoothed(chairs, name, proba, settings):
     return proba
 
 
+def _knn(chairs, name, k, cache={}):
+    key = (name, k)
+    if key not in cache:
+        from scipy.spatial import cKDTree
+
+        points = chairs.arrays[name]["points"].astype(float)
+        cache[key] = cKDTree(points).query(points, k=min(k, len(points)))[1].reshape(len(points), -1)
+    return cache[key]
+
+
+def _after(chairs, name, proba, smooth_neighbours, smooth, min_share, known):
+    from primkit.segmentation.labeller import decide
+
+    if smooth:
+        idx = _knn(chairs, name, smooth_neighbours)
+        for _ in range(smooth):
+            proba = proba[idx].mean(axis=1)
+    return known[decide(proba, min_share)]
+
+
 def sweep(scratch: Path, sizes, only=None) -> dict:
     chairs = Chairs(scratch)
     pool = order(chairs.validation, 0)
     train_pool, held = pool[:100], pool[100:]
     print(f"validation: learn from the first N of {len(train_pool)}, score {len(held)} other validation chairs")
     print(line("index naming (bundled model)", score(chairs, held, index_naming(chairs, held))))
-    full = LabellerSettings(neighbours=16, normals=True)
     need = train_pool[: max(sizes)] + held
     features = {n: chairs.full_features(n) for n in need}
     out = {}
-    for label, (settings, fit) in CANDIDATES.items():
+    for label, (settings, fit) in MODELS.items():
         if only and label not in only:
             continue
         keep = _columns(chairs.parts, settings)
@@ -259,13 +281,14 @@ def sweep(scratch: Path, sizes, only=None) -> dict:
                                      for c in train_pool[:n]], NAMES, chairs.parts, settings=settings, **{**FIT, **fit})
             t1 = time.perf_counter()
             known = np.array([NAMES.index(k) for k in labeller.names])
-            predictions = {c: known[np.argmax(_smoothed(chairs, c, labeller.ensemble.predict_proba(features[c][:, keep]),
-                                                        settings), axis=1)] for c in held}
-            s = score(chairs, held, predictions)
-            s["nodes"] = len(labeller.ensemble.feature)
-            print(line(f"{label}, {n} chairs", s) + f"  ({t1 - t0:.0f} s fit, {time.perf_counter() - t1:.0f} s label,"
-                  f" {s['nodes']} nodes)", flush=True)
-            out[f"{label}|{n}"] = s
+            probas = {c: labeller.ensemble.predict_proba(features[c][:, keep]) for c in held}
+            print(f"{label}, {n} chairs: {t1 - t0:.0f} s fit, {time.perf_counter() - t1:.0f} s label, "
+                  f"{len(labeller.ensemble.feature)} nodes", flush=True)
+            for k, rounds, share in AFTER:
+                s = score(chairs, held, {c: _after(chairs, c, probas[c], k, rounds, share, known) for c in held})
+                tag = f"{label}, {n}, smooth {k}x{rounds}, min share {share}"
+                print("  " + line(tag, s), flush=True)
+                out[tag] = s
     return out
 
 
@@ -290,9 +313,10 @@ def curve(scratch: Path, part: str, sizes, draws: int, settings: LabellerSetting
     return rows
 
 
-def coseg(scratch: Path, settings: LabellerSettings, draws: int = 6) -> dict:
+def coseg(scratch: Path, settings: LabellerSettings, draws: int = 8) -> dict:
     """Learn from 3 of the 10 COSEG chairs, label the other 7 (faces right, mean over draws)."""
     from primkit.segmentation import Segmenter, read_ground_truth
+    from primkit.segmentation.labeller import decide
 
     shared = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "coseg_chairs"
     conventions = {"large_chairs": "back,seat,legs", "chairs_101-120": "legs,seat,back"}
@@ -308,24 +332,21 @@ def coseg(scratch: Path, settings: LabellerSettings, draws: int = 6) -> dict:
         el = mesh_elements(mesh.vertices, mesh.faces, r.frame)
         X = frame_features(el.points, r.canonical, el.normals, settings, el.context)
         shapes.append((r.name, X, truth.labels, el.points))
-    rng = np.random.default_rng(0)
+    import itertools
+
+    triples = list(itertools.combinations(range(len(shapes)), 3))
+    chosen = np.random.default_rng(0).choice(len(triples), draws, replace=False)  # distinct triples
     rows = []
-    for d in range(draws):
-        pick = rng.choice(len(shapes), 3, replace=False)
+    for d, t in enumerate(chosen):
+        pick = np.array(triples[t])
         labeller = Labeller.fit([(shapes[i][1], shapes[i][2]) for i in pick], ["back", "seat", "legs"],
-                                segmenter.abstractor.parts, settings=settings)
+                                segmenter.abstractor.parts, settings=settings, **FIT)
         right = []
         for i, (name, X, y, points) in enumerate(shapes):
             if i in pick:
                 continue
-            proba = labeller.ensemble.predict_proba(X)
-            if settings.smooth:
-                from scipy.spatial import cKDTree
-
-                _, idx = cKDTree(points).query(points, k=settings.smooth_neighbours)
-                for _ in range(settings.smooth):
-                    proba = proba[idx].mean(axis=1)
-            codes = np.array([["back", "seat", "legs"].index(k) for k in labeller.names])[np.argmax(proba, axis=1)]
+            proba = labeller.smooth(labeller.ensemble.predict_proba(X), points)  # as Labeller.predict
+            codes = np.array([["back", "seat", "legs"].index(k) for k in labeller.names])[decide(proba, settings.min_share)]
             right.append(float(np.mean(codes == y)))
         rows.append({"learned_from": [shapes[i][0] for i in pick], "faces_right": right, "mean": float(np.mean(right))})
         print(f"draw {d}: learned from {rows[-1]['learned_from']}: faces right on the other 7 "

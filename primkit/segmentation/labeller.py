@@ -52,7 +52,9 @@ __all__ = [
     "LabellerSettings",
     "Labeller",
     "frame_features",
+    "decide",
     "grid_normals",
+    "grid_neighbours",
     "write_labeller",
     "read_labeller",
     "has_labeller",
@@ -271,16 +273,20 @@ class LabellerSettings:
         elements (itself included), ``smooth`` times (0: no smoothing).
     normals : bool
         Whether normals are features (zero where a shape has none).
+    min_share : float
+        A label given to fewer than this share of a shape's elements is dropped from it (they take
+        their next most probable label): a chair with a few stray "arm" voxels has no arms.
     """
 
     neighbours: int = 16
     smooth_neighbours: int = 9
     smooth: int = 2
     normals: bool = True
+    min_share: float = 0.0
 
     def to_dict(self) -> dict:
         return {"neighbours": self.neighbours, "smooth_neighbours": self.smooth_neighbours, "smooth": self.smooth,
-                "normals": self.normals}
+                "normals": self.normals, "min_share": self.min_share}
 
     @classmethod
     def from_dict(cls, d: dict) -> "LabellerSettings":
@@ -292,6 +298,10 @@ class LabellerSettings:
             if isinstance(default, bool):
                 if not isinstance(value, bool):
                     raise ValueError(f"settings {key} must be true or false")
+            elif isinstance(default, float):
+                if not isinstance(value, (int, float)) or isinstance(value, bool) or not 0 <= value < 1:
+                    raise ValueError(f"settings {key} must be a number in [0, 1)")
+                value = float(value)
             elif not isinstance(value, int) or isinstance(value, bool) or not 0 <= value <= 256:
                 raise ValueError(f"settings {key} must be an integer in 0-256")
             out[key] = value
@@ -355,10 +365,12 @@ def frame_features(points, cuboids: primitives.Cuboids, normals=None, settings: 
     if not c.existence.any():
         raise ValueError("no present cuboid: nothing to read the frame from")
     absent = ~c.existence
-    local = primitives.world_to_local(points, c) / c.half_extents[:, None, :]  # (m, n, 3)
-    local[absent] = ABSENT
-    distance = primitives.point_cuboid_distance(points, c)  # (n, m)
+    local = primitives.world_to_local(points, c)  # (m, n, 3)
+    excess = np.maximum(np.abs(local) - c.half_extents[:, None, :], 0.0)
+    distance = np.sqrt(np.einsum("mni,mni->nm", excess, excess))  # primitives.point_cuboid_distance, shared work
     distance[:, absent] = ABSENT
+    local /= c.half_extents[:, None, :]
+    local[absent] = ABSENT
     nearest = primitives.assign_points(points, c)
     onehot = np.zeros((n, m))
     onehot[np.arange(n), nearest] = 1.0
@@ -387,6 +399,19 @@ def frame_features(points, cuboids: primitives.Cuboids, normals=None, settings: 
             shares = np.divide(values, total, out=np.full_like(values, 1.0 / 3), where=total > 0)
             columns.append(np.hstack([shares, np.abs(vectors[:, :, 2]), np.abs(vectors[:, :, 0])]))
     return np.hstack(columns)
+
+
+def grid_neighbours(index, shape) -> np.ndarray:
+    """``(n, 27) int``: for the occupied voxels at ``index`` (``(n, 3) int``, e.g. ``np.argwhere``),
+    the positions in ``index`` of the occupied voxels of their 3 x 3 x 3 neighbourhood (the voxel
+    itself where a neighbour is empty or off the grid). On a full lattice these are the 27 nearest
+    voxel centres, found by index arithmetic instead of a k-d tree."""
+    index = np.asarray(index, np.int64)
+    where = np.full(tuple(np.asarray(shape) + 2), -1, np.int64)  # padded: no bounds checks
+    where[tuple((index + 1).T)] = np.arange(len(index))
+    offsets = np.array([(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)])
+    near = where[tuple((index[None, :, :] + 1 + offsets[:, None, :]).transpose(2, 0, 1))].T  # (n, 27)
+    return np.where(near >= 0, near, np.arange(len(index))[:, None])
 
 
 def grid_normals(occupancy) -> np.ndarray:
@@ -431,7 +456,7 @@ class Labeller:
     @classmethod
     def fit(cls, shapes, names, parts: int, *, settings: LabellerSettings | None = None, per_shape: int = 4000,
             max_iter: int = 200, learning_rate: float = 0.1, max_leaf_nodes: int = 31, seed=0,
-            info: dict | None = None) -> "Labeller":
+            info: dict | None = None, **options) -> "Labeller":
         """Learn a labeller from labelled shapes.
 
         Parameters
@@ -445,7 +470,7 @@ class Labeller:
         per_shape : int
             At most this many elements of each shape are learned from (a random subset); each
             shape weighs the same whatever its element count.
-        max_iter, learning_rate, max_leaf_nodes : the classifier's.
+        max_iter, learning_rate, max_leaf_nodes, options : the classifier's (``l2_regularization``, ...).
         seed : int, the subsets' and the classifier's random state.
         """
         from sklearn.ensemble import HistGradientBoostingClassifier
@@ -473,7 +498,7 @@ class Labeller:
         # the classes the ensemble knows are those present, mapped back to `names` after
         model = HistGradientBoostingClassifier(max_iter=max_iter, learning_rate=learning_rate,
                                                max_leaf_nodes=max_leaf_nodes, early_stopping=False,
-                                               random_state=int(seed))
+                                               random_state=int(seed), **options)
         model.fit(X, np.searchsorted(present, y), sample_weight=w * len(Xs))
         kept = [str(names[k]) for k in present]
         return cls(kept, int(parts), TreeEnsemble.from_sklearn(model), settings,
@@ -485,20 +510,29 @@ class Labeller:
             raise ValueError(f"the labeller reads {self.parts} part slots, the cuboids have {cuboids.count}")
         return frame_features(points, cuboids, normals, self.settings, context)
 
-    def predict_proba(self, points, cuboids, normals=None, context=None) -> np.ndarray:
-        """``(n, len(names))`` smoothed label probabilities of canonical-frame elements."""
-        proba = self.ensemble.predict_proba(self.features(points, cuboids, normals, context))
-        if self.settings.smooth and len(points) > 1:
-            idx = _neighbours(np.asarray(points, float), self.settings.smooth_neighbours)
-            for _ in range(self.settings.smooth):
-                proba = proba[idx].mean(axis=1)
+    def predict_proba(self, points, cuboids, normals=None, context=None, neighbours=None) -> np.ndarray:
+        """``(n, len(names))`` smoothed label probabilities of canonical-frame elements
+        (``neighbours``: see :meth:`smooth`)."""
+        return self.smooth(self.ensemble.predict_proba(self.features(points, cuboids, normals, context)), points,
+                           neighbours)
+
+    def smooth(self, proba, points, neighbours=None) -> np.ndarray:
+        """Average ``(n, classes)`` probabilities over each element's ``smooth_neighbours`` nearest
+        elements (itself included), ``smooth`` times. ``neighbours``: ``(n, k) int`` indices to use
+        instead (a voxel grid's 3 x 3 x 3 neighbourhoods, :func:`grid_neighbours`)."""
+        if not self.settings.smooth or len(proba) < 2:
+            return proba
+        idx = neighbours if neighbours is not None else _neighbours(np.asarray(points, float),
+                                                                     self.settings.smooth_neighbours)
+        for _ in range(self.settings.smooth):
+            proba = proba[idx].mean(axis=1)
         return proba
 
-    def predict(self, points, cuboids, normals=None, context=None) -> np.ndarray:
+    def predict(self, points, cuboids, normals=None, context=None, neighbours=None) -> np.ndarray:
         """``(n,) int``: each element's label (an index into :attr:`names`)."""
         if len(points) == 0:
             return np.zeros(0, np.int64)
-        return np.argmax(self.predict_proba(points, cuboids, normals, context), axis=1).astype(np.int64)
+        return decide(self.predict_proba(points, cuboids, normals, context, neighbours), self.settings.min_share)
 
     # -- storage ------------------------------------------------------------------------------
 
@@ -542,6 +576,21 @@ class Labeller:
             raise ValueError(f"{where}: {len(names)} names but the trees tell {ensemble.classes} classes apart")
         info = description.get("info", {})
         return cls(list(names), parts, ensemble, settings, info if isinstance(info, dict) else {})
+
+
+def decide(proba, min_share: float = 0.0) -> np.ndarray:
+    """``(n,) int``: each element's most probable label, leaving out the labels that would go to
+    fewer than ``min_share`` of the ``n`` elements (their elements take their next best label that
+    stays)."""
+    proba = np.array(proba, float)
+    labels = np.argmax(proba, axis=1)
+    if min_share > 0 and len(labels):
+        counts = np.bincount(labels, minlength=proba.shape[1])
+        rare = (counts > 0) & (counts < min_share * len(labels))
+        if rare.any() and not rare[counts > 0].all():
+            proba[:, rare] = -np.inf
+            labels = np.argmax(proba, axis=1)
+    return labels.astype(np.int64)
 
 
 def write_labeller(model_path, output, labeller: Labeller, changes: dict | None = None, *,
@@ -625,11 +674,14 @@ class Elements:
     normals : (n, 3) float or None, outward unit normals
     context : (c, 3) float or None, points spread evenly over the shape for the local shape
         (a mesh's surface samples; None: the elements themselves)
+    neighbours : (n, k) int or None, each element's neighbourhood for smoothing (a grid's
+        :func:`grid_neighbours`; None: its nearest elements)
     """
 
     points: np.ndarray
     normals: np.ndarray | None = None
     context: np.ndarray | None = None
+    neighbours: np.ndarray | None = None
 
 
 def _rotate(frame, vectors):
@@ -643,7 +695,8 @@ def grid_elements(grid, frame) -> tuple[Elements, np.ndarray]:
     index = np.argwhere(occupancy)
     centres = grid.translate + (index + 0.5) * (grid.scale / grid.resolution)
     normals = grid_normals(occupancy)[tuple(index.T)]  # index axes are the model axes (uniform scale)
-    return Elements(frame.to_canonical(centres), _rotate(frame, normals)), index
+    return Elements(frame.to_canonical(centres), _rotate(frame, normals),
+                    neighbours=grid_neighbours(index, occupancy.shape)), index
 
 
 def mesh_elements(vertices, faces, frame, samples: int = 20000, seed=0) -> Elements:
@@ -667,5 +720,5 @@ def label_elements(labeller: Labeller, elements: Elements, canonical: primitives
     cuboid is present."""
     if not canonical.existence.any():
         return np.full(len(elements.points), -1, np.int64)
-    return labeller.predict(elements.points, canonical, elements.normals, elements.context)
+    return labeller.predict(elements.points, canonical, elements.normals, elements.context, elements.neighbours)
 

@@ -253,3 +253,26 @@ def test_loading_a_labeller_runs_no_code(labelled, tmp_path, monkeypatch):
     fake.write_bytes(pickle.dumps({"labeller": 1}))
     with pytest.raises(ModelFileError):
         lab.read_labeller(fake)
+
+
+def test_grid_neighbours_are_the_27_nearest_voxels_of_a_full_block():
+    from scipy.spatial import cKDTree
+
+    rng = np.random.default_rng(5)
+    occupancy = rng.random((9, 8, 7)) < 0.6
+    index = np.argwhere(occupancy)
+    near = lab.grid_neighbours(index, occupancy.shape)
+    for i in rng.choice(len(index), 40, replace=False):
+        want = {j for j, v in enumerate(index) if np.abs(v - index[i]).max() <= 1}
+        got = set(near[i].tolist())
+        assert got == want  # every occupied voxel of the block, the voxel itself for the empty ones
+    full = np.argwhere(np.ones((5, 5, 5), bool))
+    centre = 62  # (2, 2, 2)
+    _, knn = cKDTree(full).query(full[centre], k=27)
+    assert set(lab.grid_neighbours(full, (5, 5, 5))[centre].tolist()) == set(knn.tolist())
+
+
+def test_decide_drops_labels_below_their_share():
+    proba = np.array([[0.6, 0.4, 0.0]] * 99 + [[0.1, 0.3, 0.6]])
+    assert np.array_equal(lab.decide(proba), [0] * 99 + [2])
+    assert np.array_equal(lab.decide(proba, 0.02), [0] * 99 + [1])  # label 2 on 1% of the elements: dropped
