@@ -155,7 +155,7 @@ def learn_and_label(chairs, train, evaluate, settings, *, position_only=False, *
         X = chairs.full_features(n)[:, keep] if not position_only else a["points"].astype(float)
         proba = labeller.ensemble.predict_proba(X)
         if settings.smooth:
-            idx = grid_neighbours(a["index"].astype(np.int64), (32, 32, 32))
+            idx = grid_neighbours(a["index"].astype(np.int64), (32, 32, 32))[:, : settings.smooth_neighbours]
             for _ in range(settings.smooth):
                 proba = proba[idx].mean(axis=1)
         out[n] = known[decide(proba, settings.min_share)]

@@ -279,10 +279,10 @@ class LabellerSettings:
     """
 
     neighbours: int = 16
-    smooth_neighbours: int = 9
+    smooth_neighbours: int = 19
     smooth: int = 2
     normals: bool = True
-    min_share: float = 0.0
+    min_share: float = 0.01
 
     def to_dict(self) -> dict:
         return {"neighbours": self.neighbours, "smooth_neighbours": self.smooth_neighbours, "smooth": self.smooth,
@@ -403,15 +403,20 @@ def frame_features(points, cuboids: primitives.Cuboids, normals=None, settings: 
 
 def grid_neighbours(index, shape) -> np.ndarray:
     """``(n, 27) int``: for the occupied voxels at ``index`` (``(n, 3) int``, e.g. ``np.argwhere``),
-    the positions in ``index`` of the occupied voxels of their 3 x 3 x 3 neighbourhood (the voxel
-    itself where a neighbour is empty or off the grid). On a full lattice these are the 27 nearest
-    voxel centres, found by index arithmetic instead of a k-d tree."""
+    the positions in ``index`` of the occupied voxels of their 3 x 3 x 3 neighbourhood, nearest
+    first (the voxel itself, its 6 face neighbours, 12 edge and 8 corner neighbours; the voxel
+    itself where a neighbour is empty or off the grid). The first ``k`` columns are the ``k``
+    nearest voxel centres where the grid is full, found by index arithmetic instead of a k-d tree."""
     index = np.asarray(index, np.int64)
     where = np.full(tuple(np.asarray(shape) + 2), -1, np.int64)  # padded: no bounds checks
     where[tuple((index + 1).T)] = np.arange(len(index))
-    offsets = np.array([(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)])
-    near = where[tuple((index[None, :, :] + 1 + offsets[:, None, :]).transpose(2, 0, 1))].T  # (n, 27)
+    near = where[tuple((index[None, :, :] + 1 + _OFFSETS[:, None, :]).transpose(2, 0, 1))].T  # (n, 27)
     return np.where(near >= 0, near, np.arange(len(index))[:, None])
+
+
+#: the 27 offsets of a 3 x 3 x 3 block, nearest first (ties in a fixed order)
+_OFFSETS = np.array(sorted(((i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)),
+                           key=lambda o: (sum(x * x for x in o), o)))
 
 
 def grid_normals(occupancy) -> np.ndarray:
@@ -519,11 +524,12 @@ class Labeller:
     def smooth(self, proba, points, neighbours=None) -> np.ndarray:
         """Average ``(n, classes)`` probabilities over each element's ``smooth_neighbours`` nearest
         elements (itself included), ``smooth`` times. ``neighbours``: ``(n, k) int`` indices to use
-        instead (a voxel grid's 3 x 3 x 3 neighbourhoods, :func:`grid_neighbours`)."""
+        instead, nearest first (a voxel grid's :func:`grid_neighbours`), of which the first
+        ``smooth_neighbours`` are used."""
         if not self.settings.smooth or len(proba) < 2:
             return proba
-        idx = neighbours if neighbours is not None else _neighbours(np.asarray(points, float),
-                                                                     self.settings.smooth_neighbours)
+        k = self.settings.smooth_neighbours
+        idx = neighbours[:, :k] if neighbours is not None else _neighbours(np.asarray(points, float), k)
         for _ in range(self.settings.smooth):
             proba = proba[idx].mean(axis=1)
         return proba

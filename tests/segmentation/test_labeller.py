@@ -269,7 +269,11 @@ def test_grid_neighbours_are_the_27_nearest_voxels_of_a_full_block():
     full = np.argwhere(np.ones((5, 5, 5), bool))
     centre = 62  # (2, 2, 2)
     _, knn = cKDTree(full).query(full[centre], k=27)
-    assert set(lab.grid_neighbours(full, (5, 5, 5))[centre].tolist()) == set(knn.tolist())
+    near = lab.grid_neighbours(full, (5, 5, 5))[centre]
+    assert set(near.tolist()) == set(knn.tolist())
+    d = np.linalg.norm(full[near] - full[centre], axis=1)
+    assert near[0] == centre and np.all(np.diff(d) >= 0)  # nearest first: the first k are k nearest
+    np.testing.assert_allclose(d[[1, 6, 7, 18, 19, 26]], [1, 1, 2**0.5, 2**0.5, 3**0.5, 3**0.5])
 
 
 def test_decide_drops_labels_below_their_share():
