@@ -203,7 +203,7 @@ MODELS = {
 AFTER = [(9, 0, 0.0), (9, 2, 0.0), (27, 2, 0.0), (27, 4, 0.0), (9, 2, 0.01), (27, 2, 0.01), (27, 2, 0.02),
          (27, 4, 0.01), (27, 4, 0.02)]
 #: the classifier options of every model unless it says otherwise
-FIT = {"per_shape": 1000, "max_iter": 100}
+FIT = {"per_shape": 1000, "max_iter": 100}  # Labeller.fit's defaults, said here
 
 
 def line(label, s):

@@ -341,6 +341,14 @@ def _cmd_segment(args) -> int:
             report = evaluate_voxels([p[0].labels for p in pairs], [p[1] for p in pairs], segmenter.abstractor.parts,
                                      part_names=segmenter.part_names, names=[p[0].name for p in pairs],
                                      mean_over=mean_over)
+            if segmenter.labeller is not None:  # each voxel named by the labeller: its names are the "parts"
+                names = list(segmenter.labeller.names)
+                by_label = evaluate_voxels([p[0].named for p in pairs], [p[1] for p in pairs], len(names),
+                                           part_names=names, names=[p[0].name for p in pairs], mean_over=mean_over)
+                if "model-names" in by_label["protocols"]:
+                    report["protocols"]["labeller"] = {
+                        **by_label["protocols"]["model-names"],
+                        "description": "each voxel named by the model's labeller (learned on other shapes)"}
             _print_voxel_evaluation(report)
             with atomic_output(evaluations["voxels"], overwrite=args.force) as tmp:
                 Path(tmp).write_text(json.dumps(report, indent=1))

@@ -459,8 +459,8 @@ class Labeller:
     info: dict = field(default_factory=dict)
 
     @classmethod
-    def fit(cls, shapes, names, parts: int, *, settings: LabellerSettings | None = None, per_shape: int = 4000,
-            max_iter: int = 200, learning_rate: float = 0.1, max_leaf_nodes: int = 31, seed=0,
+    def fit(cls, shapes, names, parts: int, *, settings: LabellerSettings | None = None, per_shape: int = 1000,
+            max_iter: int = 100, learning_rate: float = 0.1, max_leaf_nodes: int = 31, seed=0,
             info: dict | None = None, **options) -> "Labeller":
         """Learn a labeller from labelled shapes.
 

@@ -280,3 +280,31 @@ def test_decide_drops_labels_below_their_share():
     proba = np.array([[0.6, 0.4, 0.0]] * 99 + [[0.1, 0.3, 0.6]])
     assert np.array_equal(lab.decide(proba), [0] * 99 + [2])
     assert np.array_equal(lab.decide(proba, 0.02), [0] * 99 + [1])  # label 2 on 1% of the elements: dropped
+
+
+def test_a_learned_labeller_names_the_faces_the_segmenter_writes(chairs, tmp_path):
+    """fit_labeller on abstracted labelled meshes; the segmenter's ``named`` is the labeller's
+    prediction on the shape's elements, and --semantic codes are those names' 1-based codes."""
+    from primkit import io
+    from primkit.segmentation import Segmenter
+    from primkit.segmentation.segmenter import apply_labeller, fit_labeller, shape_elements
+
+    files = []
+    for i, s in enumerate(chairs[:4]):
+        files.append(tmp_path / f"c{i}.ply")
+        io.write_mesh(files[-1], s.vertices, s.faces)
+    seg = Segmenter("chair", labeller=None)
+    results, errors = seg.abstract_files(files, workers=1, progress=False)
+    segs, errors = seg.segment_results(results, workers=1, progress=False)
+    assert not errors
+    names = list(chairs[0].part_names)
+    labeller = fit_labeller([(s, r, c.face_labels) for s, r, c in zip(segs[:3], results, chairs)], names, 20,
+                            max_iter=20)
+    named = apply_labeller(segs[3], labeller, results[3])
+    elements, _ = shape_elements(segs[3], results[3].frame)
+    want = labeller.predict(elements.points, results[3].canonical, elements.normals, elements.context)
+    assert np.array_equal(named.named, want)
+    right = np.mean(np.array(labeller.names)[named.named] == np.array(names)[chairs[3].face_labels])
+    assert right > 0.8  # a shape it did not learn from
+    codes_names, codes = named.semantic_labels()
+    assert codes_names == labeller.names and np.array_equal(codes, named.named + 1)
