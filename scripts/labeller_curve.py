@@ -47,7 +47,7 @@ SIZES = [1, 3, 10, 40, 100]
 def prepare(scratch: Path, model: str = "chair") -> None:
     """Abstract every labelled chair of both parts once (default flags) and keep what the
     labeller reads: canonical voxel centres and normals, canonical cuboids, labels, index names."""
-    from primkit.segmentation import Segmenter, VoxelLabelArchive  # noqa: F401
+    from primkit.segmentation import Segmenter
 
     validation, test, archive = split()
     segmenter = Segmenter(model)

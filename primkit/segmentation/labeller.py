@@ -35,7 +35,6 @@ Frames: points, normals and cuboids given to :meth:`Labeller.features` are in th
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -660,11 +659,6 @@ def read_labeller(model_path) -> Labeller | None:
         return Labeller.from_tensors(arrays, description, where="labeller")
     except ValueError as exc:
         raise ModelFileError(model_path, str(exc)) from None
-
-
-def description_json(labeller: Labeller) -> str:
-    """The labeller's JSON description (for reports)."""
-    return json.dumps(labeller.to_tensors()[1], indent=1)
 
 
 # ---------------------------------------------------------------------------------------------
