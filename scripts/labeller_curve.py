@@ -6,6 +6,7 @@ Run from the repository root as a module (it reuses the fixed split of ``scripts
     python -m scripts.labeller_curve sweep   --scratch /tmp/33-scratch       # settings, validation only
     python -m scripts.labeller_curve curve   --scratch /tmp/33-scratch --part test   # reported once
     python -m scripts.labeller_curve coseg   --scratch /tmp/33-scratch       # 3 COSEG chairs -> the other 7
+    python -m scripts.labeller_curve model --model FILE --part test          # a model file's own labeller
 
 The split (``scripts/partnet_chairs.py``): the chair preset's held-out files with PartNet labels, even
 positions **validation**, odd positions **test**. Labellers learn from the first N chairs of the
@@ -355,9 +356,39 @@ def coseg(scratch: Path, settings: LabellerSettings, draws: int = 8) -> dict:
     return {"draws": rows, "mean": float(np.mean([r["mean"] for r in rows]))}
 
 
+def model_figures(model: str, part: str) -> dict:
+    """A model file's own labeller on a part, through the library (``Segmenter(model)``, as
+    ``primkit segment --semantic`` runs it): the same scores as ``curve``."""
+    from primkit import data
+    from primkit.segmentation import Segmenter
+
+    validation, test, archive = split()
+    files = test if part == "test" else validation
+    segmenter = Segmenter(model)
+    if segmenter.labeller is None:
+        raise SystemExit(f"{model}: no labeller in this model file")
+    segs, errors = segmenter.segment_files(files, progress=False)
+    index = {names: i for i, names in enumerate(NAMES)}
+    codes = np.array([index[n] for n in segmenter.labeller.names])
+
+    class Scored:  # the shape of Chairs that score() reads
+        arrays = {}
+
+    for s in segs:
+        occupied = np.argwhere(s.grid.occupancy)
+        truth = archive.get(s.name, s.grid.occupancy.shape).labels[tuple(occupied.T)]
+        Scored.arrays[s.name] = {"index": occupied, "truth": truth}
+    predictions = {s.name: codes[s.named[tuple(np.argwhere(s.grid.occupancy).T)]] for s in segs}
+    out = score(Scored, [s.name for s in segs], predictions)
+    print(line(f"{Path(model).name} on {len(segs)} {part} chairs", out) + f"; errors: {errors}")
+    out["labelled_from"] = segmenter.labeller.info
+    return {**out, "files": [data.shape_name(f) for f in files]}
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("command", choices=["prepare", "sweep", "curve", "coseg"])
+    ap.add_argument("command", choices=["prepare", "sweep", "curve", "coseg", "model"])
+    ap.add_argument("--model", default="chair", help="model: the model file whose labeller is scored")
     ap.add_argument("--scratch", type=Path, default=Path("/tmp/33-scratch"))
     ap.add_argument("--part", choices=["validation", "test"], default="validation")
     ap.add_argument("--sizes", default=None, help="comma-separated numbers of labelled chairs")
@@ -372,6 +403,8 @@ def main(argv=None) -> int:
         return 0
     if args.command == "sweep":
         out = sweep(args.scratch, sizes or [10, 40], args.only)
+    elif args.command == "model":
+        out = model_figures(args.model, args.part)
     elif args.command == "curve":
         out = curve(args.scratch, args.part, sizes or SIZES, args.draws, LabellerSettings())
     else:
