@@ -230,19 +230,6 @@ def _feature_count(parts, settings):
     return feature_count(parts, settings)
 
 
-def _smoothed(chairs, name, proba, settings):
-    if not settings.smooth:
-        return proba
-    from scipy.spatial import cKDTree
-
-    points = chairs.arrays[name]["points"].astype(float)
-    _, idx = cKDTree(points).query(points, k=min(settings.smooth_neighbours, len(points)))
-    idx = idx.reshape(len(points), -1)
-    for _ in range(settings.smooth):
-        proba = proba[idx].mean(axis=1)
-    return proba
-
-
 def _knn(chairs, name, k, cache={}):
     key = (name, k)
     if key not in cache:
