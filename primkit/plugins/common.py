@@ -7,6 +7,7 @@ and per vertex; a point cloud a part index per point (:func:`primkit.segmentatio
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -31,12 +32,18 @@ class Labelled:
         Part index of each vertex of a mesh, or of each point of a cloud.
     part_names : list of str
         The model's name of each part slot.
+    labels : (f,) or (n,) int or None
+        With a labeller in the model (:mod:`primkit.segmentation.labeller`): each face's (mesh) or
+        point's (cloud) label, an index into ``label_names``; None without one.
+    label_names : list of str or None
     """
 
     abstraction: Abstraction
     face_labels: np.ndarray | None
     point_labels: np.ndarray
     part_names: list
+    labels: np.ndarray | None = None
+    label_names: list | None = None
 
     @property
     def cuboids(self):
@@ -65,12 +72,41 @@ def label_shapes(shapes, model="chair", *, names=None, **options) -> list[Labell
     """
     options.setdefault("progress", False)
     options.setdefault("workers", 1)
+    labeller = _labeller(model, options.pop("labeller", "auto"))
     shapes = list(shapes)
     names = list(names) if names is not None else [f"shape{i}" for i in range(len(shapes))]
     out = abstract_shapes(shapes, model, names=names, **options)
     if out.errors:
         raise ValueError("; ".join(str(e) for e in out.errors))
-    return [Labelled(a, *_labels(a.given, a.cuboids), list(out.model.part_names)) for a in out]
+    return [Labelled(a, *_labels(a.given, a.cuboids), list(out.model.part_names), *_named(a, labeller))
+            for a in out]
+
+
+def _labeller(model, labeller):
+    """The labeller to use: ``"auto"``, the model file's (None when it has none or ``model`` is an
+    object, not a file); None; or a Labeller given."""
+    if not (isinstance(labeller, str) and labeller == "auto"):
+        return labeller
+    if not isinstance(model, (str, Path)):
+        return None
+    from ..model.bundled import resolve_model
+    from ..segmentation.labeller import read_labeller
+
+    return read_labeller(resolve_model(model))
+
+
+def _named(a: Abstraction, labeller):
+    """``(labels, label_names)`` of a shape's faces (mesh) or points (cloud), or ``(None, None)``."""
+    if labeller is None:
+        return None, None
+    from ..segmentation.labeller import label_elements, mesh_elements, point_elements
+
+    shape = a.given
+    if isinstance(shape, io.Mesh):
+        elements = mesh_elements(shape.vertices, shape.faces, a.result.frame)
+    else:
+        elements = point_elements(shape.points, a.result.frame)
+    return label_elements(labeller, elements, a.result.canonical), list(labeller.names)
 
 
 def label_shape(shape, model="chair", *, name: str = "shape", **options) -> Labelled:

@@ -69,7 +69,13 @@ def segmented_copy(dataset, labelled: Labelled):
             raise ValueError(f"the surface has {out.n_cells} cells, {len(labelled.face_labels)} of them faces: part "
                              "labels are per face; keep the faces only first (e.g. remove its lines and vertices)")
         out.cell_data["part"] = labelled.face_labels.astype(np.int64)
+        if labelled.labels is not None:  # the model's labeller: a name per face
+            out.cell_data["label"] = labelled.labels.astype(np.int64)
     out.point_data["part"] = labelled.point_labels.astype(np.int64)
+    if labelled.labels is not None:
+        if labelled.face_labels is None:  # a point cloud: a name per point
+            out.point_data["label"] = labelled.labels.astype(np.int64)
+        out.field_data["label_names"] = np.array(labelled.label_names)
     out.field_data["part_names"] = np.array(labelled.part_names)
     out.field_data[CUBOIDS_FIELD] = np.array([json.dumps(labelled.cuboids.to_dict())])
     return out
@@ -95,7 +101,9 @@ class PrimkitAccessor:
 
     def segment(self, model="chair", **options):
         """A copy of the dataset's surface with ``cell_data["part"]`` (faces) and ``point_data["part"]``
-        (vertices, or the points of a point cloud), and the cuboids in its field data."""
+        (vertices, or the points of a point cloud), and the cuboids in its field data; with a
+        labeller in the model also ``cell_data["label"]`` (faces; ``point_data["label"]`` for a
+        point cloud), indices into ``field_data["label_names"]``."""
         return segmented_copy(self._dataset, label_shapes([_as_input(self._dataset)], model, **options)[0])
 
     def cuboids(self, model="chair", *, edges: bool = False, **options):

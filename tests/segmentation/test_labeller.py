@@ -308,3 +308,30 @@ def test_a_learned_labeller_names_the_faces_the_segmenter_writes(chairs, tmp_pat
     assert right > 0.8  # a shape it did not learn from
     codes_names, codes = named.semantic_labels()
     assert codes_names == labeller.names and np.array_equal(codes, named.named + 1)
+
+
+def test_the_pyvista_accessor_carries_a_label_array(chairs, tmp_path):
+    """A model file with a labeller (here learned from random 20-slot frames): the accessor's copy
+    has cell_data["label"], the labeller's names of the faces (as the library computes them)."""
+    pv = pytest.importorskip("pyvista")
+    from primkit.model.abstraction import abstract
+    from primkit.plugins import pyvista_accessor  # noqa: F401  (registers dataset.primkit)
+
+    rng = np.random.default_rng(6)
+    settings = LabellerSettings(neighbours=8, smooth=1, smooth_neighbours=5)
+    shapes = []
+    for _ in range(3):
+        c = _cuboids(rng, m=20, absent=(3, 7))
+        points = rng.uniform(-0.5, 0.5, (300, 3))
+        shapes.append((frame_features(points, c, rng.normal(size=(300, 3)), settings), (points[:, 1] > 0).astype(int)))
+    labeller = Labeller.fit(shapes, ["low", "high"], 20, settings=settings, max_iter=10)
+    model = lab.write_labeller(resolve_model("chair"), tmp_path / "m.safetensors", labeller)
+    s = chairs[0]
+    mesh = pv.PolyData.from_regular_faces(s.vertices, s.faces)
+    out = mesh.primkit.segment(model=str(model), refine=0)
+    a = abstract((s.vertices, s.faces), str(model), refine=0)
+    want = lab.label_elements(labeller, lab.mesh_elements(s.vertices, s.faces, a.result.frame), a.result.canonical)
+    assert np.array_equal(np.asarray(out.cell_data["label"]), want)
+    assert list(out.field_data["label_names"]) == ["low", "high"]
+    plain = mesh.primkit.segment(model="chair", refine=0)
+    assert "label" not in plain.cell_data  # the bundled chair has no labeller
