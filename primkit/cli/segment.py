@@ -364,7 +364,7 @@ def _cmd_name_parts(args) -> int:
     from ..io import check_suffix
     from ..model.modelfile import update_metadata
     from ..model.parts import names_from_labels
-    from ..segmentation import Segmenter, VoxelSegmentation, read_ground_truth
+    from ..segmentation import PointSegmentation, Segmenter, VoxelSegmentation, read_ground_truth
     from ..segmentation.labeller import write_labeller
     from ..segmentation.segmenter import fit_labeller
 
@@ -373,7 +373,7 @@ def _cmd_name_parts(args) -> int:
     archives = _voxel_archives(sources)
     segmenter = Segmenter(args.model, up=args.up, front=args.front, align=args.align, refine=args.refine,
                           labeller=None)
-    files = collect(args.inputs)
+    files = [f for f in collect(args.inputs) if not f.name.endswith(_POINT_LABELS)]  # a cloud's labels, not a cloud
     check_outputs(args, [check_suffix(out, ".safetensors", "a model file")],
                   input_paths(files, _model_path(args.model), args.labels))
     results, errors = segmenter.abstract_files(files, cache_dir=args.cache, workers=args.workers)
@@ -397,6 +397,19 @@ def _cmd_name_parts(args) -> int:
             weights.append(None)  # one voxel, one vote
             used.append(s.name)
             learned.append((s, by_name[s.name], labels[-1]))
+            continue
+        if isinstance(s, PointSegmentation):
+            beside = Path(s.source).with_name(Path(s.source).stem + _POINT_LABELS)
+            try:
+                codes = _point_truth(beside, len(s.points), args.names, names)
+            except ValueError as exc:
+                failed.append(str(exc).splitlines()[0])
+                continue
+            assignments.append(s.labels)
+            labels.append(codes)
+            weights.append(None)  # one point, one vote
+            used.append(s.name)
+            learned.append((s, by_name[s.name], codes))
             continue
         found = _find_truth(s, sources) if sources and not archives else None
         if found is None:
@@ -450,6 +463,36 @@ def _cmd_name_parts(args) -> int:
     return report_errors(failed)
 
 
+#: the per-point labels of a point cloud ``<stem>.xyz`` (or ``.ply``, ``.npy``): ``<stem>.labels.npy``
+_POINT_LABELS = ".labels.npy"
+
+
+def _point_truth(path: Path, count: int, label_names, names: list) -> np.ndarray:
+    """A point cloud's labels (``(count,)`` integers in a ``.npy``, read without pickles) as codes
+    into the collection-wide ``names`` (extended); values named by ``label_names`` ('back,seat'
+    for 1, 2) or by themselves; a value with no name is unlabelled (-1)."""
+    from ..segmentation import parse_label_names
+
+    if not path.is_file():
+        raise ValueError(f"{path}: no per-point label file beside the cloud")
+    try:
+        raw = np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"{path}: not a NumPy label array ({exc})") from None
+    if raw.shape != (count,) or raw.dtype.kind not in "iu":
+        raise ValueError(f"{path}: expected ({count},) integers, one per point, got {raw.dtype} {raw.shape}")
+    meaning = parse_label_names(label_names) if label_names else None
+    codes = np.full(count, -1, np.int64)
+    for value in np.unique(raw):
+        name = str(value) if meaning is None else meaning.get(int(value))
+        if name is None:
+            continue
+        if name not in names:
+            names.append(name)
+        codes[raw == value] = names.index(name)
+    return codes
+
+
 def _model_path(model):
     from ..model.bundled import resolve_model
 
@@ -491,7 +534,8 @@ def register(sub) -> None:
     p.set_defaults(func=_cmd_segment)
 
     p = sub.add_parser("name-parts", help="name a model's part indices from labelled shapes; writes a copy of the model")
-    p.add_argument("inputs", nargs="+", help="labelled mesh or voxel (.binvox) files, or folders")
+    p.add_argument("inputs", nargs="+", help="labelled mesh, voxel (.binvox) or point-cloud files, or folders (a "
+                   "cloud's labels: <stem>.labels.npy beside it, one integer per point)")
     add_output(p, "model file to write (the input model is never modified)")
     add_abstraction_options(p)
     p.add_argument("--labels", default=None, help="folder of .seg files (default: the .seg beside each mesh), or for voxel "

@@ -335,3 +335,41 @@ def test_the_pyvista_accessor_carries_a_label_array(chairs, tmp_path):
     assert list(out.field_data["label_names"]) == ["low", "high"]
     plain = mesh.primkit.segment(model="chair", refine=0)
     assert "label" not in plain.cell_data  # the bundled chair has no labeller
+
+
+def test_name_parts_learns_from_labelled_point_clouds(chairs, tmp_path):
+    """Point clouds with <stem>.labels.npy beside them: name-parts learns a labeller from three,
+    and segment --semantic names the fourth's points with it (codes of labels.csv)."""
+    import trimesh
+
+    from primkit import io
+    from primkit.cli import main
+
+    folder = tmp_path / "clouds"
+    folder.mkdir()
+    for i, s in enumerate(chairs[:4]):
+        points, faces = trimesh.sample.sample_surface(trimesh.Trimesh(s.vertices, s.faces, process=False), 1500, seed=i)
+        np.savetxt(folder / f"c{i}.xyz", points)
+        groups = ["seat" if "seat" in n else "back" if "back" in n else "other" for n in s.part_names]
+        np.save(folder / f"c{i}.labels.npy", np.array([1 + ["seat", "back", "other"].index(groups[k])
+                                                        for k in s.face_labels[faces]]))
+    train = [str(folder / f"c{i}.xyz") for i in range(3)]
+    out = tmp_path / "named.safetensors"
+    assert main(["name-parts", *train, "--model", "chair", "--names", "seat,back,other", "-o", str(out),
+                 "--workers", "1", "--refine", "0"]) == 0
+    labeller = lab.read_labeller(out)
+    assert sorted(labeller.names) == ["back", "other", "seat"] and labeller.info["shapes"] == 3
+    seg = tmp_path / "seg"
+    assert main(["segment", str(folder / "c3.xyz"), "--model", str(out), "--semantic", "-o", str(seg),
+                 "--workers", "1", "--refine", "0"]) == 0
+    legend = [line.split(",")[1] for line in (seg / "labels.csv").read_text().splitlines()[1:]]
+    assert legend == labeller.names
+    codes = np.load(seg / "c3.parts.npy")
+    truth = np.load(folder / "c3.labels.npy")
+    named = np.array(legend)[codes - 1]
+    right = np.mean(named == np.array(["seat", "back", "other"])[truth - 1])
+    assert right > 0.8
+    # a label file of the wrong length: one line naming it, the batch goes on, exit non-zero
+    np.save(folder / "c2.labels.npy", np.zeros(7, np.int64))
+    assert main(["name-parts", *train, "--model", "chair", "--names", "seat,back,other", "-o", str(out), "--force",
+                 "--workers", "1", "--refine", "0"]) == 1
