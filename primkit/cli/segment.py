@@ -155,10 +155,11 @@ def _kind(path: Path) -> str:
 
 
 def _label_codes_text(segmenter) -> str:
-    """``labels.csv``: the 1-based code of each of the model's part names (``--semantic``)."""
+    """``labels.csv``: the 1-based code of each of the model's part names (``--semantic``): its
+    labeller's names when it has one, else the names of its part indices."""
     from ..model.parts import label_codes
 
-    names, _ = label_codes(segmenter.part_names)
+    names = list(segmenter.labeller.names) if segmenter.labeller is not None else label_codes(segmenter.part_names)[0]
     return "code,name\n" + "".join(f"{i + 1},{n}\n" for i, n in enumerate(names))
 
 
@@ -250,7 +251,7 @@ def _cmd_segment(args) -> int:
     archives = _voxel_archives(sources)
     evaluations = {"meshes": out / "evaluation.json", "voxels": out / "evaluation-voxels.json"}
     segmenter = Segmenter(args.model, up=args.up, front=args.front, align=args.align, refine=args.refine,
-                          adapt=getattr(args, "adapt", None))
+                          adapt=getattr(args, "adapt", None), labeller="auto" if args.semantic else None)
     files = collect(args.inputs)
     # with --shard, this shard's outputs only, named as one run over all the inputs names them
     mine, names = shard_of(args, files), shard_of(args, output_names(files))
@@ -351,6 +352,14 @@ def _cmd_segment(args) -> int:
             report = evaluate_voxels([p[0].labels for p in pairs], [p[1] for p in pairs], segmenter.abstractor.parts,
                                      part_names=segmenter.part_names, names=[p[0].name for p in pairs],
                                      mean_over=mean_over)
+            if segmenter.labeller is not None:  # each voxel named by the labeller: its names are the "parts"
+                names = list(segmenter.labeller.names)
+                by_label = evaluate_voxels([p[0].named for p in pairs], [p[1] for p in pairs], len(names),
+                                           part_names=names, names=[p[0].name for p in pairs], mean_over=mean_over)
+                if "model-names" in by_label["protocols"]:
+                    report["protocols"]["labeller"] = {
+                        **by_label["protocols"]["model-names"],
+                        "description": "each voxel named by the model's labeller (learned on other shapes)"}
             _print_voxel_evaluation(report)
             with atomic_output(evaluations["voxels"], overwrite=args.force) as tmp:
                 Path(tmp).write_text(json.dumps(report, indent=1))
@@ -366,19 +375,23 @@ def _cmd_name_parts(args) -> int:
     from ..io import check_suffix
     from ..model.modelfile import update_metadata
     from ..model.parts import names_from_labels
-    from ..segmentation import Segmenter, VoxelSegmentation, read_ground_truth
+    from ..segmentation import PointSegmentation, Segmenter, VoxelSegmentation, read_ground_truth
+    from ..segmentation.labeller import write_labeller
+    from ..segmentation.segmenter import fit_labeller
 
     out = Path(args.output)
     sources = [(args.labels, args.names)] if args.labels else []
     archives = _voxel_archives(sources)
     segmenter = Segmenter(args.model, up=args.up, front=args.front, align=args.align, refine=args.refine,
-                          adapt=getattr(args, "adapt", None))
-    files = collect(args.inputs)
+                          adapt=getattr(args, "adapt", None), labeller=None)
+    files = [f for f in collect(args.inputs) if not f.name.endswith(_POINT_LABELS)]  # a cloud's labels, not a cloud
     check_outputs(args, [check_suffix(out, ".safetensors", "a model file")],
                   input_paths(files, _model_path(args.model), args.labels))
-    segs, errors = segmenter.segment_files(files, cache_dir=args.cache, workers=args.workers)
+    results, errors = segmenter.abstract_files(files, cache_dir=args.cache, workers=args.workers)
+    segs, errors = segmenter.segment_results(results, workers=args.workers, errors=errors)
+    by_name = {r.name: r for r in results}
     failed = list(errors)
-    names, assignments, labels, weights, used = [], [], [], [], []
+    names, assignments, labels, weights, used, learned = [], [], [], [], [], []
     for s in segs:
         if isinstance(s, VoxelSegmentation):
             truth = _voxel_truth(s, archives)
@@ -394,6 +407,20 @@ def _cmd_name_parts(args) -> int:
             labels.append(np.array([names.index(short[c]) if c >= 0 else -1 for c in range(len(short))] + [-1])[truth.labels[occupied]])
             weights.append(None)  # one voxel, one vote
             used.append(s.name)
+            learned.append((s, by_name[s.name], labels[-1]))
+            continue
+        if isinstance(s, PointSegmentation):
+            beside = Path(s.source).with_name(Path(s.source).stem + _POINT_LABELS)
+            try:
+                codes = _point_truth(beside, len(s.points), args.names, names)
+            except ValueError as exc:
+                failed.append(str(exc).splitlines()[0])
+                continue
+            assignments.append(s.labels)
+            labels.append(codes)
+            weights.append(None)  # one point, one vote
+            used.append(s.name)
+            learned.append((s, by_name[s.name], codes))
             continue
         found = _find_truth(s, sources) if sources and not archives else None
         if found is None:
@@ -411,6 +438,7 @@ def _cmd_name_parts(args) -> int:
         labels.append(truth.labels)
         weights.append(s.face_areas)
         used.append(s.name)
+        learned.append((s, by_name[s.name], truth.labels))
     if not used:
         report_errors(failed)
         err("no labelled shape to learn names from")
@@ -429,10 +457,51 @@ def _cmd_name_parts(args) -> int:
               "area_by_label" if unit == "area" else "voxels_by_label": np.round(table, 6).tolist()}
     if archives:
         naming["labels_from"] = [str(a.path) for a in archives]
-    update_metadata(_model_path(args.model), out,
-                    {"part_names": part_names, "part_naming": naming}, overwrite=args.force)
-    print(f"wrote {out} with part names")
+    changes = {"part_names": part_names, "part_naming": naming}
+    if args.index_names_only:
+        update_metadata(_model_path(args.model), out, changes, overwrite=args.force)
+        print(f"wrote {out} with part names")
+        return report_errors(failed)
+    try:
+        labeller = fit_labeller(learned, names, segmenter.abstractor.parts, seed=args.seed)
+    except ValueError as exc:
+        err(f"cannot learn a labeller: {exc}")
+        return 2
+    write_labeller(_model_path(args.model), out, labeller, changes, overwrite=args.force)
+    print(f"labeller: {', '.join(labeller.names)} learned from {labeller.info['shapes']} shapes "
+          f"({labeller.info['elements']} elements); {len(labeller.ensemble.feature)} tree nodes")
+    print(f"wrote {out} with part names and a labeller")
     return report_errors(failed)
+
+
+#: the per-point labels of a point cloud ``<stem>.xyz`` (or ``.ply``, ``.npy``): ``<stem>.labels.npy``
+_POINT_LABELS = ".labels.npy"
+
+
+def _point_truth(path: Path, count: int, label_names, names: list) -> np.ndarray:
+    """A point cloud's labels (``(count,)`` integers in a ``.npy``, read without pickles) as codes
+    into the collection-wide ``names`` (extended); values named by ``label_names`` ('back,seat'
+    for 1, 2) or by themselves; a value with no name is unlabelled (-1)."""
+    from ..segmentation import parse_label_names
+
+    if not path.is_file():
+        raise ValueError(f"{path}: no per-point label file beside the cloud")
+    try:
+        raw = np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"{path}: not a NumPy label array ({exc})") from None
+    if raw.shape != (count,) or raw.dtype.kind not in "iu":
+        raise ValueError(f"{path}: expected ({count},) integers, one per point, got {raw.dtype} {raw.shape}")
+    meaning = parse_label_names(label_names) if label_names else None
+    codes = np.full(count, -1, np.int64)
+    for value in np.unique(raw):
+        name = str(value) if meaning is None else meaning.get(int(value))
+        if name is None:
+            continue
+        if name not in names:
+            names.append(name)
+        codes[raw == value] = names.index(name)
+    return codes
 
 
 def _model_path(model):
@@ -460,7 +529,8 @@ def register(sub) -> None:
                    help="leave out the inputs whose outputs are there (its three files, and its row in the summary "
                    "this run writes), e.g. when rerunning a shard after a lost worker or a killed job; the rest is "
                    "redone (what a cut run left of it replaced) and the summary rewritten with every row")
-    p.add_argument("--semantic", action="store_true", help="write the model's part names' codes (labels.csv) instead of indices")
+    p.add_argument("--semantic", action="store_true", help="write the codes of part names (labels.csv) instead of indices: each element named by the model's "
+                   "labeller when it has one (primkit name-parts), else by its part index's name")
     p.add_argument("--gt", action="append", metavar="PATH",
                    help="ground truth: a folder of .seg files for meshes (same stems), or for voxel grids a per-voxel "
                    "label archive (an .npz keyed by shape name, or a folder holding voxlabels.npz, e.g. "
@@ -475,7 +545,8 @@ def register(sub) -> None:
     p.set_defaults(func=_cmd_segment)
 
     p = sub.add_parser("name-parts", help="name a model's part indices from labelled shapes; writes a copy of the model")
-    p.add_argument("inputs", nargs="+", help="labelled mesh or voxel (.binvox) files, or folders")
+    p.add_argument("inputs", nargs="+", help="labelled mesh, voxel (.binvox) or point-cloud files, or folders (a "
+                   "cloud's labels: <stem>.labels.npy beside it, one integer per point)")
     add_output(p, "model file to write (the input model is never modified)")
     add_abstraction_options(p)
     p.add_argument("--labels", default=None, help="folder of .seg files (default: the .seg beside each mesh), or for voxel "
@@ -483,5 +554,9 @@ def register(sub) -> None:
     p.add_argument("--names", default=None,
                    help="what the label values mean ('back,seat,legs' for values 1,2,3); default: the .json beside "
                    "procedural shapes (primkit generate), else the values")
+    p.add_argument("--index-names-only", action="store_true",
+                   help="only name the part indices (one name each); by default a labeller is learned as well, "
+                   "naming each face, voxel or point on its own (segment --semantic uses it)")
+    p.add_argument("--seed", type=int, default=0, help="the labeller's random state")
     add_force(p)
     p.set_defaults(func=_cmd_name_parts)

@@ -77,6 +77,10 @@ from torch.nn import functional as F
 
 from .modelfile import ModelFileError, check_tensors, load_model, read_header
 
+#: Tensors of a model file that are not the network's: the part labeller's
+#: (:mod:`primkit.segmentation.labeller`, which reads and checks them itself).
+AUXILIARY_PREFIXES = ("labeller.",)
+
 __all__ = [
     "INITIAL_EXISTENCE",
     "INITIAL_HALF_EXTENT",
@@ -412,6 +416,7 @@ def read_network(path) -> tuple[NetworkConfig, dict]:
     if names is not None and not (isinstance(names, list) and len(names) == config.parts
                                   and all(isinstance(n, str) for n in names)):
         raise ModelFileError(path, f"part_names must be a list of {config.parts} strings (one per part slot)")
+    tensors = {k: v for k, v in tensors.items() if not k.startswith(AUXILIARY_PREFIXES)}  # a labeller's, checked there
     model = {k[len("model."):]: v for k, v in tensors.items() if k.startswith("model.")}
     check_tensors(path, state_shapes(config), model or tensors)  # a checkpoint's optimizer and rng tensors aside
     return config, meta
@@ -423,6 +428,7 @@ def load_network(path, map_location="cpu") -> tuple[AbstractionNet, dict]:
     config, _ = read_network(path)
     weights, meta = load_model(path, map_location=map_location)
     net = AbstractionNet(config)
+    weights = {k: v for k, v in weights.items() if not k.startswith(AUXILIARY_PREFIXES)}
     state = {k[len("model."):]: v for k, v in weights.items() if k.startswith("model.")} or weights
     net.load_state_dict(state)
     net.eval()

@@ -8,6 +8,7 @@ a voxel grid a part index per voxel (:func:`primkit.segmentation.label_voxels`).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -35,6 +36,10 @@ class Labelled:
         The model's name of each part slot.
     voxel_labels : (R, R, R) int or None
         Part index of each voxel of a grid (``[x, y, z]``, -1 for empty voxels); None otherwise.
+    labels : (f,) or (n,) int or None
+        With a labeller in the model (:mod:`primkit.segmentation.labeller`): each face's (mesh) or
+        point's (cloud) label, an index into ``label_names``; None without one (and for voxel grids).
+    label_names : list of str or None
 
     -1 marks an element with no cuboid to go to (a shape with no part present).
     """
@@ -44,6 +49,8 @@ class Labelled:
     point_labels: np.ndarray
     part_names: list
     voxel_labels: np.ndarray | None = None
+    labels: np.ndarray | None = None
+    label_names: list | None = None
 
     @property
     def cuboids(self):
@@ -80,6 +87,7 @@ def label_shapes(shapes, model="chair", *, names=None, progress_bar: bool = Fals
 
     options.setdefault("progress", False)
     options.setdefault("workers", 1)
+    labeller = _labeller(model, options.pop("labeller", "auto"))
     shapes = list(shapes)
     names = list(names) if names is not None else [f"shape{i}" for i in range(len(shapes))]
     with tqdm(total=len(shapes) + 1, desc="primkit: abstracting", unit="step", disable=not progress_bar) as bar:
@@ -91,9 +99,37 @@ def label_shapes(shapes, model="chair", *, names=None, progress_bar: bool = Fals
         labelled = []
         for a in out:
             face, point, *voxels = _labels(a.given, a.cuboids)
-            labelled.append(Labelled(a, face, point, list(out.model.part_names), *voxels))
+            labelled.append(Labelled(a, face, point, list(out.model.part_names), voxels[0] if voxels else None,
+                                     *_named(a, labeller)))
             bar.update(1)
     return labelled
+
+
+def _labeller(model, labeller):
+    """The labeller to use: ``"auto"``, the model file's (None when it has none or ``model`` is an
+    object, not a file); None; or a Labeller given."""
+    if not (isinstance(labeller, str) and labeller == "auto"):
+        return labeller
+    if not isinstance(model, (str, Path)):
+        return None
+    from ..model.bundled import resolve_model
+    from ..segmentation.labeller import read_labeller
+
+    return read_labeller(resolve_model(model))
+
+
+def _named(a: Abstraction, labeller):
+    """``(labels, label_names)`` of a shape's faces (mesh) or points (cloud), or ``(None, None)``."""
+    if labeller is None or isinstance(a.given, io.VoxelGrid):
+        return None, None
+    from ..segmentation.labeller import label_elements, mesh_elements, point_elements
+
+    shape = a.given
+    if isinstance(shape, io.Mesh):
+        elements = mesh_elements(shape.vertices, shape.faces, a.result.frame)
+    else:
+        elements = point_elements(shape.points, a.result.frame)
+    return label_elements(labeller, elements, a.result.canonical), list(labeller.names)
 
 
 def label_shape(shape, model="chair", *, name: str = "shape", **options) -> Labelled:

@@ -85,6 +85,10 @@ def _label(out, where: str, labels: np.ndarray, count: int) -> None:
 
 
 def _finish(out, labelled: Labelled):
+    if labelled.labels is not None:  # the model's labeller: a name per face, or per point of a cloud
+        data = out.cell_data if labelled.face_labels is not None else out.point_data
+        data["label"] = labelled.labels.astype(np.int64)
+        out.field_data["label_names"] = np.array(labelled.label_names)
     out.field_data["part_names"] = np.array(labelled.part_names)
     out.field_data[CUBOIDS_FIELD] = np.array([json.dumps(labelled.cuboids.to_dict())])
     if "part_rgb" in out.cell_data:
@@ -183,7 +187,9 @@ class PrimkitAccessor:
                 align: str | None = None, refine: int = 0, existence_threshold: float = 0.5,
                 prune_threshold: float | None = 0.6, progress_bar: bool = False):
         """A copy of the dataset's surface (or voxel grid) with ``part`` and ``part_rgb`` arrays and
-        the cuboids in its field data (see the module notes)."""
+        the cuboids in its field data (see the module notes); with a labeller in the model also
+        ``cell_data["label"]`` (faces; ``point_data["label"]`` for a point cloud), indices into
+        ``field_data["label_names"]``."""
         options = _options(up, front, align, refine, existence_threshold, prune_threshold, progress_bar)
         return segmented_copy(self._dataset, self._labelled(model, options))
 

@@ -144,6 +144,10 @@ class Segmentation:
     vertex_labels: np.ndarray
     cuboids: primitives.Cuboids
     part_names: list = field(default_factory=list)
+    #: with a labeller in the model (:mod:`primkit.segmentation.labeller`): each face's label, an
+    #: index into ``label_names`` (-1: none), and the labeller's names; None without one
+    named: np.ndarray | None = None
+    label_names: list | None = None
 
     @property
     def face_areas(self) -> np.ndarray:
@@ -157,6 +161,8 @@ class Segmentation:
     def semantic_labels(self) -> tuple[list, np.ndarray]:
         """``(names, codes)``: the distinct part names and each face's 1-based name code
         (:func:`primkit.model.parts.label_codes`, the same codes on every shape of a model)."""
+        if self.named is not None:  # the labeller's names, one per face
+            return list(self.label_names), np.where(self.named >= 0, self.named + 1, -1)
         names, codes = parts.label_codes(self.part_names)
         return names, codes[self.face_labels]
 

@@ -38,10 +38,22 @@ class PointSegmentation:
     labels: np.ndarray
     cuboids: primitives.Cuboids
     part_names: list = field(default_factory=list)
+    #: with a labeller in the model (:mod:`primkit.segmentation.labeller`): each point's label, an
+    #: index into ``label_names`` (-1: none), and the labeller's names; None without one
+    named: np.ndarray | None = None
+    label_names: list | None = None
 
     def part_sizes(self) -> np.ndarray:
         """Points assigned to each index: ``(m,) int``."""
         return np.bincount(self.labels[self.labels >= 0], minlength=self.cuboids.count)
+
+    def semantic_labels(self) -> tuple[list, np.ndarray]:
+        """``(names, codes)``: the distinct part names and each point's 1-based name code (-1 unassigned):
+        the labeller's (``named``) when the model has one, else its index's name
+        (:func:`primkit.model.parts.label_codes`, the same codes on every shape of a model)."""
+        if self.named is not None:
+            return list(self.label_names), np.where(self.named >= 0, self.named + 1, -1)
+        return parts.label_codes(self.part_names)[0], parts.named_labels(self.labels, self.part_names)
 
     def save(self, folder, *, semantic: bool = False, overwrite: bool = False) -> dict:
         """Write ``<name>.parts.npy`` (``(n,) int16``: the part index of each point, in input order,
@@ -51,7 +63,7 @@ class PointSegmentation:
         folder.mkdir(parents=True, exist_ok=True)
         paths = {"labels": folder / f"{self.name}.parts.npy", "mesh": folder / f"{self.name}.parts.ply"}
         io.refuse_existing(paths.values(), overwrite)
-        labels = parts.named_labels(self.labels, self.part_names) if semantic else self.labels
+        labels = self.semantic_labels()[1] if semantic else self.labels
         io.write_array(paths["labels"], labels.astype(np.int16), overwrite=overwrite)
         palette = np.vstack([part_colors(max(self.cuboids.count, 1)), [[200, 200, 200]]]).astype(np.uint8)
         io.write_points(paths["mesh"], self.points, labels=labels, colors=palette[np.where(self.labels < 0, -1, self.labels)],

@@ -5,6 +5,7 @@ parallel processes."""
 from __future__ import annotations
 
 import csv
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -12,11 +13,13 @@ import numpy as np
 from .. import io, parallel
 from ..data import parallel_map
 from ..model.abstraction import abstract, abstract_shapes, load_model
+from .labeller import (Labeller, LabellerSettings, frame_features, grid_elements, label_elements, mesh_elements,
+                       point_elements, read_labeller)
 from .meshes import Segmentation, segment_mesh
 from .points import PointSegmentation, segment_points
 from .voxels import VoxelSegmentation, segment_voxels
 
-__all__ = ["Segmenter", "segment", "write_summary", "read_summary", "summary_header"]
+__all__ = ["Segmenter", "segment", "apply_labeller", "shape_elements", "fit_labeller", "write_summary", "read_summary", "summary_header"]
 
 
 def _segment_file(job):
@@ -25,18 +28,61 @@ def _segment_file(job):
     Meshes get a :class:`Segmentation` (faces), voxel grids a :class:`VoxelSegmentation` (voxels),
     point clouds a :class:`PointSegmentation` (points).
     """
-    path, cuboids, name, names = job
+    path, cuboids, name, names, labeller, result = job
     try:
         shape = io.read_shape(path)
         if isinstance(shape, io.VoxelGrid):
-            return segment_voxels(shape, cuboids, name=name, source=str(path), part_names=names), None
-        if isinstance(shape, io.PointCloud):
-            return segment_points(shape, cuboids, name=name, source=str(path), part_names=names), None
-        if not isinstance(shape, io.Mesh):
+            seg = segment_voxels(shape, cuboids, name=name, source=str(path), part_names=names)
+        elif isinstance(shape, io.PointCloud):
+            seg = segment_points(shape, cuboids, name=name, source=str(path), part_names=names)
+        elif isinstance(shape, io.Mesh):
+            seg = segment_mesh(shape.vertices, shape.faces, cuboids, name=name, source=str(path), part_names=names)
+        else:
             raise io.ShapeFileError(path, f"a {type(shape).__name__} has no faces or voxels to label")
-        return segment_mesh(shape.vertices, shape.faces, cuboids, name=name, source=str(path), part_names=names), None
+        return (seg if labeller is None else apply_labeller(seg, labeller, result)), None
     except (io.ShapeFileError, ValueError) as exc:
         return None, str(exc).splitlines()[0]
+
+
+def shape_elements(seg, frame):
+    """What a labeller reads of a segmented shape (:class:`primkit.segmentation.labeller.Elements`,
+    canonical frame; ``frame`` its abstraction's :class:`primkit.geometry.CanonicalFrame`), and for a
+    voxel grid the occupied voxels' indices (None otherwise)."""
+    if isinstance(seg, VoxelSegmentation):
+        return grid_elements(seg.grid, frame)
+    if isinstance(seg, PointSegmentation):
+        return point_elements(seg.points, frame), None
+    return mesh_elements(seg.vertices, seg.faces, frame), None
+
+
+def apply_labeller(seg, labeller: Labeller, result):
+    """``seg`` with each element named by ``labeller`` (``named``, ``label_names``); ``result`` is
+    its :class:`primkit.model.abstractor.AbstractionResult` (the canonical cuboids and the frame)."""
+    elements, index = shape_elements(seg, result.frame)
+    codes = label_elements(labeller, elements, result.canonical)
+    if index is not None:
+        named = np.full(seg.labels.shape, -1, np.int64)
+        named[tuple(index.T)] = codes
+        codes = named
+    return replace(seg, named=codes, label_names=list(labeller.names))
+
+
+def fit_labeller(labelled, names, parts: int, *, settings=None, seed=0, **options) -> Labeller:
+    """Learn a labeller from segmented, labelled shapes.
+
+    labelled : iterable of ``(segmentation, abstraction result, labels)``: a mesh's, voxel grid's
+        or point cloud's segmentation (:mod:`primkit.segmentation`), its
+        :class:`~primkit.model.abstractor.AbstractionResult`, and one label per element (per face;
+        per occupied voxel in ``np.argwhere`` order; per point), indices into ``names``, -1 none.
+    Other options are :meth:`primkit.segmentation.labeller.Labeller.fit`'s.
+    """
+    settings = settings or LabellerSettings()
+    shapes = []
+    for seg, result, y in labelled:
+        elements, _ = shape_elements(seg, result.frame)
+        X = frame_features(elements.points, result.canonical, elements.normals, settings, elements.context)
+        shapes.append((X, np.asarray(y, np.int64)))
+    return Labeller.fit(shapes, names, parts, settings=settings, seed=seed, **options)
 
 
 class Segmenter:
@@ -55,6 +101,10 @@ class Segmenter:
     adapt : None, int or AdaptConfig
         Adapt the model to each run's inputs first, without labels
         (:func:`primkit.model.abstraction.abstract_shapes`'s ``adapt``; experimental).
+    labeller : "auto", None or Labeller
+        Names each element (``named`` on the segmentations; ``--semantic``): ``"auto"`` takes the
+        model file's labeller when it has one (:func:`primkit.segmentation.labeller.read_labeller`),
+        None names by part index only.
 
     Examples
     --------
@@ -64,8 +114,12 @@ class Segmenter:
     """
 
     def __init__(self, model, *, up: str | None = None, front: str | None = None, align=None, refine: int = 0,
-                 existence_threshold: float = 0.5, prune_threshold: float | None = 0.6, adapt=None):
+                 existence_threshold: float = 0.5, prune_threshold: float | None = 0.6, adapt=None,
+                 labeller="auto"):
         self.abstractor = load_model(model)
+        if isinstance(labeller, str) and labeller == "auto":
+            labeller = None if not isinstance(model, (str, Path)) else read_labeller(_model_path(model))
+        self.labeller = labeller
         self.up, self.front = up, front
         self.predict_options = {"align": align, "refine": refine, "existence_threshold": existence_threshold,
                                 "prune_threshold": prune_threshold, "adapt": adapt}
@@ -101,7 +155,7 @@ class Segmenter:
 
     def segment_results(self, results, *, workers=None, progress=True, errors=(), executor=None):
         """Co-segment the source files of abstraction results (in parallel processes, or on ``executor``)."""
-        jobs = [(r.source, r.cuboids, r.name, self.part_names) for r in results]
+        jobs = [(r.source, r.cuboids, r.name, self.part_names, self.labeller, r) for r in results]
         segs, errors = [], list(errors)
         with parallel.executor_from(executor) as pool:
             for seg, error in parallel_map(_segment_file, jobs, workers=workers, progress=progress, desc="segmenting",
@@ -113,27 +167,38 @@ class Segmenter:
         return segs, errors
 
 
+def _model_path(model):
+    from ..model.bundled import resolve_model
+
+    return resolve_model(model)
+
+
 def segment(shape, model="chair", **options) -> Segmentation | VoxelSegmentation | PointSegmentation:
     """Co-segment one mesh, voxel grid or point cloud: a path, an :class:`primkit.io.Mesh`,
     :class:`~primkit.io.VoxelGrid` or :class:`~primkit.io.PointCloud`, ``(vertices, faces)``,
     ``(n, 3)`` points, or a trimesh, pyvista or Open3D mesh or cloud
     (:func:`primkit.model.abstraction.abstract`; ``options`` are its own: ``up``, ``front``,
-    ``align``, ``refine``, ...).
+    ``align``, ``refine``, ...; and ``labeller``, as :class:`Segmenter`'s).
 
     >>> seg = primkit.segment("chair.off", model="chair")          # doctest: +SKIP
     >>> seg.face_labels                                           # doctest: +SKIP
     """
     abstractor = load_model(model)
+    labeller = options.pop("labeller", "auto")
+    if isinstance(labeller, str) and labeller == "auto":
+        labeller = None if not isinstance(model, (str, Path)) else read_labeller(_model_path(model))
     a = abstract(shape, abstractor, **options)
     if isinstance(a.given, io.VoxelGrid) or (a.given is None and a.prepared.kind == "voxels"):
         grid = a.given if a.given is not None else io.read_voxels(a.source)
-        return segment_voxels(grid, a.cuboids, name=a.name, source=a.source, part_names=abstractor.part_names)
-    if isinstance(a.given, io.PointCloud) or (a.given is None and a.prepared.kind == "points"):
+        seg = segment_voxels(grid, a.cuboids, name=a.name, source=a.source, part_names=abstractor.part_names)
+    elif isinstance(a.given, io.PointCloud) or (a.given is None and a.prepared.kind == "points"):
         cloud = a.given if a.given is not None else io.read_points(a.source)
-        return segment_points(cloud, a.cuboids, name=a.name, source=a.source, part_names=abstractor.part_names)
-    mesh = a.mesh
-    return segment_mesh(mesh.vertices, mesh.faces, a.cuboids, name=a.name, source=a.source,
-                        part_names=abstractor.part_names)
+        seg = segment_points(cloud, a.cuboids, name=a.name, source=a.source, part_names=abstractor.part_names)
+    else:
+        mesh = a.mesh
+        seg = segment_mesh(mesh.vertices, mesh.faces, a.cuboids, name=a.name, source=a.source,
+                           part_names=abstractor.part_names)
+    return seg if labeller is None else apply_labeller(seg, labeller, a.result)
 
 
 def summary_header(kind: str, part_names) -> list[str]:

@@ -166,6 +166,10 @@ class VoxelSegmentation:
     labels: np.ndarray
     cuboids: primitives.Cuboids
     part_names: list = field(default_factory=list)
+    #: with a labeller in the model (:mod:`primkit.segmentation.labeller`): each occupied voxel's label, an
+    #: index into ``label_names`` (-1: none), and the labeller's names; None without one
+    named: np.ndarray | None = None
+    label_names: list | None = None
 
     def part_sizes(self) -> np.ndarray:
         """Voxels assigned to each index: ``(m,) int``."""
@@ -188,6 +192,14 @@ class VoxelSegmentation:
             return np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros(0, np.int64)
         return np.vstack(vs), np.vstack(fs), np.concatenate(ls)
 
+    def semantic_labels(self) -> tuple[list, np.ndarray]:
+        """``(names, codes)``: the distinct part names and each voxel's 1-based name code (-1 empty):
+        the labeller's (``named``) when the model has one, else its index's name
+        (:func:`primkit.model.parts.label_codes`, the same codes on every shape of a model)."""
+        if self.named is not None:
+            return list(self.label_names), np.where(self.named >= 0, self.named + 1, -1)
+        return parts.label_codes(self.part_names)[0], parts.named_labels(self.labels, self.part_names)
+
     def save(self, folder, *, semantic: bool = False, overwrite: bool = False) -> dict:
         """Write ``<name>.voxlabels.npy`` (``(R, R, R) int16``: the part index of each occupied voxel,
         or with ``semantic`` the 1-based code of its name; -1 empty) and ``<name>.parts.ply`` (the
@@ -196,7 +208,7 @@ class VoxelSegmentation:
         folder.mkdir(parents=True, exist_ok=True)
         paths = {"labels": folder / f"{self.name}.voxlabels.npy", "mesh": folder / f"{self.name}.parts.ply"}
         io.refuse_existing(paths.values(), overwrite)
-        labels = parts.named_labels(self.labels, self.part_names) if semantic else self.labels
+        labels = self.semantic_labels()[1] if semantic else self.labels
         io.write_array(paths["labels"], labels.astype(np.int16), overwrite=overwrite)
         v, f, lab = self.boundary_mesh()
         io.write_mesh(paths["mesh"], v, f, face_colors=part_colors(self.cuboids.count)[lab], overwrite=overwrite)

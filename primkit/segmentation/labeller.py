@@ -1,0 +1,724 @@
+"""Part names per element: a classifier over features of the primitive frame.
+
+One label per primitive index (:func:`primkit.model.parts.names_from_labels`) cannot do better
+than the cuboids allow: a front-leg cuboid that also holds the arm post is all ``legs`` or all
+``arms``. A :class:`Labeller` names every element (voxel, face, point) on its own, from where it
+sits in the shape's abstraction, which means the same thing on every shape of a model:
+
+* the index of its nearest present cuboid (one-hot over the model's ``m`` slots);
+* its coordinates in every cuboid's local frame divided by that cuboid's half extents (``m x 3``;
+  NaN for absent slots), those in its nearest cuboid first;
+* its distance to every cuboid (``m``; NaN for absent slots);
+* its position and, where known, its outward normal, in the model's canonical frame (+Y up,
+  +X front, the longest side of the bounding box 1: :class:`primkit.geometry.CanonicalFrame`);
+* the local shape around it: the principal axes of its ``k`` nearest neighbours among the shape's
+  elements (how flat, thin or round it is there, and which way).
+
+A gradient-boosted tree ensemble (scikit-learn's ``HistGradientBoostingClassifier``) learns the
+labels from a few labelled shapes; the class probabilities are then averaged over each element's
+nearest neighbours (``smooth`` rounds), and each element takes the most probable label.
+
+Storage without code: the fitted trees are exported to plain arrays (:class:`TreeEnsemble`: per
+node the feature, threshold, children, leaf value and the side missing values go to) and saved as
+safetensors tensors beside a JSON description with its own format version
+(:func:`write_labeller`, :func:`read_labeller`). Reading one parses JSON and copies numbers; every
+array is checked (shapes, dtypes, child indices inside their tree, feature indices inside the
+feature vector, trees that end) before use, and any failure is one :class:`ModelFileError` line.
+Predictions walk the exported trees with a Numba kernel that gives scikit-learn's
+``predict_proba`` (the same ``<=`` rule, the same handling of NaN, float64 sums, the same
+softmax), so the stored labeller labels exactly as the fitted one did.
+
+Frames: points, normals and cuboids given to :meth:`Labeller.features` are in the canonical frame
+(``AbstractionResult.canonical`` and ``AbstractionResult.frame.to_canonical``); the
+``label_*`` helpers take the input frame and a frame, as the segmentations hold them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .. import primitives
+from ..model.modelfile import ModelFileError
+
+__all__ = [
+    "LABELLER_FORMAT",
+    "LABELLER_FORMAT_VERSION",
+    "LABELLER_PREFIX",
+    "TreeEnsemble",
+    "LabellerSettings",
+    "Labeller",
+    "frame_features",
+    "decide",
+    "grid_normals",
+    "grid_neighbours",
+    "write_labeller",
+    "read_labeller",
+    "has_labeller",
+]
+
+#: Value of the ``format`` key of a labeller's JSON description.
+LABELLER_FORMAT = "primkit-labeller"
+#: Version of the labeller's arrays and description; newer ones are refused on load.
+LABELLER_FORMAT_VERSION = 1
+#: Prefix of a labeller's tensors in a model file (beside the network's weights).
+LABELLER_PREFIX = "labeller."
+#: Metadata key of a labeller's description in a model file.
+LABELLER_KEY = "labeller"
+
+#: The value of an absent slot's coordinates and distance: past any present one (a value, not NaN:
+#: scikit-learn cannot bin a column that is missing on every training shape).
+ABSENT = 1.0e4
+
+#: Bounds on what a stored labeller may ask for (a hostile file allocates nothing beyond them).
+MAX_NODES = 50_000_000
+MAX_TREES = 1_000_000
+MAX_CLASSES = 256
+MAX_PARTS = 1024
+
+
+# ---------------------------------------------------------------------------------------------
+# Tree ensembles as plain arrays
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class TreeEnsemble:
+    """A gradient-boosted tree ensemble as plain arrays (all the trees' nodes end to end).
+
+    Attributes
+    ----------
+    feature : (N,) int64
+        Feature tested at each split node (ignored at leaves).
+    threshold : (N,) float64
+        A sample goes left when ``x[feature] <= threshold``.
+    missing_left : (N,) uint8
+        1: a NaN goes left, 0: right.
+    left, right : (N,) int64
+        Children, as indices *inside the node's tree* (its root is 0).
+    is_leaf : (N,) uint8
+    value : (N,) float64
+        The raw score a leaf adds.
+    tree_start : (T + 1,) int64
+        Tree ``t``'s nodes are ``tree_start[t]:tree_start[t + 1]``.
+    tree_class : (T,) int64
+        Which raw score (class column) tree ``t`` adds to.
+    baseline : (K,) float64
+        The raw scores before any tree (``K`` = 1 for two classes, else the number of classes).
+    features : int
+        Length of the feature vector.
+
+    ``predict_proba`` follows scikit-learn's: the raw scores summed in float64 over the trees in
+    order, then the logistic function (two classes) or the softmax.
+    """
+
+    feature: np.ndarray
+    threshold: np.ndarray
+    missing_left: np.ndarray
+    left: np.ndarray
+    right: np.ndarray
+    is_leaf: np.ndarray
+    value: np.ndarray
+    tree_start: np.ndarray
+    tree_class: np.ndarray
+    baseline: np.ndarray
+    features: int
+
+    ARRAYS = {"feature": np.int64, "threshold": np.float64, "missing_left": np.uint8, "left": np.int64,
+              "right": np.int64, "is_leaf": np.uint8, "value": np.float64, "tree_start": np.int64,
+              "tree_class": np.int64, "baseline": np.float64}
+
+    @classmethod
+    def from_sklearn(cls, model) -> "TreeEnsemble":
+        """Export a fitted ``HistGradientBoostingClassifier`` (numeric features only)."""
+        if getattr(model, "is_categorical_", None) is not None and np.any(model.is_categorical_):
+            raise ValueError("categorical features are not exported (give them one-hot)")
+        nodes, starts, classes = [], [0], []
+        for iteration in model._predictors:
+            for k, predictor in enumerate(iteration):
+                nodes.append(predictor.nodes)
+                starts.append(starts[-1] + len(predictor.nodes))
+                classes.append(k)
+        allnodes = np.concatenate(nodes)
+        return cls(allnodes["feature_idx"].astype(np.int64), allnodes["num_threshold"].astype(np.float64),
+                   allnodes["missing_go_to_left"].astype(np.uint8), allnodes["left"].astype(np.int64),
+                   allnodes["right"].astype(np.int64), allnodes["is_leaf"].astype(np.uint8),
+                   allnodes["value"].astype(np.float64), np.array(starts, np.int64), np.array(classes, np.int64),
+                   np.asarray(model._baseline_prediction, np.float64).reshape(-1), int(model.n_features_in_))
+
+    @property
+    def classes(self) -> int:
+        """The number of classes: 2 for one raw score, else the number of raw scores."""
+        return 2 if len(self.baseline) == 1 else len(self.baseline)
+
+    def arrays(self) -> dict:
+        return {name: getattr(self, name) for name in self.ARRAYS}
+
+    def check(self, where="labeller") -> None:
+        """Raise ValueError unless the arrays describe trees that a walk from each root ends in:
+        matching lengths, children inside their own tree and after their parent (so no cycle),
+        features inside the feature vector, classes inside the raw scores, finite leaf values."""
+        n = len(self.feature)
+        for name, dtype in self.ARRAYS.items():
+            a = getattr(self, name)
+            if not isinstance(a, np.ndarray) or a.dtype != dtype or a.ndim != 1:
+                raise ValueError(f"{where}: {name} must be a 1-d {np.dtype(dtype).name} array")
+        if not all(len(getattr(self, k)) == n for k in ("threshold", "missing_left", "left", "right", "is_leaf",
+                                                        "value")):
+            raise ValueError(f"{where}: the node arrays differ in length")
+        trees = len(self.tree_class)
+        k = len(self.baseline)
+        if not 1 <= k <= MAX_CLASSES or k == 2:
+            raise ValueError(f"{where}: {k} raw scores (1 for two classes, else 3 to {MAX_CLASSES})")
+        if not 0 < n <= MAX_NODES or not 0 < trees <= MAX_TREES or len(self.tree_start) != trees + 1:
+            raise ValueError(f"{where}: {n} nodes in {trees} trees with {len(self.tree_start)} tree starts")
+        if not 0 < self.features <= 1_000_000:
+            raise ValueError(f"{where}: {self.features} features")
+        start = self.tree_start
+        if start[0] != 0 or start[-1] != n or np.any(np.diff(start) < 1):
+            raise ValueError(f"{where}: tree starts are not increasing from 0 to the node count")
+        if np.any((self.tree_class < 0) | (self.tree_class >= k)):
+            raise ValueError(f"{where}: a tree adds to a raw score that does not exist")
+        size = np.repeat(np.diff(start), np.diff(start))
+        local = np.arange(n) - np.repeat(start[:-1], np.diff(start))
+        split = self.is_leaf == 0
+        if np.any(self.is_leaf > 1) or np.any(self.missing_left > 1):
+            raise ValueError(f"{where}: is_leaf and missing_left must be 0 or 1")
+        for child in (self.left, self.right):
+            if np.any(split & ((child <= local) | (child >= size))):
+                raise ValueError(f"{where}: a child index points outside its tree or back up it")
+        if np.any(split & ((self.feature < 0) | (self.feature >= self.features))):
+            raise ValueError(f"{where}: a split tests a feature past the {self.features} features")
+        if not np.all(np.isfinite(self.value[~split])) or np.any(np.isnan(self.threshold[split])):
+            raise ValueError(f"{where}: non-finite leaf values or NaN thresholds")
+        if not np.all(np.isfinite(self.baseline)):
+            raise ValueError(f"{where}: non-finite baseline")
+
+    def raw_predict(self, X) -> np.ndarray:
+        """``(n, K)`` float64 raw scores of the ``(n, features)`` samples ``X`` (NaN: missing)."""
+        X = np.ascontiguousarray(X, np.float64)
+        if X.ndim != 2 or X.shape[1] != self.features:
+            raise ValueError(f"`X` must be (n, {self.features}) float, got shape {X.shape}")
+        out = np.empty((len(X), len(self.baseline)))
+        out[:] = self.baseline
+        if len(X):
+            _kernel()(X, self.feature, self.threshold, self.missing_left, self.left, self.right, self.is_leaf,
+                      self.value, self.tree_start, self.tree_class, out)
+        return out
+
+    def predict_proba(self, X) -> np.ndarray:
+        """``(n, classes)`` probabilities, as the exported model's ``predict_proba``."""
+        raw = self.raw_predict(X)
+        if raw.shape[1] == 1:  # scikit-learn's binomial loss: expit of the one raw score
+            from scipy.special import expit
+
+            p = expit(raw[:, 0])
+            return np.stack([1.0 - p, p], axis=1)
+        from scipy.special import softmax
+
+        return softmax(raw, axis=1)
+
+
+_KERNEL = None
+
+
+def _kernel():
+    """The Numba tree walk, compiled on first use (a few hundred milliseconds, cached on disk).
+
+    Written here rather than taken from scikit-learn: its predictor needs its fitted Python
+    objects (a pickle to store), and a per-level NumPy walk over every tree at once is ten times
+    slower on a 4,000-voxel chair."""
+    global _KERNEL
+    if _KERNEL is None:
+        import numba
+
+        @numba.njit(cache=True, nogil=True)
+        def walk(X, feature, threshold, missing_left, left, right, is_leaf, value, tree_start, tree_class, out):
+            # one sample at a time through every tree (its row stays in cache); the trees in
+            # order, as scikit-learn adds them, so the float64 sums are the same
+            for i in range(X.shape[0]):
+                for t in range(len(tree_class)):
+                    base = tree_start[t]
+                    node = base
+                    while is_leaf[node] == 0:
+                        x = X[i, feature[node]]
+                        if np.isnan(x):
+                            go_left = missing_left[node] == 1
+                        else:
+                            go_left = x <= threshold[node]
+                        node = base + (left[node] if go_left else right[node])
+                    out[i, tree_class[t]] += value[node]
+
+        _KERNEL = walk
+    return _KERNEL
+
+
+# ---------------------------------------------------------------------------------------------
+# Features of the primitive frame
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class LabellerSettings:
+    """How a labeller reads a shape (stored with it; the defaults were chosen on the PartNet
+    validation chairs, ``scripts/labeller_curve.py``).
+
+    neighbours : int
+        Elements whose principal axes describe the local shape around each element (0: none).
+    smooth_neighbours, smooth : int
+        The class probabilities are averaged over each element's ``smooth_neighbours`` nearest
+        elements (itself included), ``smooth`` times (0: no smoothing).
+    normals : bool
+        Whether normals are features (zero where a shape has none).
+    min_share : float
+        A label given to fewer than this share of a shape's elements is dropped from it (they take
+        their next most probable label): a chair with a few stray "arm" voxels has no arms.
+    """
+
+    neighbours: int = 16
+    smooth_neighbours: int = 19
+    smooth: int = 2
+    normals: bool = True
+    min_share: float = 0.01
+
+    def to_dict(self) -> dict:
+        return {"neighbours": self.neighbours, "smooth_neighbours": self.smooth_neighbours, "smooth": self.smooth,
+                "normals": self.normals, "min_share": self.min_share}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "LabellerSettings":
+        if not isinstance(d, dict):
+            raise ValueError("settings must be a JSON object")
+        out = {}
+        for key, default in cls().to_dict().items():
+            value = d.get(key, default)
+            if isinstance(default, bool):
+                if not isinstance(value, bool):
+                    raise ValueError(f"settings {key} must be true or false")
+            elif isinstance(default, float):
+                if not isinstance(value, (int, float)) or isinstance(value, bool) or not 0 <= value < 1:
+                    raise ValueError(f"settings {key} must be a number in [0, 1)")
+                value = float(value)
+            elif not isinstance(value, int) or isinstance(value, bool) or not 0 <= value <= 256:
+                raise ValueError(f"settings {key} must be an integer in 0-256")
+            out[key] = value
+        return cls(**out)
+
+
+def feature_count(parts: int, settings: LabellerSettings) -> int:
+    """Length of the feature vector of a model with ``parts`` slots."""
+    return 3 + parts + 3 + 3 * parts + parts + (4 if settings.normals else 0) + (9 if settings.neighbours else 0)
+
+
+def _neighbours(points: np.ndarray, k: int) -> np.ndarray:
+    """``(n, min(k, n))`` indices of each point's nearest points (itself first)."""
+    from scipy.spatial import cKDTree
+
+    k = min(k, len(points))
+    _, idx = cKDTree(points).query(points, k=k)
+    return idx.reshape(len(points), k)
+
+
+def _local_shape(points: np.ndarray, k: int) -> np.ndarray:
+    """``(n, 9)``: the eigenvalues of the covariance of each point's ``k`` nearest points over
+    their sum (linear, flat or round), and the absolute components of the largest and smallest
+    principal axes (which way the part runs, which way it faces)."""
+    if len(points) < 3:
+        return np.full((len(points), 9), np.nan)
+    idx = _neighbours(points, k)
+    near = points[idx] - points[idx].mean(axis=1, keepdims=True)
+    cov = np.einsum("nki,nkj->nij", near, near) / idx.shape[1]
+    values, vectors = np.linalg.eigh(cov)  # ascending
+    total = values.sum(axis=1, keepdims=True)
+    shares = np.divide(values, total, out=np.full_like(values, 1.0 / 3), where=total > 0)
+    return np.hstack([shares, np.abs(vectors[:, :, 2]), np.abs(vectors[:, :, 0])])
+
+
+def frame_features(points, cuboids: primitives.Cuboids, normals=None, settings: LabellerSettings | None = None,
+                   context=None) -> np.ndarray:
+    """The features of elements in the primitive frame (see the module notes).
+
+    Parameters
+    ----------
+    points : (n, 3) float
+        The elements (voxel centres, face centroids, points), **canonical frame**.
+    cuboids : primitives.Cuboids
+        The shape's abstraction in the canonical frame (``AbstractionResult.canonical``).
+    normals : (n, 3) float or None
+        Outward unit normals, canonical frame; None: unknown (zero).
+    settings : LabellerSettings
+    context : (c, 3) float or None
+        Points whose neighbourhoods describe the local shape (default ``points``).
+
+    Returns
+    -------
+    (n, :func:`feature_count`) float64; :data:`ABSENT` where a slot is absent, zero normals where
+    unknown (as deep inside a voxel grid).
+    """
+    settings = settings or LabellerSettings()
+    points = primitives.cuboids.as_points(points)
+    c = primitives.cuboids.check_cuboids(cuboids)
+    n, m = len(points), c.count
+    if not c.existence.any():
+        raise ValueError("no present cuboid: nothing to read the frame from")
+    absent = ~c.existence
+    local = primitives.world_to_local(points, c)  # (m, n, 3)
+    excess = np.maximum(np.abs(local) - c.half_extents[:, None, :], 0.0)
+    distance = np.sqrt(np.einsum("mni,mni->nm", excess, excess))  # primitives.point_cuboid_distance, shared work
+    distance[:, absent] = ABSENT
+    local /= c.half_extents[:, None, :]
+    local[absent] = ABSENT
+    nearest = primitives.assign_points(points, c)
+    onehot = np.zeros((n, m))
+    onehot[np.arange(n), nearest] = 1.0
+    columns = [points, onehot, local[nearest, np.arange(n)], local.transpose(1, 0, 2).reshape(n, 3 * m), distance]
+    if settings.normals:
+        if normals is None:
+            columns.append(np.zeros((n, 4)))
+        else:
+            normals = np.asarray(normals, float)
+            if normals.shape != (n, 3):
+                raise ValueError(f"`normals` must be (n, 3) float like the points, got shape {normals.shape}")
+            columns += [normals, np.abs(normals[:, 1:2])]
+    if settings.neighbours:
+        if context is None:
+            columns.append(_local_shape(points, settings.neighbours))
+        else:
+            context = primitives.cuboids.as_points(context)
+            from scipy.spatial import cKDTree
+
+            _, near = cKDTree(context).query(points, k=min(settings.neighbours, len(context)))
+            near = near.reshape(n, -1)
+            grouped = context[near] - context[near].mean(axis=1, keepdims=True)
+            cov = np.einsum("nki,nkj->nij", grouped, grouped) / near.shape[1]
+            values, vectors = np.linalg.eigh(cov)
+            total = values.sum(axis=1, keepdims=True)
+            shares = np.divide(values, total, out=np.full_like(values, 1.0 / 3), where=total > 0)
+            columns.append(np.hstack([shares, np.abs(vectors[:, :, 2]), np.abs(vectors[:, :, 0])]))
+    return np.hstack(columns)
+
+
+def grid_neighbours(index, shape) -> np.ndarray:
+    """``(n, 27) int``: for the occupied voxels at ``index`` (``(n, 3) int``, e.g. ``np.argwhere``),
+    the positions in ``index`` of the occupied voxels of their 3 x 3 x 3 neighbourhood, nearest
+    first (the voxel itself, its 6 face neighbours, 12 edge and 8 corner neighbours; the voxel
+    itself where a neighbour is empty or off the grid). The first ``k`` columns are the ``k``
+    nearest voxel centres where the grid is full, found by index arithmetic instead of a k-d tree."""
+    index = np.asarray(index, np.int64)
+    where = np.full(tuple(np.asarray(shape) + 2), -1, np.int64)  # padded: no bounds checks
+    where[tuple((index + 1).T)] = np.arange(len(index))
+    near = where[tuple((index[None, :, :] + 1 + _OFFSETS[:, None, :]).transpose(2, 0, 1))].T  # (n, 27)
+    return np.where(near >= 0, near, np.arange(len(index))[:, None])
+
+
+#: the 27 offsets of a 3 x 3 x 3 block, nearest first (ties in a fixed order)
+_OFFSETS = np.array(sorted(((i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)),
+                           key=lambda o: (sum(x * x for x in o), o)))
+
+
+def grid_normals(occupancy) -> np.ndarray:
+    """``(R, R, R, 3)`` outward unit normals of an occupancy grid, in its index axes: minus the
+    gradient of the occupancy smoothed by a Gaussian of one voxel (scipy.ndimage), zero where flat
+    (deep inside)."""
+    from scipy import ndimage
+
+    smooth = ndimage.gaussian_filter(np.asarray(occupancy, float), 1.0)
+    grad = -np.stack(np.gradient(smooth), axis=-1)
+    norm = np.linalg.norm(grad, axis=-1, keepdims=True)
+    return np.divide(grad, norm, out=np.zeros_like(grad), where=norm > 1e-6)
+
+
+# ---------------------------------------------------------------------------------------------
+# The labeller
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class Labeller:
+    """A per-element part classifier of one model (see the module notes).
+
+    Attributes
+    ----------
+    names : list of str
+        The labels, in class order (e.g. ``["back", "seat", "legs", "arms"]``).
+    parts : int
+        The model's slots ``m`` (the features depend on it).
+    ensemble : TreeEnsemble
+    settings : LabellerSettings
+    info : dict
+        What it was learned from (shapes, elements), JSON.
+    """
+
+    names: list
+    parts: int
+    ensemble: TreeEnsemble
+    settings: LabellerSettings = field(default_factory=LabellerSettings)
+    info: dict = field(default_factory=dict)
+
+    @classmethod
+    def fit(cls, shapes, names, parts: int, *, settings: LabellerSettings | None = None, per_shape: int = 1000,
+            max_iter: int = 100, learning_rate: float = 0.1, max_leaf_nodes: int = 31, seed=0,
+            info: dict | None = None, **options) -> "Labeller":
+        """Learn a labeller from labelled shapes.
+
+        Parameters
+        ----------
+        shapes : iterable of (features (n_i, d) float, labels (n_i,) int)
+            Each shape's :func:`frame_features` and labels (indices into ``names``; negative:
+            unlabelled, left out).
+        names : sequence of str
+        parts : int
+            The model's slots.
+        per_shape : int
+            At most this many elements of each shape are learned from (a random subset); each
+            shape weighs the same whatever its element count.
+        max_iter, learning_rate, max_leaf_nodes, options : the classifier's (``l2_regularization``, ...).
+        seed : int, the subsets' and the classifier's random state.
+        """
+        from sklearn.ensemble import HistGradientBoostingClassifier
+
+        settings = settings or LabellerSettings()
+        rng = np.random.default_rng(seed)
+        Xs, ys, ws = [], [], []
+        for X, y in shapes:
+            X, y = np.asarray(X, float), np.asarray(y, np.int64)
+            keep = np.flatnonzero((y >= 0) & (y < len(names)))
+            if len(keep) > per_shape:
+                keep = rng.choice(keep, per_shape, replace=False)
+            if len(keep):
+                Xs.append(X[keep])
+                ys.append(y[keep])
+                ws.append(np.full(len(keep), 1.0 / len(keep)))
+        if not Xs:
+            raise ValueError("no labelled element to learn from")
+        X, y, w = np.vstack(Xs), np.concatenate(ys), np.concatenate(ws)
+        if X.shape[1] != feature_count(parts, settings):
+            raise ValueError(f"features have {X.shape[1]} columns, expected {feature_count(parts, settings)}")
+        present = np.unique(y)
+        if len(present) < 2:
+            raise ValueError(f"the labelled shapes carry one label only ({names[present[0]]}): nothing to tell apart")
+        # the classes the ensemble knows are those present, mapped back to `names` after
+        model = HistGradientBoostingClassifier(max_iter=max_iter, learning_rate=learning_rate,
+                                               max_leaf_nodes=max_leaf_nodes, early_stopping=False,
+                                               random_state=int(seed), **options)
+        model.fit(X, np.searchsorted(present, y), sample_weight=w * len(Xs))
+        kept = [str(names[k]) for k in present]
+        return cls(kept, int(parts), TreeEnsemble.from_sklearn(model), settings,
+                   {**(info or {}), "shapes": len(Xs), "elements": int(len(y))})
+
+    def features(self, points, cuboids, normals=None, context=None) -> np.ndarray:
+        """:func:`frame_features` with this labeller's settings (canonical frame)."""
+        if cuboids.count != self.parts:
+            raise ValueError(f"the labeller reads {self.parts} part slots, the cuboids have {cuboids.count}")
+        return frame_features(points, cuboids, normals, self.settings, context)
+
+    def predict_proba(self, points, cuboids, normals=None, context=None, neighbours=None) -> np.ndarray:
+        """``(n, len(names))`` smoothed label probabilities of canonical-frame elements
+        (``neighbours``: see :meth:`smooth`)."""
+        return self.smooth(self.ensemble.predict_proba(self.features(points, cuboids, normals, context)), points,
+                           neighbours)
+
+    def smooth(self, proba, points, neighbours=None) -> np.ndarray:
+        """Average ``(n, classes)`` probabilities over each element's ``smooth_neighbours`` nearest
+        elements (itself included), ``smooth`` times. ``neighbours``: ``(n, k) int`` indices to use
+        instead, nearest first (a voxel grid's :func:`grid_neighbours`), of which the first
+        ``smooth_neighbours`` are used."""
+        if not self.settings.smooth or len(proba) < 2:
+            return proba
+        k = self.settings.smooth_neighbours
+        idx = neighbours[:, :k] if neighbours is not None else _neighbours(np.asarray(points, float), k)
+        for _ in range(self.settings.smooth):
+            proba = proba[idx].mean(axis=1)
+        return proba
+
+    def predict(self, points, cuboids, normals=None, context=None, neighbours=None) -> np.ndarray:
+        """``(n,) int``: each element's label (an index into :attr:`names`)."""
+        if len(points) == 0:
+            return np.zeros(0, np.int64)
+        return decide(self.predict_proba(points, cuboids, normals, context, neighbours), self.settings.min_share)
+
+    # -- storage ------------------------------------------------------------------------------
+
+    def to_tensors(self) -> tuple[dict, dict]:
+        """``(arrays, description)``: NumPy arrays named ``labeller.*`` and the JSON description."""
+        arrays = {LABELLER_PREFIX + k: np.ascontiguousarray(v) for k, v in self.ensemble.arrays().items()}
+        description = {"format": LABELLER_FORMAT, "format_version": LABELLER_FORMAT_VERSION, "names": list(self.names),
+                       "parts": self.parts, "features": self.ensemble.features, "settings": self.settings.to_dict(),
+                       "classifier": "scikit-learn HistGradientBoostingClassifier, trees exported to arrays",
+                       "info": self.info}
+        return arrays, description
+
+    @classmethod
+    def from_tensors(cls, arrays: dict, description, where="labeller") -> "Labeller":
+        """The inverse of :meth:`to_tensors`, every field checked (ValueError, one line)."""
+        if not isinstance(description, dict) or description.get("format") != LABELLER_FORMAT:
+            raise ValueError(f"{where}: not a labeller description (format is not {LABELLER_FORMAT!r})")
+        version = description.get("format_version")
+        if not isinstance(version, int) or isinstance(version, bool) or version < 1:
+            raise ValueError(f"{where}: invalid labeller format_version {version!r}")
+        if version > LABELLER_FORMAT_VERSION:
+            raise ValueError(f"{where}: labeller format version {version} is newer than this primkit supports "
+                             f"({LABELLER_FORMAT_VERSION}); upgrade primkit")
+        names, parts = description.get("names"), description.get("parts")
+        if not (isinstance(names, list) and 2 <= len(names) <= MAX_CLASSES and all(isinstance(n, str) for n in names)):
+            raise ValueError(f"{where}: names must be a list of 2 to {MAX_CLASSES} strings")
+        if not isinstance(parts, int) or isinstance(parts, bool) or not 1 <= parts <= MAX_PARTS:
+            raise ValueError(f"{where}: parts must be an integer in 1-{MAX_PARTS}")
+        settings = LabellerSettings.from_dict(description.get("settings"))
+        features = description.get("features")
+        if features != feature_count(parts, settings):
+            raise ValueError(f"{where}: {features!r} features, but {parts} parts with these settings make "
+                             f"{feature_count(parts, settings)}")
+        missing = [k for k in TreeEnsemble.ARRAYS if LABELLER_PREFIX + k not in arrays]
+        if missing:
+            raise ValueError(f"{where}: lacks the labeller arrays {', '.join(missing)}")
+        ensemble = TreeEnsemble(**{k: np.asarray(arrays[LABELLER_PREFIX + k]) for k in TreeEnsemble.ARRAYS},
+                                features=features)
+        ensemble.check(where)
+        if ensemble.classes != len(names):
+            raise ValueError(f"{where}: {len(names)} names but the trees tell {ensemble.classes} classes apart")
+        info = description.get("info", {})
+        return cls(list(names), parts, ensemble, settings, info if isinstance(info, dict) else {})
+
+
+def decide(proba, min_share: float = 0.0) -> np.ndarray:
+    """``(n,) int``: each element's most probable label, leaving out the labels that would go to
+    fewer than ``min_share`` of the ``n`` elements (their elements take their next best label that
+    stays)."""
+    proba = np.array(proba, float)
+    labels = np.argmax(proba, axis=1)
+    if min_share > 0 and len(labels):
+        counts = np.bincount(labels, minlength=proba.shape[1])
+        rare = (counts > 0) & (counts < min_share * len(labels))
+        if rare.any() and not rare[counts > 0].all():
+            proba[:, rare] = -np.inf
+            labels = np.argmax(proba, axis=1)
+    return labels.astype(np.int64)
+
+
+def write_labeller(model_path, output, labeller: Labeller, changes: dict | None = None, *,
+                   overwrite: bool = False) -> Path:
+    """Copy the model file ``model_path`` to ``output`` with ``labeller`` in it (replacing any
+    labeller it had) and ``changes`` merged into its metadata; ``model_path`` is never modified."""
+    import torch
+
+    from ..model.modelfile import load_model, save_model
+
+    from ..io import check_outputs
+
+    check_outputs([output], inputs=[model_path], overwrite=overwrite)
+    weights, metadata = load_model(model_path)
+    weights = {k: v for k, v in weights.items() if not k.startswith(LABELLER_PREFIX)}
+    arrays, description = labeller.to_tensors()
+    weights.update({k: torch.from_numpy(np.array(v)) for k, v in arrays.items()})
+    metadata = {**metadata, **(changes or {}), LABELLER_KEY: description}
+    metadata.pop("created", None)
+    return save_model(output, weights, metadata, overwrite=overwrite)
+
+
+def has_labeller(model_path) -> bool:
+    """Whether the model file carries a labeller (its header alone is read)."""
+    from ..model.modelfile import read_metadata
+
+    return LABELLER_KEY in read_metadata(model_path)
+
+
+def read_labeller(model_path) -> Labeller | None:
+    """The labeller stored in a model file, or None when it has none.
+
+    Only the JSON header and the ``labeller.*`` tensors are read (safetensors: no code runs); the
+    tensors' dtypes and shapes are checked in the header before any is read, then the trees
+    (:meth:`TreeEnsemble.check`). Raises :class:`ModelFileError`, one line naming the file.
+    """
+    from safetensors import safe_open
+
+    from ..model.modelfile import read_header
+
+    metadata, tensors = read_header(model_path)
+    description = metadata.get(LABELLER_KEY)
+    if description is None:
+        return None
+    if not isinstance(description, dict):
+        raise ModelFileError(model_path, "the labeller description is not a JSON object")
+    names = {LABELLER_PREFIX + k: np.dtype(t) for k, t in TreeEnsemble.ARRAYS.items()}
+    kinds = {np.dtype(np.int64): "I64", np.dtype(np.float64): "F64", np.dtype(np.uint8): "U8"}
+    for name, dtype in names.items():
+        if name not in tensors:
+            raise ModelFileError(model_path, f"the labeller lacks its tensor {name}")
+        shape, got = tensors[name]
+        if got != kinds[dtype] or len(shape) != 1 or shape[0] > MAX_NODES + 1:
+            raise ModelFileError(model_path, f"labeller tensor {name} is {got} {list(shape)}, expected a 1-d {kinds[dtype]}")
+    try:
+        with safe_open(str(model_path), framework="numpy") as f:
+            arrays = {name: f.get_tensor(name) for name in names}
+    except Exception as exc:  # safetensors' own error types
+        raise ModelFileError(model_path, f"cannot read the labeller's tensors ({exc})") from None
+    try:
+        return Labeller.from_tensors(arrays, description, where="labeller")
+    except ValueError as exc:
+        raise ModelFileError(model_path, str(exc)) from None
+
+
+# ---------------------------------------------------------------------------------------------
+# Elements of the three kinds of shape, in the canonical frame
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, eq=False)
+class Elements:
+    """What a labeller reads of one shape, in the canonical frame.
+
+    points : (n, 3) float, the elements (voxel centres, face centroids, points)
+    normals : (n, 3) float or None, outward unit normals
+    context : (c, 3) float or None, points spread evenly over the shape for the local shape
+        (a mesh's surface samples; None: the elements themselves)
+    neighbours : (n, k) int or None, each element's neighbourhood for smoothing (a grid's
+        :func:`grid_neighbours`; None: its nearest elements)
+    """
+
+    points: np.ndarray
+    normals: np.ndarray | None = None
+    context: np.ndarray | None = None
+    neighbours: np.ndarray | None = None
+
+
+def _rotate(frame, vectors):
+    return None if vectors is None else np.asarray(vectors, float) @ np.asarray(frame.rotation, float).T
+
+
+def grid_elements(grid, frame) -> tuple[Elements, np.ndarray]:
+    """A voxel grid's occupied voxels: ``(Elements, index (n, 3) int)`` (``np.argwhere`` order;
+    normals from :func:`grid_normals`; ``frame`` the grid's :class:`primkit.geometry.CanonicalFrame`)."""
+    occupancy = np.asarray(grid.occupancy, bool)
+    index = np.argwhere(occupancy)
+    centres = grid.translate + (index + 0.5) * (grid.scale / grid.resolution)
+    normals = grid_normals(occupancy)[tuple(index.T)]  # index axes are the model axes (uniform scale)
+    return Elements(frame.to_canonical(centres), _rotate(frame, normals),
+                    neighbours=grid_neighbours(index, occupancy.shape)), index
+
+
+def mesh_elements(vertices, faces, frame, samples: int = 20000, seed=0) -> Elements:
+    """A mesh's faces: centroids, face normals, and ``samples`` area-uniform surface points
+    (trimesh) as the context, all canonical."""
+    import trimesh
+
+    mesh = trimesh.Trimesh(np.asarray(vertices, float), np.asarray(faces, np.int64), process=False)
+    context, _ = trimesh.sample.sample_surface(mesh, samples, seed=seed) if len(faces) else (np.zeros((0, 3)), None)
+    return Elements(frame.to_canonical(mesh.triangles_center), _rotate(frame, mesh.face_normals),
+                    frame.to_canonical(context) if len(context) >= 3 else None)
+
+
+def point_elements(points, frame, normals=None) -> Elements:
+    """A point cloud's points (and normals when it has them), canonical."""
+    return Elements(frame.to_canonical(points), _rotate(frame, normals))
+
+
+def label_elements(labeller: Labeller, elements: Elements, canonical: primitives.Cuboids) -> np.ndarray:
+    """``(n,) int``: each element's label (index into ``labeller.names``); -1 everywhere when no
+    cuboid is present."""
+    if not canonical.existence.any():
+        return np.full(len(elements.points), -1, np.int64)
+    return labeller.predict(elements.points, canonical, elements.normals, elements.context, elements.neighbours)
+

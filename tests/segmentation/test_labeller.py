@@ -1,0 +1,375 @@
+"""The part labeller: exported trees against scikit-learn, the features against brute force, and
+the storage (a hostile or truncated labeller refused in one line; loading runs no code)."""
+
+from __future__ import annotations
+
+import builtins
+import json
+import pickle
+import struct
+
+import numpy as np
+import pytest
+
+from primkit import primitives
+from primkit.model.bundled import resolve_model
+from primkit.model.modelfile import ModelFileError
+from primkit.segmentation import labeller as lab
+from primkit.segmentation.labeller import Labeller, LabellerSettings, TreeEnsemble, frame_features
+
+sklearn = pytest.importorskip("sklearn.ensemble")
+
+
+def _random_problem(classes, rng, n=3000, d=8):
+    X = rng.normal(size=(n, d))
+    y = (X[:, 0] > 0).astype(int)
+    if classes > 2:
+        y += 2 * (X[:, 1] + 0.5 * X[:, 2] > 0.3)
+        y = np.minimum(y, classes - 1)
+    X[rng.random(X.shape) < 0.1] = np.nan  # missing values: each split's learned side
+    return X, y
+
+
+@pytest.mark.parametrize("classes", [2, 3, 4])
+def test_exported_trees_give_sklearns_probabilities(classes):
+    rng = np.random.default_rng(classes)
+    X, y = _random_problem(classes, rng)
+    model = sklearn.HistGradientBoostingClassifier(max_iter=40, random_state=0).fit(X, y)
+    ensemble = TreeEnsemble.from_sklearn(model)
+    ensemble.check()
+    Z = rng.normal(size=(4000, X.shape[1])) * 2
+    Z[rng.random(Z.shape) < 0.15] = np.nan
+    np.testing.assert_allclose(ensemble.predict_proba(Z), model.predict_proba(Z), rtol=0, atol=1e-6)
+    assert ensemble.classes == classes
+
+
+def _walk_one(ensemble, x):
+    """A plain Python walk of the exported arrays (the reference for the Numba kernel)."""
+    raw = ensemble.baseline.copy()
+    for t in range(len(ensemble.tree_class)):
+        base, node = ensemble.tree_start[t], ensemble.tree_start[t]
+        while not ensemble.is_leaf[node]:
+            v = x[ensemble.feature[node]]
+            left = ensemble.missing_left[node] if np.isnan(v) else v <= ensemble.threshold[node]
+            node = base + (ensemble.left[node] if left else ensemble.right[node])
+        raw[ensemble.tree_class[t]] += ensemble.value[node]
+    return raw
+
+
+def test_kernel_matches_a_python_walk():
+    rng = np.random.default_rng(0)
+    X, y = _random_problem(4, rng, n=500)
+    ensemble = TreeEnsemble.from_sklearn(sklearn.HistGradientBoostingClassifier(max_iter=5, random_state=0).fit(X, y))
+    Z = X[:20]
+    np.testing.assert_allclose(ensemble.raw_predict(Z), [_walk_one(ensemble, z) for z in Z], atol=1e-12)
+
+
+def _cuboids(rng, m=5, absent=(3,)):
+    q = rng.normal(size=(m, 4))
+    return primitives.Cuboids(rng.uniform(0.05, 0.3, (m, 3)), q, rng.uniform(-0.4, 0.4, (m, 3)),
+                              np.array([k not in absent for k in range(m)]))
+
+
+def test_features_are_the_frame_read_by_brute_force():
+    rng = np.random.default_rng(1)
+    c = _cuboids(rng)
+    points = rng.uniform(-0.5, 0.5, (50, 3))
+    normals = rng.normal(size=(50, 3))
+    s = LabellerSettings(neighbours=0, normals=True)
+    F = frame_features(points, c, normals, s)
+    m = c.count
+    assert F.shape == (50, lab.feature_count(m, s))
+    R = c.rotations
+    for i, p in enumerate(points[:10]):
+        local = np.array([R[k].T @ (p - c.translations[k]) for k in range(m)])
+        dist = np.linalg.norm(np.maximum(np.abs(local) - c.half_extents, 0), axis=1)
+        scaled = local / c.half_extents
+        present = np.flatnonzero(c.existence)
+        nearest = present[np.argmin(dist[present])]
+        np.testing.assert_allclose(F[i, :3], p)
+        assert F[i, 3 + nearest] == 1 and F[i, 3 : 3 + m].sum() == 1
+        np.testing.assert_allclose(F[i, 3 + m : 6 + m], scaled[nearest])
+        for k in range(m):
+            want = scaled[k] if c.existence[k] else [lab.ABSENT] * 3
+            np.testing.assert_allclose(F[i, 6 + m + 3 * k : 9 + m + 3 * k], want)
+            np.testing.assert_allclose(F[i, 6 + 4 * m + k], dist[k] if c.existence[k] else lab.ABSENT)
+        np.testing.assert_allclose(F[i, 6 + 5 * m : 9 + 5 * m], normals[i])
+
+
+def test_local_shape_tells_a_line_from_a_plane():
+    rng = np.random.default_rng(2)
+    line = np.c_[np.linspace(0, 1, 200), np.zeros(200), np.zeros(200)] + rng.normal(0, 1e-4, (200, 3))
+    plane = np.c_[rng.uniform(0, 1, (400, 2)), np.zeros(400)]
+    shape_line = lab._local_shape(line, 16)
+    shape_plane = lab._local_shape(plane, 16)
+    assert np.all(shape_line[:, 2] > 0.95)  # one eigenvalue holds the spread
+    np.testing.assert_allclose(shape_line[:, 3], 1, atol=1e-2)  # along x
+    assert np.all(shape_plane[:, 0] < 1e-6)  # no spread off the plane
+    np.testing.assert_allclose(shape_plane[:, 8], 1, atol=1e-6)  # which faces z
+
+
+def _toy_labeller(rng, settings=None):
+    """Learned from shapes whose label is which side of cuboid 0 a point lies on, and cuboid 1."""
+    settings = settings or LabellerSettings(neighbours=8, smooth=1, smooth_neighbours=5)
+    shapes = []
+    for _ in range(4):
+        c = _cuboids(rng, absent=())
+        points = rng.uniform(-0.5, 0.5, (400, 3))
+        local = primitives.world_to_local(points, c)
+        y = np.where(local[0, :, 0] > 0, 0, 1) + 2 * (primitives.assign_points(points, c) == 1)
+        shapes.append((frame_features(points, c, None, settings), np.minimum(y, 2)))
+    return Labeller.fit(shapes, ["a", "b", "c"], 5, settings=settings, max_iter=20), shapes
+
+
+def test_labeller_learns_the_frame_and_round_trips_through_a_model_file(tmp_path):
+    rng = np.random.default_rng(3)
+    labeller, shapes = _toy_labeller(rng)
+    X, y = shapes[0]
+    assert np.mean(np.argmax(labeller.ensemble.predict_proba(X), axis=1) == y) > 0.9
+    out = lab.write_labeller(resolve_model("chair"), tmp_path / "named.safetensors", labeller, {"part_names": None})
+    back = lab.read_labeller(out)
+    assert back.names == labeller.names and back.settings == labeller.settings
+    np.testing.assert_array_equal(back.ensemble.predict_proba(X), labeller.ensemble.predict_proba(X))
+    assert lab.read_labeller(resolve_model("chair")) is None
+    # the network still loads from the file that carries the labeller
+    from primkit.model.abstractor import Abstractor
+
+    assert Abstractor.load(out).parts == 20
+    with pytest.raises(FileExistsError):
+        lab.write_labeller(resolve_model("chair"), out, labeller)
+
+
+def _rewrite(path, out, change_arrays=None, change_description=None):
+    """A copy of a labelled model file with its labeller's arrays or description changed."""
+    from safetensors.numpy import load_file, save_file
+    from safetensors import safe_open
+
+    with safe_open(str(path), framework="numpy") as f:
+        header = f.metadata()
+    arrays = load_file(str(path))
+    meta = json.loads(header["primkit"])
+    if change_arrays:
+        change_arrays(arrays)
+    if change_description:
+        change_description(meta["labeller"])
+    save_file(arrays, str(out), metadata={"primkit": json.dumps(meta)})
+    return out
+
+
+@pytest.fixture(scope="module")
+def labelled(tmp_path_factory):
+    labeller, _ = _toy_labeller(np.random.default_rng(4))
+    return lab.write_labeller(resolve_model("chair"), tmp_path_factory.mktemp("lab") / "m.safetensors", labeller)
+
+
+def _back_edge(a):
+    split = np.flatnonzero(a["labeller.is_leaf"] == 0)
+    a["labeller.left"][split[1]] = 0  # back to the root: a cycle
+
+
+def _bad_feature(a):
+    a["labeller.feature"][np.flatnonzero(a["labeller.is_leaf"] == 0)[0]] = 10**6
+
+
+def _float_children(a):
+    a["labeller.left"] = a["labeller.left"].astype(np.float64)
+
+
+def _short_values(a):
+    a["labeller.value"] = a["labeller.value"][:-1]
+
+
+def _lost_array(a):
+    del a["labeller.threshold"]
+
+
+def _newer(d):
+    d["format_version"] = 99
+
+
+def _more_features(d):
+    d["features"] += 1
+
+
+def _nan_leaf(a):
+    a["labeller.value"][np.flatnonzero(a["labeller.is_leaf"] == 1)[0]] = np.nan
+
+
+def _class_past_end(a):
+    a["labeller.tree_class"][0] = 7
+
+
+@pytest.mark.parametrize("arrays,description,needle", [
+    (_back_edge, None, "child index"),
+    (_bad_feature, None, "feature past"),
+    (_float_children, None, "labeller tensor labeller.left is F64"),
+    (_short_values, None, "differ in length"),
+    (_lost_array, None, "lacks its tensor labeller.threshold"),
+    (None, _newer, "newer"),
+    (None, _more_features, "features"),
+    (_nan_leaf, None, "non-finite"),
+    (_class_past_end, None, "raw score"),
+])
+def test_a_hostile_labeller_is_refused_in_one_line(labelled, tmp_path, arrays, description, needle):
+    bad = _rewrite(labelled, tmp_path / "bad.safetensors", arrays, description)
+    with pytest.raises(ModelFileError) as info:
+        lab.read_labeller(bad)
+    message = str(info.value)
+    assert "\n" not in message and message.startswith(str(bad)) and needle in message
+
+
+def test_a_truncated_labeller_file_is_refused_in_one_line(labelled, tmp_path):
+    data = labelled.read_bytes()
+    (header_length,) = struct.unpack("<Q", data[:8])
+    for cut in (len(data) - 100, 8 + header_length + 10, 8 + header_length // 2, 5):
+        bad = tmp_path / f"cut{cut}.safetensors"
+        bad.write_bytes(data[:cut])
+        with pytest.raises(ModelFileError) as info:
+            lab.read_labeller(bad)
+        assert "\n" not in str(info.value) and str(info.value).startswith(str(bad))
+
+
+def test_loading_a_labeller_runs_no_code(labelled, tmp_path, monkeypatch):
+    # a pickle that would run code if anything unpickled it, and a description holding code text
+    marker = tmp_path / "ran"
+    evil = _rewrite(labelled, tmp_path / "evil.safetensors",
+                    change_description=lambda d: d["info"].update(
+                        {"payload": pickle.dumps(f"__import__('pathlib').Path({str(marker)!r}).touch()").hex(),
+                         "code": f"__import__('pathlib').Path({str(marker)!r}).touch()"}))
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("code ran while loading a labeller")
+
+    for module, name in ((pickle, "loads"), (pickle, "load"), (pickle, "Unpickler"), (builtins, "eval"),
+                         (builtins, "exec"), (builtins, "compile")):
+        monkeypatch.setattr(module, name, refuse)
+    import torch
+
+    monkeypatch.setattr(torch, "load", refuse)
+    got = lab.read_labeller(evil)
+    assert got.info["code"].startswith("__import__") and not marker.exists()
+    # a pickle in place of the model file: refused, not unpickled
+    fake = tmp_path / "pickled.safetensors"
+    fake.write_bytes(pickle.dumps({"labeller": 1}))
+    with pytest.raises(ModelFileError):
+        lab.read_labeller(fake)
+
+
+def test_grid_neighbours_are_the_27_nearest_voxels_of_a_full_block():
+    from scipy.spatial import cKDTree
+
+    rng = np.random.default_rng(5)
+    occupancy = rng.random((9, 8, 7)) < 0.6
+    index = np.argwhere(occupancy)
+    near = lab.grid_neighbours(index, occupancy.shape)
+    for i in rng.choice(len(index), 40, replace=False):
+        want = {j for j, v in enumerate(index) if np.abs(v - index[i]).max() <= 1}
+        got = set(near[i].tolist())
+        assert got == want  # every occupied voxel of the block, the voxel itself for the empty ones
+    full = np.argwhere(np.ones((5, 5, 5), bool))
+    centre = 62  # (2, 2, 2)
+    _, knn = cKDTree(full).query(full[centre], k=27)
+    near = lab.grid_neighbours(full, (5, 5, 5))[centre]
+    assert set(near.tolist()) == set(knn.tolist())
+    d = np.linalg.norm(full[near] - full[centre], axis=1)
+    assert near[0] == centre and np.all(np.diff(d) >= 0)  # nearest first: the first k are k nearest
+    np.testing.assert_allclose(d[[1, 6, 7, 18, 19, 26]], [1, 1, 2**0.5, 2**0.5, 3**0.5, 3**0.5])
+
+
+def test_decide_drops_labels_below_their_share():
+    proba = np.array([[0.6, 0.4, 0.0]] * 99 + [[0.1, 0.3, 0.6]])
+    assert np.array_equal(lab.decide(proba), [0] * 99 + [2])
+    assert np.array_equal(lab.decide(proba, 0.02), [0] * 99 + [1])  # label 2 on 1% of the elements: dropped
+
+
+def test_a_learned_labeller_names_the_faces_the_segmenter_writes(chairs, tmp_path):
+    """fit_labeller on abstracted labelled meshes; the segmenter's ``named`` is the labeller's
+    prediction on the shape's elements, and --semantic codes are those names' 1-based codes."""
+    from primkit import io
+    from primkit.segmentation import Segmenter
+    from primkit.segmentation.segmenter import apply_labeller, fit_labeller, shape_elements
+
+    files = []
+    for i, s in enumerate(chairs[:4]):
+        files.append(tmp_path / f"c{i}.ply")
+        io.write_mesh(files[-1], s.vertices, s.faces)
+    seg = Segmenter("chair", labeller=None)
+    results, errors = seg.abstract_files(files, workers=1, progress=False)
+    segs, errors = seg.segment_results(results, workers=1, progress=False)
+    assert not errors
+    names = list(chairs[0].part_names)
+    labeller = fit_labeller([(s, r, c.face_labels) for s, r, c in zip(segs[:3], results, chairs)], names, 20,
+                            max_iter=20)
+    named = apply_labeller(segs[3], labeller, results[3])
+    elements, _ = shape_elements(segs[3], results[3].frame)
+    want = labeller.predict(elements.points, results[3].canonical, elements.normals, elements.context)
+    assert np.array_equal(named.named, want)
+    right = np.mean(np.array(labeller.names)[named.named] == np.array(names)[chairs[3].face_labels])
+    assert right > 0.8  # a shape it did not learn from
+    codes_names, codes = named.semantic_labels()
+    assert codes_names == labeller.names and np.array_equal(codes, named.named + 1)
+
+
+def test_the_pyvista_accessor_carries_a_label_array(chairs, tmp_path):
+    """A model file with a labeller (here learned from random 20-slot frames): the accessor's copy
+    has cell_data["label"], the labeller's names of the faces (as the library computes them)."""
+    pv = pytest.importorskip("pyvista")
+    from primkit.model.abstraction import abstract
+    from primkit.plugins import pyvista_accessor  # noqa: F401  (registers dataset.primkit)
+
+    rng = np.random.default_rng(6)
+    settings = LabellerSettings(neighbours=8, smooth=1, smooth_neighbours=5)
+    shapes = []
+    for _ in range(3):
+        c = _cuboids(rng, m=20, absent=(3, 7))
+        points = rng.uniform(-0.5, 0.5, (300, 3))
+        shapes.append((frame_features(points, c, rng.normal(size=(300, 3)), settings), (points[:, 1] > 0).astype(int)))
+    labeller = Labeller.fit(shapes, ["low", "high"], 20, settings=settings, max_iter=10)
+    model = lab.write_labeller(resolve_model("chair"), tmp_path / "m.safetensors", labeller)
+    s = chairs[0]
+    mesh = pv.PolyData.from_regular_faces(s.vertices, s.faces)
+    out = mesh.primkit.segment(model=str(model), refine=0)
+    a = abstract((s.vertices, s.faces), str(model), refine=0)
+    want = lab.label_elements(labeller, lab.mesh_elements(s.vertices, s.faces, a.result.frame), a.result.canonical)
+    assert np.array_equal(np.asarray(out.cell_data["label"]), want)
+    assert list(out.field_data["label_names"]) == ["low", "high"]
+    plain = mesh.primkit.segment(model="chair", refine=0)
+    assert "label" not in plain.cell_data  # the bundled chair has no labeller
+
+
+def test_name_parts_learns_from_labelled_point_clouds(chairs, tmp_path):
+    """Point clouds with <stem>.labels.npy beside them: name-parts learns a labeller from three,
+    and segment --semantic names the fourth's points with it (codes of labels.csv)."""
+    import trimesh
+
+    from primkit import io
+    from primkit.cli import main
+
+    folder = tmp_path / "clouds"
+    folder.mkdir()
+    for i, s in enumerate(chairs[:4]):
+        points, faces = trimesh.sample.sample_surface(trimesh.Trimesh(s.vertices, s.faces, process=False), 1500, seed=i)
+        np.savetxt(folder / f"c{i}.xyz", points)
+        groups = ["seat" if "seat" in n else "back" if "back" in n else "other" for n in s.part_names]
+        np.save(folder / f"c{i}.labels.npy", np.array([1 + ["seat", "back", "other"].index(groups[k])
+                                                        for k in s.face_labels[faces]]))
+    train = [str(folder / f"c{i}.xyz") for i in range(3)]
+    out = tmp_path / "named.safetensors"
+    assert main(["name-parts", *train, "--model", "chair", "--names", "seat,back,other", "-o", str(out),
+                 "--workers", "1", "--refine", "0"]) == 0
+    labeller = lab.read_labeller(out)
+    assert sorted(labeller.names) == ["back", "other", "seat"] and labeller.info["shapes"] == 3
+    seg = tmp_path / "seg"
+    assert main(["segment", str(folder / "c3.xyz"), "--model", str(out), "--semantic", "-o", str(seg),
+                 "--workers", "1", "--refine", "0"]) == 0
+    legend = [line.split(",")[1] for line in (seg / "labels.csv").read_text().splitlines()[1:]]
+    assert legend == labeller.names
+    codes = np.load(seg / "c3.parts.npy")
+    truth = np.load(folder / "c3.labels.npy")
+    named = np.array(legend)[codes - 1]
+    right = np.mean(named == np.array(["seat", "back", "other"])[truth - 1])
+    assert right > 0.8
+    # a label file of the wrong length: one line naming it, the batch goes on, exit non-zero
+    np.save(folder / "c2.labels.npy", np.zeros(7, np.int64))
+    assert main(["name-parts", *train, "--model", "chair", "--names", "seat,back,other", "-o", str(out), "--force",
+                 "--workers", "1", "--refine", "0"]) == 1
