@@ -290,7 +290,7 @@ def test_a_learned_labeller_names_the_faces_the_segmenter_writes(chairs, tmp_pat
     from primkit.segmentation.segmenter import apply_labeller, fit_labeller, shape_elements
 
     files = []
-    for i, s in enumerate(chairs[:4]):
+    for i, s in enumerate(chairs):
         files.append(tmp_path / f"c{i}.ply")
         io.write_mesh(files[-1], s.vertices, s.faces)
     seg = Segmenter("chair", labeller=None)
@@ -304,8 +304,11 @@ def test_a_learned_labeller_names_the_faces_the_segmenter_writes(chairs, tmp_pat
     elements, _ = shape_elements(segs[3], results[3].frame)
     want = labeller.predict(elements.points, results[3].canonical, elements.normals, elements.context)
     assert np.array_equal(named.named, want)
-    right = np.mean(np.array(labeller.names)[named.named] == np.array(names)[chairs[3].face_labels])
-    assert right > 0.8  # a shape it did not learn from
+    # the shapes it did not learn from: 0.64-0.97 of faces each, mean 0.83 (0.86 without growing
+    # unsized parts, min_extent=None); one chair alone is too noisy a bound
+    right = [np.mean(np.array(labeller.names)[apply_labeller(segs[k], labeller, results[k]).named]
+                     == np.array(names)[chairs[k].face_labels]) for k in range(3, len(chairs))]
+    assert np.mean(right) > 0.75, right
     codes_names, codes = named.semantic_labels()
     assert codes_names == labeller.names and np.array_equal(codes, named.named + 1)
 
