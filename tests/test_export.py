@@ -154,14 +154,16 @@ def test_abstract_format_glb(glb_dir, capsys):
 
 
 @pytest.fixture(scope="session")
-def three_js(request):
-    """The ``three`` package from the npm registry, installed once into pytest's cache folder."""
+def three_js(request, tmp_path_factory):
+    """The ``three`` package from the npm registry, installed once into pytest's cache folder (a
+    temporary folder when pytest runs without its cache, ``-p no:cacheprovider``)."""
     if CHROMIUM is None:
         pytest.skip("chromium not installed (scripts/setup.sh installs it: apt-get install chromium)")
     npm = shutil.which("npm")
     if npm is None:
         pytest.skip("npm not installed (apt-get install npm): three.js comes from the npm registry")
-    folder = Path(request.config.cache.mkdir(f"npm-three-{THREE}"))
+    cache = getattr(request.config, "cache", None)
+    folder = Path(cache.mkdir(f"npm-three-{THREE}") if cache is not None else tmp_path_factory.mktemp(f"npm-three-{THREE}"))
     package = folder / "node_modules" / "three"
     if not (package / "package.json").is_file():
         try:
