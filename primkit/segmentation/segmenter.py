@@ -12,6 +12,7 @@ import numpy as np
 from .. import io, parallel
 from ..data import parallel_map
 from ..model.abstraction import abstract, abstract_shapes, load_model
+from . import graphcut
 from .meshes import Segmentation, segment_mesh
 from .points import PointSegmentation, segment_points
 from .voxels import VoxelSegmentation, segment_voxels
@@ -25,16 +26,18 @@ def _segment_file(job):
     Meshes get a :class:`Segmentation` (faces), voxel grids a :class:`VoxelSegmentation` (voxels),
     point clouds a :class:`PointSegmentation` (points).
     """
-    path, cuboids, name, names = job
+    path, cuboids, name, names, *rest = job
+    how = rest[0] if rest else None  # the labelling (graphcut.Labelling or None)
     try:
         shape = io.read_shape(path)
         if isinstance(shape, io.VoxelGrid):
-            return segment_voxels(shape, cuboids, name=name, source=str(path), part_names=names), None
+            return segment_voxels(shape, cuboids, name=name, source=str(path), part_names=names, labelling=how), None
         if isinstance(shape, io.PointCloud):
-            return segment_points(shape, cuboids, name=name, source=str(path), part_names=names), None
+            return segment_points(shape, cuboids, name=name, source=str(path), part_names=names, labelling=how), None
         if not isinstance(shape, io.Mesh):
             raise io.ShapeFileError(path, f"a {type(shape).__name__} has no faces or voxels to label")
-        return segment_mesh(shape.vertices, shape.faces, cuboids, name=name, source=str(path), part_names=names), None
+        return segment_mesh(shape.vertices, shape.faces, cuboids, name=name, source=str(path), part_names=names,
+                            labelling=how), None
     except (io.ShapeFileError, ValueError) as exc:
         return None, str(exc).splitlines()[0]
 
@@ -55,6 +58,9 @@ class Segmenter:
     adapt : None, int or AdaptConfig
         Adapt the model to each run's inputs first, without labels
         (:func:`primkit.model.abstraction.abstract_shapes`'s ``adapt``; experimental).
+    labelling : None, str or graphcut.Labelling
+        How elements get their index: ``"nearest"`` (each to its nearest cuboid) or ``"graphcut"``
+        (:mod:`primkit.segmentation.graphcut`); a ``Labelling`` also sets the smoothness.
 
     Examples
     --------
@@ -64,8 +70,10 @@ class Segmenter:
     """
 
     def __init__(self, model, *, up: str | None = None, front: str | None = None, align=None, refine: int = 0,
-                 existence_threshold: float = 0.5, prune_threshold: float | None = 0.6, adapt=None):
+                 existence_threshold: float = 0.5, prune_threshold: float | None = 0.6, adapt=None,
+                 labelling=None):
         self.abstractor = load_model(model)
+        self.labelling = graphcut.as_labelling(labelling)
         self.up, self.front = up, front
         self.predict_options = {"align": align, "refine": refine, "existence_threshold": existence_threshold,
                                 "prune_threshold": prune_threshold, "adapt": adapt}
@@ -101,7 +109,7 @@ class Segmenter:
 
     def segment_results(self, results, *, workers=None, progress=True, errors=(), executor=None):
         """Co-segment the source files of abstraction results (in parallel processes, or on ``executor``)."""
-        jobs = [(r.source, r.cuboids, r.name, self.part_names) for r in results]
+        jobs = [(r.source, r.cuboids, r.name, self.part_names, self.labelling) for r in results]
         segs, errors = [], list(errors)
         with parallel.executor_from(executor) as pool:
             for seg, error in parallel_map(_segment_file, jobs, workers=workers, progress=progress, desc="segmenting",
@@ -113,12 +121,12 @@ class Segmenter:
         return segs, errors
 
 
-def segment(shape, model="chair", **options) -> Segmentation | VoxelSegmentation | PointSegmentation:
+def segment(shape, model="chair", *, labelling=None, **options) -> Segmentation | VoxelSegmentation | PointSegmentation:
     """Co-segment one mesh, voxel grid or point cloud: a path, an :class:`primkit.io.Mesh`,
     :class:`~primkit.io.VoxelGrid` or :class:`~primkit.io.PointCloud`, ``(vertices, faces)``,
     ``(n, 3)`` points, or a trimesh, pyvista or Open3D mesh or cloud
     (:func:`primkit.model.abstraction.abstract`; ``options`` are its own: ``up``, ``front``,
-    ``align``, ``refine``, ...).
+    ``align``, ``refine``, ...; ``labelling`` as in :class:`Segmenter`).
 
     >>> seg = primkit.segment("chair.off", model="chair")          # doctest: +SKIP
     >>> seg.face_labels                                           # doctest: +SKIP
@@ -127,13 +135,15 @@ def segment(shape, model="chair", **options) -> Segmentation | VoxelSegmentation
     a = abstract(shape, abstractor, **options)
     if isinstance(a.given, io.VoxelGrid) or (a.given is None and a.prepared.kind == "voxels"):
         grid = a.given if a.given is not None else io.read_voxels(a.source)
-        return segment_voxels(grid, a.cuboids, name=a.name, source=a.source, part_names=abstractor.part_names)
+        return segment_voxels(grid, a.cuboids, name=a.name, source=a.source, part_names=abstractor.part_names,
+                              labelling=labelling)
     if isinstance(a.given, io.PointCloud) or (a.given is None and a.prepared.kind == "points"):
         cloud = a.given if a.given is not None else io.read_points(a.source)
-        return segment_points(cloud, a.cuboids, name=a.name, source=a.source, part_names=abstractor.part_names)
+        return segment_points(cloud, a.cuboids, name=a.name, source=a.source, part_names=abstractor.part_names,
+                              labelling=labelling)
     mesh = a.mesh
     return segment_mesh(mesh.vertices, mesh.faces, a.cuboids, name=a.name, source=a.source,
-                        part_names=abstractor.part_names)
+                        part_names=abstractor.part_names, labelling=labelling)
 
 
 def summary_header(kind: str, part_names) -> list[str]:
