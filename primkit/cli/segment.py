@@ -474,7 +474,7 @@ def register(sub) -> None:
     p.add_argument("--semantic", action="store_true", help="write the model's part names' codes (labels.csv) instead of indices")
     p.add_argument("--labelling", choices=("nearest", "graphcut"), default=None,
                    help="how faces (voxels, points) get their index: each to its nearest cuboid, or a graph cut over "
-                   "the shape's adjacency that follows creases (docs/surface-labels.md; default: nearest)")
+                   "the shape's adjacency that follows creases (docs/surface-labels.md; default: graphcut)")
     p.add_argument("--smoothness", type=float, default=None, metavar="W",
                    help="graph cut: weight of label changes against cuboid distances (default: chosen on validation data)")
     p.add_argument("--gt", action="append", metavar="PATH",

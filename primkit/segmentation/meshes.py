@@ -191,7 +191,7 @@ def surface_face_labels(vertices, faces, cuboids: primitives.Cuboids, *, smoothn
     vertices = np.asarray(vertices, float)
     faces = np.asarray(faces, np.int64)
     init = face_labels(vertices, faces, cuboids)
-    weight = graphcut.Labelling("graphcut", smoothness).weight("mesh")
+    weight = graphcut.Labelling("graphcut", smoothness).weight("mesh")  # None: the validated default
     if len(faces) == 0 or weight <= 0:
         return init
     samples = np.einsum("qc,fcd->fqd", _QUADRATURE[:4], vertices[faces])
@@ -203,13 +203,14 @@ def segment_mesh(vertices, faces, cuboids: primitives.Cuboids, *, name: str = "s
                  part_names=None, labelling=None) -> Segmentation:
     """Co-segment one mesh by its abstraction (cuboids in the mesh's frame).
 
-    ``labelling``: None or ``"nearest"`` (:func:`face_labels`), ``"graphcut"`` or a
-    :class:`primkit.segmentation.graphcut.Labelling` (:func:`surface_face_labels`)."""
+    ``labelling``: ``"nearest"`` (:func:`face_labels`), ``"graphcut"`` (:func:`surface_face_labels`),
+    a :class:`primkit.segmentation.graphcut.Labelling`, or None: the graph cut
+    (:data:`primkit.segmentation.graphcut.DEFAULT_LABELLING`)."""
     vertices = np.asarray(vertices, float)
     faces = np.asarray(faces, np.int64)
     names = list(part_names) if part_names is not None else parts.default_names(cuboids.count)
     how = graphcut.as_labelling(labelling)
-    labels = (surface_face_labels(vertices, faces, cuboids, smoothness=how.smoothness) if how.method == "graphcut"
+    labels = (surface_face_labels(vertices, faces, cuboids, smoothness=how.smoothness) if how.method_for("mesh") == "graphcut"
               else face_labels(vertices, faces, cuboids))
     return Segmentation(name, source, vertices, faces, labels, vertex_labels(vertices, cuboids), cuboids, names)
 

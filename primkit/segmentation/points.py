@@ -64,13 +64,14 @@ def segment_points(cloud: io.PointCloud, cuboids: primitives.Cuboids, *, name: s
                    part_names=None, labelling=None) -> PointSegmentation:
     """Co-segment one point cloud by its abstraction (cuboids in the cloud's frame).
 
-    ``labelling``: None or ``"nearest"`` (each point to its nearest cuboid), ``"graphcut"`` or a
-    :class:`primkit.segmentation.graphcut.Labelling` (a graph cut over the points' 8-NN graph)."""
+    ``labelling``: ``"nearest"`` (each point to its nearest cuboid), ``"graphcut"`` or None (the
+    default: a graph cut over the points' 8-NN graph) or a
+    :class:`primkit.segmentation.graphcut.Labelling`."""
     names = list(part_names) if part_names is not None else parts.default_names(cuboids.count)
     points = np.asarray(cloud.points, float)
     labels = point_labels(points, cuboids) if cuboids.existence.any() else np.full(len(points), -1, np.int64)
     how = graphcut.as_labelling(labelling)
-    if how.method == "graphcut" and cuboids.existence.any():
+    if how.method_for("points") == "graphcut" and cuboids.existence.any():
         edges, contact, mass = graphcut.point_graph(points)
         labels = graphcut.graphcut_labels(points[:, None, :], edges, contact, mass, cuboids, labels, how.weight("points"))
     return PointSegmentation(name, source, points, np.asarray(labels, np.int64), cuboids, names)

@@ -60,7 +60,8 @@ class Segmenter:
         (:func:`primkit.model.abstraction.abstract_shapes`'s ``adapt``; experimental).
     labelling : None, str or graphcut.Labelling
         How elements get their index: ``"nearest"`` (each to its nearest cuboid) or ``"graphcut"``
-        (:mod:`primkit.segmentation.graphcut`); a ``Labelling`` also sets the smoothness.
+        (:mod:`primkit.segmentation.graphcut`); a ``Labelling`` also sets the smoothness. None:
+        the graph cut.
 
     Examples
     --------

@@ -132,9 +132,10 @@ def voxel_centres(grid: io.VoxelGrid) -> tuple[np.ndarray, np.ndarray]:
 
 
 def label_voxels(grid: io.VoxelGrid, cuboids: primitives.Cuboids, *, labelling=None) -> np.ndarray:
-    """Primitive index of each occupied voxel: the nearest present cuboid of its centre, or with
-    ``labelling="graphcut"`` (or a :class:`~primkit.segmentation.graphcut.Labelling`) a graph cut
-    over the occupied voxels' 6-neighbourhood started from it.
+    """Primitive index of each occupied voxel: with ``labelling="nearest"`` the nearest present
+    cuboid of its centre; with ``"graphcut"`` or None (the default) a graph cut over the occupied
+    voxels' 6-neighbourhood started from it (:mod:`primkit.segmentation.graphcut`; a
+    :class:`~primkit.segmentation.graphcut.Labelling` also sets the smoothness).
 
     ``cuboids`` are in the grid's model coordinates (an abstraction's ``cuboids``, in the input's
     frame). Returns ``(R, R, R) int``, -1 for empty voxels.
@@ -144,7 +145,7 @@ def label_voxels(grid: io.VoxelGrid, cuboids: primitives.Cuboids, *, labelling=N
     if len(index):
         labels = meshes.point_labels(centres, cuboids)
         how = graphcut.as_labelling(labelling)
-        if how.method == "graphcut":
+        if how.method_for("voxels") == "graphcut":
             edges, contact, mass = graphcut.voxel_graph(index)
             labels = graphcut.graphcut_labels(centres[:, None, :], edges, contact, mass, cuboids, labels,
                                               how.weight("voxels"))
