@@ -1,6 +1,6 @@
 """Co-segmenting collections: abstract shape files with a model, then label each file's elements
-(a mesh's faces, a voxel grid's voxels, a point cloud's points) by their nearest primitive, in
-parallel processes."""
+(a mesh's faces, a voxel grid's voxels, a point cloud's points) by their primitives (a graph cut
+by default, or each to its nearest), in parallel processes."""
 
 from __future__ import annotations
 
