@@ -209,9 +209,13 @@ def alpha_expansion(unary, edges, weights, *, init=None, max_sweeps: int = 6) ->
     """
     unary, edges, weights = _check_graph(unary, edges, weights)
     n, k = unary.shape
-    labels = np.argmin(unary, axis=1) if init is None else np.asarray(init, np.int64).copy()
-    if n == 0 or k < 2 or not len(edges):
-        return labels if len(edges) or init is not None else np.argmin(unary, axis=1)
+    best = np.argmin(unary, axis=1)
+    labels = best if init is None else np.asarray(init, np.int64).copy()
+    if n == 0 or k < 2:
+        return labels
+    if not len(edges):  # independent elements: keep the start where nothing is strictly cheaper
+        rows = np.arange(n)
+        return np.where(unary[rows, best] < unary[rows, labels], best, labels)
     energy = mrf_energy(labels, unary, edges, weights)
     incident = np.bincount(edges[:, 0], weights, minlength=n) + np.bincount(edges[:, 1], weights, minlength=n)
     for _ in range(max_sweeps):

@@ -61,6 +61,13 @@ def test_no_smoothness_gives_the_unary_minimum():
     np.testing.assert_array_equal(labels, unary.argmin(axis=1))
 
 
+def test_without_edges_each_element_takes_its_cheapest_label_from_any_start():
+    rng = np.random.default_rng(6)
+    unary = rng.random((20, 3))
+    labels = graphcut.alpha_expansion(unary, np.zeros((0, 2), np.int64), np.zeros(0), init=rng.integers(0, 3, 20))
+    np.testing.assert_array_equal(labels, unary.argmin(axis=1))
+
+
 def test_voxel_graph_is_the_six_neighbourhood():
     rng = np.random.default_rng(3)
     occupied = rng.random((5, 4, 6)) < 0.5
