@@ -5,9 +5,12 @@
   the running minimum over all points (the same answer, checked), with peak memory of each;
 * faces per second of :func:`primkit.segmentation.face_labels` (four quadrature points per face)
   against the released demo's rule (20 random points per face, the most common part), and how
-  often the two agree.
+  often the two agree;
+* seconds per shape of the graph-cut labelling (:mod:`primkit.segmentation.graphcut`) against the
+  nearest labelling, alternating on the same shapes: procedural chairs' faces, their surface
+  points and their 32^3 voxels, each part's box grown by 10% of the chair's size.
 
-Usage: ``python benchmarks/bench_segment.py [--points 1000000] [--parts 20] [--faces 300000]``
+Usage: ``python benchmarks/bench_segment.py [--points 1000000] [--parts 20] [--faces 300000] [--chairs 6]``
 """
 
 from __future__ import annotations
@@ -80,6 +83,7 @@ def main() -> None:
     ap.add_argument("--points", type=int, default=1_000_000)
     ap.add_argument("--parts", type=int, default=20)
     ap.add_argument("--faces", type=int, default=300_000)
+    ap.add_argument("--chairs", type=int, default=6, help="procedural chairs for the graph-cut timing (0: skip)")
     args = ap.parse_args()
     print(load_line())
 
@@ -107,6 +111,55 @@ def main() -> None:
           [["4-point quadrature (face_labels)", f"{t_quad * 1000:.0f}", f"{args.faces / t_quad / 1e3:.0f}"],
            ["20 random points per face (released demo)", f"{t_vote * 1000:.0f}", f"{args.faces / t_vote / 1e3:.0f}"]],
           note=f"the two rules agree on {np.mean(quad == vote):.1%} of faces (they differ only on faces split between parts).")
+
+    if args.chairs:
+        graphcut_section(args.chairs)
+
+
+def _loose_boxes(vertices, faces, labels, grow: float = 0.1) -> primitives.Cuboids:
+    """One axis-aligned box per part, grown by ``grow`` of the shape's size (so boxes overlap)."""
+    size = np.ptp(vertices, axis=0)
+    lo = np.array([vertices[np.unique(faces[labels == k])].min(axis=0) for k in np.unique(labels)]) - grow * size
+    hi = np.array([vertices[np.unique(faces[labels == k])].max(axis=0) for k in np.unique(labels)]) + grow * size
+    return primitives.Cuboids((hi - lo) / 2, [[1, 0, 0, 0]] * len(lo), (hi + lo) / 2, np.ones(len(lo), bool))
+
+
+def graphcut_section(count: int) -> None:
+    """Seconds per shape, nearest against graph cut, alternating shape by shape."""
+    from primkit import geometry, io, synthetic
+
+    times = {(kind, how): [] for kind in ("mesh faces", "points", "voxels") for how in ("nearest", "graphcut")}
+    sizes = {"mesh faces": [], "points": [], "voxels": []}
+    for seed in range(count):
+        shape = synthetic.chair(seed)
+        v, f = shape.vertices, shape.faces
+        cub = _loose_boxes(v, f, np.asarray(shape.face_labels))
+        cloud = io.PointCloud(geometry.sample_surface(v, f, 5000, seed=seed).points)
+        lo, span = v.min(axis=0), np.ptp(v, axis=0).max() * 1.05
+        centres = (np.indices((32, 32, 32)).reshape(3, -1).T + 0.5) / 32 * span + lo
+        # the voxels the surface passes through (a shell), enough for timing
+        cell = np.floor((geometry.sample_surface(v, f, 40000, seed=seed).points - lo) / span * 32).astype(int)
+        inside = np.zeros((32, 32, 32), bool)
+        inside[tuple(np.clip(cell, 0, 31).T)] = True
+        inside = inside.reshape(-1)
+        grid = io.VoxelGrid(inside.reshape(32, 32, 32), translate=lo, scale=span)
+        sizes["mesh faces"].append(len(f))
+        sizes["points"].append(len(cloud.points))
+        sizes["voxels"].append(int(inside.sum()))
+        for how in ("nearest", "graphcut"):
+            for kind, fn in (("mesh faces", lambda: segmentation.segment_mesh(v, f, cub, labelling=how)),
+                             ("points", lambda: segmentation.segment_points(cloud, cub, labelling=how)),
+                             ("voxels", lambda: segmentation.label_voxels(grid, cub, labelling=how))):
+                t0 = time.perf_counter()
+                fn()
+                times[(kind, how)].append(time.perf_counter() - t0)
+    rows = []
+    for kind in sizes:
+        near, cut = np.median(times[(kind, "nearest")]), np.median(times[(kind, "graphcut")])
+        rows.append([kind, f"{np.mean(sizes[kind]):,.0f}", f"{near * 1000:.1f}", f"{cut * 1000:.1f}", f"{cut / near:.0f}x"])
+    table(f"labelling one shape: nearest vs graph cut ({count} procedural chairs, median, alternating)",
+          ["elements", "count (mean)", "nearest ms", "graph cut ms", "ratio"], rows,
+          note="graph cut: alpha-expansion on scipy's maximum_flow, default smoothness, started from nearest.")
 
 
 if __name__ == "__main__":

@@ -10,9 +10,10 @@ The split, fixed before any model was chosen: the chair preset's held-out files 
 ``r % 10 == 9`` of the sorted ``shapenetvox32/03001627`` paths, never trained on) that have PartNet
 labels, sorted by shape id; even positions are the **validation** part (recipes and part names are
 chosen on it), odd positions the **test** part (reported once, for the shipped model and the
-baseline). Scores (:func:`primkit.segmentation.evaluate_voxels`): each occupied voxel to its nearest
-present cuboid; per-label IoU per shape, 1 when a label is absent from both, averaged over shapes;
-the paper's collection-majority mapping and the model's stored names; arm detection F1 over chairs
+baseline). Scores (:func:`primkit.segmentation.evaluate_voxels`): each occupied voxel labelled as
+``primkit segment`` does (the graph cut by default; ``--labelling nearest``: its nearest present
+cuboid); per-label IoU per shape, 1 when a label is absent from both, averaged over shapes; the
+paper's collection-majority mapping and the model's stored names; arm detection F1 over chairs
 with and without arms; the histogram of part counts; how often an absent label's index is absent.
 """
 
@@ -46,9 +47,9 @@ def split(chairs=CHAIRS, labels=PARTNET, hold_out_every: int = 10):
     return labelled[0::2], labelled[1::2], archive
 
 
-def evaluate(model, files, archive, *, refine: int = 0, workers=None, progress: bool = False) -> dict:
+def evaluate(model, files, archive, *, refine: int = 0, workers=None, progress: bool = False, labelling=None) -> dict:
     """Segment ``files`` with ``model`` (default flags) and score them against ``archive``."""
-    segmenter = Segmenter(model, refine=refine)
+    segmenter = Segmenter(model, refine=refine, labelling=labelling)
     t0 = time.perf_counter()
     segs, errors = segmenter.segment_files(files, workers=workers, progress=progress)
     seconds = time.perf_counter() - t0
@@ -98,12 +99,14 @@ def main(argv=None) -> int:
     ap.add_argument("--limit", type=int, default=0, help="the first N chairs of the part")
     ap.add_argument("--workers", type=int, default=None)
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--labelling", choices=("nearest", "graphcut"), default=None, help="default: primkit segment's")
     args = ap.parse_args(argv)
     validation, test, archive = split()
     files = validation if args.part == "validation" else test
     if args.limit:
         files = files[: args.limit]
-    report = evaluate(args.model, files, archive, refine=args.refine, workers=args.workers, progress=True)
+    report = evaluate(args.model, files, archive, refine=args.refine, workers=args.workers, progress=True,
+                      labelling=args.labelling)
     print(f"{args.model} on {report['shapes_evaluated']} PartNet {args.part} chairs, refine {args.refine}, "
           f"{report['frames']} ({report['seconds']:.0f} s)")
     for line in summary_lines(report):

@@ -251,7 +251,8 @@ def _cmd_segment(args) -> int:
     archives = _voxel_archives(sources)
     evaluations = {"meshes": out / "evaluation.json", "voxels": out / "evaluation-voxels.json"}
     segmenter = Segmenter(args.model, up=args.up, front=args.front, align=args.align, refine=args.refine,
-                          adapt=getattr(args, "adapt", None), labeller="auto" if args.semantic else None)
+                          adapt=getattr(args, "adapt", None), labelling=_labelling(args),
+                          labeller="auto" if args.semantic else None)
     files = collect(args.inputs)
     # with --shard, this shard's outputs only, named as one run over all the inputs names them
     mine, names = shard_of(args, files), shard_of(args, output_names(files))
@@ -510,6 +511,17 @@ def _model_path(model):
     return resolve_model(model)
 
 
+def _labelling(args):
+    """The --labelling/--smoothness pair as a graphcut.Labelling (None: the library's default)."""
+    from ..segmentation.graphcut import Labelling
+
+    method = getattr(args, "labelling", None)
+    smoothness = getattr(args, "smoothness", None)
+    if method is None and smoothness is None:
+        return None
+    return Labelling(method or "graphcut", smoothness)
+
+
 def register(sub) -> None:
     p = sub.add_parser(
         "segment", help="co-segment a collection: each face to its primitive, the same part index on every shape",
@@ -531,6 +543,11 @@ def register(sub) -> None:
                    "redone (what a cut run left of it replaced) and the summary rewritten with every row")
     p.add_argument("--semantic", action="store_true", help="write the codes of part names (labels.csv) instead of indices: each element named by the model's "
                    "labeller when it has one (primkit name-parts), else by its part index's name")
+    p.add_argument("--labelling", choices=("nearest", "graphcut"), default=None,
+                   help="how faces (voxels, points) get their index: each to its nearest cuboid, or a graph cut over "
+                   "the shape's adjacency that follows creases (docs/surface-labels.md; default: graphcut)")
+    p.add_argument("--smoothness", type=float, default=None, metavar="W",
+                   help="graph cut: weight of label changes against cuboid distances (default: chosen on validation data)")
     p.add_argument("--gt", action="append", metavar="PATH",
                    help="ground truth: a folder of .seg files for meshes (same stems), or for voxel grids a per-voxel "
                    "label archive (an .npz keyed by shape name, or a folder holding voxlabels.npz, e.g. "

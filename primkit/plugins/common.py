@@ -1,7 +1,8 @@
 """What every plugin does: abstract shapes held in memory and co-segment them.
 
-A mesh gets a part index per face (the face-area rule of :func:`primkit.segmentation.face_labels`)
-and per vertex; a point cloud a part index per point (:func:`primkit.segmentation.point_labels`);
+A mesh gets a part index per face (:func:`primkit.segmentation.segment_mesh`'s default labelling,
+a graph cut, as ``primkit segment``) and per vertex; a point cloud a part index per point
+(:func:`primkit.segmentation.segment_points`);
 a voxel grid a part index per voxel (:func:`primkit.segmentation.label_voxels`).
 """
 
@@ -14,7 +15,7 @@ import numpy as np
 
 from .. import io
 from ..model.abstraction import Abstraction, abstract_shapes
-from ..segmentation import face_labels, label_voxels, point_labels, voxel_centres
+from ..segmentation import label_voxels, point_labels, segment_mesh, segment_points, voxel_centres
 
 __all__ = ["Labelled", "label_shapes", "label_shape"]
 
@@ -62,11 +63,12 @@ def _labels(shape, cuboids) -> tuple:
     if isinstance(shape, io.Mesh):
         if not cuboids.existence.any():
             return np.full(len(shape.faces), -1, np.int64), np.full(len(shape.vertices), -1, np.int64)
-        return face_labels(shape.vertices, shape.faces, cuboids), point_labels(shape.vertices, cuboids)
+        # the labelling `primkit segment` uses by default (the graph cut), so the filter agrees with it
+        return segment_mesh(shape.vertices, shape.faces, cuboids).face_labels, point_labels(shape.vertices, cuboids)
     if isinstance(shape, io.PointCloud):
         if not cuboids.existence.any():
             return None, np.full(len(shape.points), -1, np.int64)
-        return None, point_labels(shape.points, cuboids)
+        return None, segment_points(shape, cuboids).labels
     if isinstance(shape, io.VoxelGrid):
         voxels = label_voxels(shape, cuboids) if cuboids.existence.any() else np.full(shape.occupancy.shape, -1, np.int64)
         return None, voxels[tuple(voxel_centres(shape)[1].T)], voxels

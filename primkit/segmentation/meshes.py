@@ -40,6 +40,7 @@ import numpy as np
 from .. import io, primitives
 from ..model import parts
 from ..viz.palette import part_colors
+from . import graphcut
 
 __all__ = [
     "point_labels",
@@ -47,6 +48,7 @@ __all__ = [
     "face_labels",
     "Segmentation",
     "segment_mesh",
+    "surface_face_labels",
     "GroundTruth",
     "read_ground_truth",
     "parse_label_names",
@@ -186,14 +188,37 @@ class Segmentation:
         return paths
 
 
+def surface_face_labels(vertices, faces, cuboids: primitives.Cuboids, *, smoothness: float | None = None) -> np.ndarray:
+    """Primitive index of each face by a graph cut over face adjacency, started from
+    :func:`face_labels` (:mod:`primkit.segmentation.graphcut`; ``smoothness`` None: its default).
+
+    vertices : (n, 3) float, faces : (f, 3) int  ->  (f,) int
+    """
+    vertices = np.asarray(vertices, float)
+    faces = np.asarray(faces, np.int64)
+    init = face_labels(vertices, faces, cuboids)
+    weight = graphcut.Labelling("graphcut", smoothness).weight("mesh")  # None: the validated default
+    if len(faces) == 0 or weight <= 0:
+        return init
+    samples = np.einsum("qc,fcd->fqd", _QUADRATURE[:4], vertices[faces])
+    edges, contact, mass = graphcut.mesh_graph(vertices, faces)
+    return graphcut.graphcut_labels(samples, edges, contact, mass, cuboids, init, weight)
+
+
 def segment_mesh(vertices, faces, cuboids: primitives.Cuboids, *, name: str = "shape", source: str = "",
-                 part_names=None) -> Segmentation:
-    """Co-segment one mesh by its abstraction (cuboids in the mesh's frame)."""
+                 part_names=None, labelling=None) -> Segmentation:
+    """Co-segment one mesh by its abstraction (cuboids in the mesh's frame).
+
+    ``labelling``: ``"nearest"`` (:func:`face_labels`), ``"graphcut"`` (:func:`surface_face_labels`),
+    a :class:`primkit.segmentation.graphcut.Labelling`, or None: the graph cut
+    (:data:`primkit.segmentation.graphcut.DEFAULT_LABELLING`)."""
     vertices = np.asarray(vertices, float)
     faces = np.asarray(faces, np.int64)
     names = list(part_names) if part_names is not None else parts.default_names(cuboids.count)
-    return Segmentation(name, source, vertices, faces, face_labels(vertices, faces, cuboids),
-                        vertex_labels(vertices, cuboids), cuboids, names)
+    how = graphcut.as_labelling(labelling)
+    labels = (surface_face_labels(vertices, faces, cuboids, smoothness=how.smoothness) if how.method_for("mesh") == "graphcut"
+              else face_labels(vertices, faces, cuboids))
+    return Segmentation(name, source, vertices, faces, labels, vertex_labels(vertices, cuboids), cuboids, names)
 
 
 # ---------------------------------------------------------------------------------------------

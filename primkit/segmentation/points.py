@@ -11,6 +11,7 @@ import numpy as np
 from .. import io, primitives
 from ..model import parts
 from ..viz.palette import part_colors
+from . import graphcut
 from .meshes import point_labels
 
 __all__ = ["PointSegmentation", "segment_points"]
@@ -72,9 +73,17 @@ class PointSegmentation:
 
 
 def segment_points(cloud: io.PointCloud, cuboids: primitives.Cuboids, *, name: str = "shape", source: str = "",
-                   part_names=None) -> PointSegmentation:
-    """Co-segment one point cloud by its abstraction (cuboids in the cloud's frame)."""
+                   part_names=None, labelling=None) -> PointSegmentation:
+    """Co-segment one point cloud by its abstraction (cuboids in the cloud's frame).
+
+    ``labelling``: ``"nearest"`` (each point to its nearest cuboid), ``"graphcut"`` or None (the
+    default: a graph cut over the points' 8-NN graph) or a
+    :class:`primkit.segmentation.graphcut.Labelling`."""
     names = list(part_names) if part_names is not None else parts.default_names(cuboids.count)
     points = np.asarray(cloud.points, float)
     labels = point_labels(points, cuboids) if cuboids.existence.any() else np.full(len(points), -1, np.int64)
+    how = graphcut.as_labelling(labelling)
+    if how.method_for("points") == "graphcut" and cuboids.existence.any():
+        edges, contact, mass = graphcut.point_graph(points)
+        labels = graphcut.graphcut_labels(points[:, None, :], edges, contact, mass, cuboids, labels, how.weight("points"))
     return PointSegmentation(name, source, points, np.asarray(labels, np.int64), cuboids, names)

@@ -1,6 +1,6 @@
 """Co-segmenting collections: abstract shape files with a model, then label each file's elements
-(a mesh's faces, a voxel grid's voxels, a point cloud's points) by their nearest primitive, in
-parallel processes."""
+(a mesh's faces, a voxel grid's voxels, a point cloud's points) by their primitives (a graph cut
+by default, or each to its nearest), in parallel processes."""
 
 from __future__ import annotations
 
@@ -15,6 +15,7 @@ from ..data import parallel_map
 from ..model.abstraction import abstract, abstract_shapes, load_model
 from .labeller import (Labeller, LabellerSettings, frame_features, grid_elements, label_elements, mesh_elements,
                        point_elements, read_labeller)
+from . import graphcut
 from .meshes import Segmentation, segment_mesh
 from .points import PointSegmentation, segment_points
 from .voxels import VoxelSegmentation, segment_voxels
@@ -28,15 +29,17 @@ def _segment_file(job):
     Meshes get a :class:`Segmentation` (faces), voxel grids a :class:`VoxelSegmentation` (voxels),
     point clouds a :class:`PointSegmentation` (points).
     """
-    path, cuboids, name, names, labeller, result = job
+    path, cuboids, name, names, labeller, result, *rest = job
+    how = rest[0] if rest else None  # the labelling (graphcut.Labelling or None)
     try:
         shape = io.read_shape(path)
         if isinstance(shape, io.VoxelGrid):
-            seg = segment_voxels(shape, cuboids, name=name, source=str(path), part_names=names)
+            seg = segment_voxels(shape, cuboids, name=name, source=str(path), part_names=names, labelling=how)
         elif isinstance(shape, io.PointCloud):
-            seg = segment_points(shape, cuboids, name=name, source=str(path), part_names=names)
+            seg = segment_points(shape, cuboids, name=name, source=str(path), part_names=names, labelling=how)
         elif isinstance(shape, io.Mesh):
-            seg = segment_mesh(shape.vertices, shape.faces, cuboids, name=name, source=str(path), part_names=names)
+            seg = segment_mesh(shape.vertices, shape.faces, cuboids, name=name, source=str(path), part_names=names,
+                               labelling=how)
         else:
             raise io.ShapeFileError(path, f"a {type(shape).__name__} has no faces or voxels to label")
         return (seg if labeller is None else apply_labeller(seg, labeller, result)), None
@@ -105,6 +108,10 @@ class Segmenter:
         Names each element (``named`` on the segmentations; ``--semantic``): ``"auto"`` takes the
         model file's labeller when it has one (:func:`primkit.segmentation.labeller.read_labeller`),
         None names by part index only.
+    labelling : None, str or graphcut.Labelling
+        How elements get their index: ``"nearest"`` (each to its nearest cuboid) or ``"graphcut"``
+        (:mod:`primkit.segmentation.graphcut`); a ``Labelling`` also sets the smoothness. None:
+        the graph cut.
 
     Examples
     --------
@@ -115,11 +122,12 @@ class Segmenter:
 
     def __init__(self, model, *, up: str | None = None, front: str | None = None, align=None, refine: int = 0,
                  existence_threshold: float = 0.5, prune_threshold: float | None = 0.6, adapt=None,
-                 labeller="auto"):
+                 labeller="auto", labelling=None):
         self.abstractor = load_model(model)
         if isinstance(labeller, str) and labeller == "auto":
             labeller = None if not isinstance(model, (str, Path)) else read_labeller(_model_path(model))
         self.labeller = labeller
+        self.labelling = graphcut.as_labelling(labelling)
         self.up, self.front = up, front
         self.predict_options = {"align": align, "refine": refine, "existence_threshold": existence_threshold,
                                 "prune_threshold": prune_threshold, "adapt": adapt}
@@ -155,7 +163,7 @@ class Segmenter:
 
     def segment_results(self, results, *, workers=None, progress=True, errors=(), executor=None):
         """Co-segment the source files of abstraction results (in parallel processes, or on ``executor``)."""
-        jobs = [(r.source, r.cuboids, r.name, self.part_names, self.labeller, r) for r in results]
+        jobs = [(r.source, r.cuboids, r.name, self.part_names, self.labeller, r, self.labelling) for r in results]
         segs, errors = [], list(errors)
         with parallel.executor_from(executor) as pool:
             for seg, error in parallel_map(_segment_file, jobs, workers=workers, progress=progress, desc="segmenting",
@@ -173,12 +181,12 @@ def _model_path(model):
     return resolve_model(model)
 
 
-def segment(shape, model="chair", **options) -> Segmentation | VoxelSegmentation | PointSegmentation:
+def segment(shape, model="chair", *, labelling=None, **options) -> Segmentation | VoxelSegmentation | PointSegmentation:
     """Co-segment one mesh, voxel grid or point cloud: a path, an :class:`primkit.io.Mesh`,
     :class:`~primkit.io.VoxelGrid` or :class:`~primkit.io.PointCloud`, ``(vertices, faces)``,
     ``(n, 3)`` points, or a trimesh, pyvista or Open3D mesh or cloud
     (:func:`primkit.model.abstraction.abstract`; ``options`` are its own: ``up``, ``front``,
-    ``align``, ``refine``, ...; and ``labeller``, as :class:`Segmenter`'s).
+    ``align``, ``refine``, ...; ``labeller`` and ``labelling`` as :class:`Segmenter`'s).
 
     >>> seg = primkit.segment("chair.off", model="chair")          # doctest: +SKIP
     >>> seg.face_labels                                           # doctest: +SKIP
@@ -190,14 +198,16 @@ def segment(shape, model="chair", **options) -> Segmentation | VoxelSegmentation
     a = abstract(shape, abstractor, **options)
     if isinstance(a.given, io.VoxelGrid) or (a.given is None and a.prepared.kind == "voxels"):
         grid = a.given if a.given is not None else io.read_voxels(a.source)
-        seg = segment_voxels(grid, a.cuboids, name=a.name, source=a.source, part_names=abstractor.part_names)
+        seg = segment_voxels(grid, a.cuboids, name=a.name, source=a.source, part_names=abstractor.part_names,
+                             labelling=labelling)
     elif isinstance(a.given, io.PointCloud) or (a.given is None and a.prepared.kind == "points"):
         cloud = a.given if a.given is not None else io.read_points(a.source)
-        seg = segment_points(cloud, a.cuboids, name=a.name, source=a.source, part_names=abstractor.part_names)
+        seg = segment_points(cloud, a.cuboids, name=a.name, source=a.source, part_names=abstractor.part_names,
+                             labelling=labelling)
     else:
         mesh = a.mesh
         seg = segment_mesh(mesh.vertices, mesh.faces, a.cuboids, name=a.name, source=a.source,
-                           part_names=abstractor.part_names)
+                           part_names=abstractor.part_names, labelling=labelling)
     return seg if labeller is None else apply_labeller(seg, labeller, a.result)
 
 

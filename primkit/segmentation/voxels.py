@@ -34,7 +34,7 @@ import numpy as np
 from .. import geometry, io, primitives
 from ..model import parts
 from ..viz.palette import part_colors
-from . import meshes
+from . import graphcut, meshes
 
 __all__ = [
     "PARTNET_LABEL_NAMES",
@@ -131,8 +131,11 @@ def voxel_centres(grid: io.VoxelGrid) -> tuple[np.ndarray, np.ndarray]:
     return grid.translate + (index + 0.5) * (grid.scale / res), index
 
 
-def label_voxels(grid: io.VoxelGrid, cuboids: primitives.Cuboids) -> np.ndarray:
-    """Primitive index of each occupied voxel: the nearest present cuboid of its centre.
+def label_voxels(grid: io.VoxelGrid, cuboids: primitives.Cuboids, *, labelling=None) -> np.ndarray:
+    """Primitive index of each occupied voxel: with ``labelling="nearest"`` the nearest present
+    cuboid of its centre; with ``"graphcut"`` or None (the default) a graph cut over the occupied
+    voxels' 6-neighbourhood started from it (:mod:`primkit.segmentation.graphcut`; a
+    :class:`~primkit.segmentation.graphcut.Labelling` also sets the smoothness).
 
     ``cuboids`` are in the grid's model coordinates (an abstraction's ``cuboids``, in the input's
     frame). Returns ``(R, R, R) int``, -1 for empty voxels.
@@ -140,7 +143,13 @@ def label_voxels(grid: io.VoxelGrid, cuboids: primitives.Cuboids) -> np.ndarray:
     centres, index = voxel_centres(grid)
     out = np.full(np.asarray(grid.occupancy).shape, -1, np.int64)
     if len(index):
-        out[tuple(index.T)] = meshes.point_labels(centres, cuboids)
+        labels = meshes.point_labels(centres, cuboids)
+        how = graphcut.as_labelling(labelling)
+        if how.method_for("voxels") == "graphcut":
+            edges, contact, mass = graphcut.voxel_graph(index)
+            labels = graphcut.graphcut_labels(centres[:, None, :], edges, contact, mass, cuboids, labels,
+                                              how.weight("voxels"))
+        out[tuple(index.T)] = labels
     return out
 
 
@@ -216,10 +225,11 @@ class VoxelSegmentation:
 
 
 def segment_voxels(grid: io.VoxelGrid, cuboids: primitives.Cuboids, *, name: str = "shape", source: str = "",
-                   part_names=None) -> VoxelSegmentation:
-    """Co-segment one voxel grid by its abstraction (cuboids in the grid's model coordinates)."""
+                   part_names=None, labelling=None) -> VoxelSegmentation:
+    """Co-segment one voxel grid by its abstraction (cuboids in the grid's model coordinates;
+    ``labelling`` as in :func:`label_voxels`)."""
     names = list(part_names) if part_names is not None else parts.default_names(cuboids.count)
-    return VoxelSegmentation(name, source, grid, label_voxels(grid, cuboids), cuboids, names)
+    return VoxelSegmentation(name, source, grid, label_voxels(grid, cuboids, labelling=labelling), cuboids, names)
 
 
 def _per_shape_iou(predicted, truth, label_count):

@@ -1,6 +1,6 @@
 """The plugins: pyvista's accessor (found through its entry point), the VTK filter and its ParaView
 face, Open3D's tensor geometry. Each is checked against primkit's own functions on the same shape
-(the labels of :func:`primkit.segmentation.face_labels` / ``point_labels`` for the same cuboids),
+(the labels of :func:`primkit.segmentation.segment_mesh` / ``segment_points`` for the same cuboids),
 and the three against each other."""
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ import pytest
 
 from primkit import io, synthetic
 from primkit.model.abstraction import abstract, load_model
-from primkit.segmentation import face_labels, point_labels
+from primkit.segmentation import point_labels, segment_mesh, segment_points
 
 
 @pytest.fixture(scope="module")
@@ -36,7 +36,7 @@ def expected(chair_file, model):
     """primkit's own answer for the first chair: its cuboids and face labels."""
     mesh = io.read_mesh(chair_file[0])
     a = abstract((mesh.vertices, mesh.faces), model)
-    return mesh, a.cuboids, face_labels(mesh.vertices, mesh.faces, a.cuboids)
+    return mesh, a.cuboids, segment_mesh(mesh.vertices, mesh.faces, a.cuboids).face_labels
 
 
 # ---------------------------------------------------------------------------------------------
@@ -87,7 +87,7 @@ def test_accessor_on_point_clouds_quads_and_multiblocks(chair_file, expected, mo
     cloud = pv.PolyData(mesh.vertices[::2])
     got = cloud.primkit.segment(model=model)
     a = abstract(mesh.vertices[::2], model)
-    assert np.array_equal(got.point_data["part"], point_labels(mesh.vertices[::2], a.cuboids))
+    assert np.array_equal(got.point_data["part"], segment_points(io.PointCloud(mesh.vertices[::2]), a.cuboids).labels)
     assert "part" not in got.cell_data
 
     box = pv.Box(level=2)  # quads: labelled on its triangles
@@ -220,6 +220,6 @@ def test_open3d_tensor_mesh_carries_part_through_select_faces_by_mask(chair_file
     cloud = o3d.t.geometry.PointCloud(o3d.core.Tensor(points.astype(np.float32)))
     seg = open3d_geometry.segment(cloud, model=model)
     a = abstract(points.astype(np.float32).astype(float), model)
-    assert np.array_equal(seg.geometry.point["part"].numpy()[:, 0], point_labels(points, a.cuboids))
+    assert np.array_equal(seg.geometry.point["part"].numpy()[:, 0], segment_points(io.PointCloud(points), a.cuboids).labels)
     with pytest.raises(TypeError, match="TriangleMesh or PointCloud"):
         open3d_geometry.segment(o3d.geometry.LineSet(), model=model)

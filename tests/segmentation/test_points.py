@@ -30,7 +30,7 @@ def test_segment_writes_a_label_per_point_by_the_rule(clouds, tmp_path, capsys):
     root, paths = clouds
     out = tmp_path / "seg"
     assert main(["segment", str(root / "in"), "--model", "chair", "-o", str(out), "--workers", "1",
-                 "--png", str(tmp_path / "s.png")]) == 0
+                 "--png", str(tmp_path / "s.png"), "--labelling", "nearest"]) == 0
     for p in paths:
         points = io.read_points(p).points
         labels = np.load(out / f"{p.stem}.parts.npy")
@@ -42,7 +42,7 @@ def test_segment_writes_a_label_per_point_by_the_rule(clouds, tmp_path, capsys):
     assert summary[0].startswith("shape,points,parts_present") and len(summary) == 1 + len(paths)
     assert (tmp_path / "s.png").is_file() and not (out / "summary.csv").exists()
     # the library's one-shape form gives the same
-    one = segment(paths[0], model="chair", workers=1)
+    one = segment(paths[0], model="chair", workers=1, labelling="nearest")
     assert isinstance(one, PointSegmentation) and np.array_equal(one.labels, np.load(out / f"{paths[0].stem}.parts.npy"))
     # run again: nothing replaced without --force, one line
     capsys.readouterr()

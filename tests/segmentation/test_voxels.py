@@ -25,7 +25,7 @@ def _cuboids(rng, m=5):
 def test_label_voxels_is_the_nearest_present_cuboid_of_each_voxel_centre():
     grid = _grid()
     cub = _cuboids(np.random.default_rng(1))
-    labels = voxel_labels.label_voxels(grid, cub)
+    labels = voxel_labels.label_voxels(grid, cub, labelling="nearest")
     assert labels.shape == grid.occupancy.shape
     assert np.all(labels[~grid.occupancy] == -1)
     centres = grid.voxel_centres()
