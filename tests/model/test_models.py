@@ -127,9 +127,10 @@ def test_align_auto_finds_up_on_turned_chairs(chair_model, procedural_chairs):
 @pytest.mark.integration  # 60 chairs scored with 10k + 10k samples each: a minute quiet, ten loaded
 def test_chair_model_reproduces_its_card_on_its_held_out_chairs(chair_model, shared_data):
     """The card's held-out figures, measured again the way scripts/build_bundled_models.py measured
-    them (the preset's held-out files, 60 evenly spaced, default flags). Scoring seed 0 reproduced
-    the card (IoU 0.5632, Chamfer-L1 0.02764 against 0.563 / 0.0276); the bounds allow the card's
-    rounding and the sampling noise of Chamfer between seeds."""
+    them (the preset's held-out files, 60 evenly spaced, default flags). Measured here with scoring
+    seeds 0 and 1: IoU 0.5632 both (the card: 0.5632), Chamfer-L1 0.02764 and 0.02765 (the card,
+    rounded: 0.0276). The bounds allow the card's rounding (5e-5) plus twice that sampling noise,
+    and float noise in IoU."""
     from primkit.metrics import ChamferConvention
 
     card = modelfile.read_metadata(resolve_model("chair"))["metrics"]["held_out"]["network"]
@@ -140,5 +141,5 @@ def test_chair_model_reproduces_its_card_on_its_held_out_chairs(chair_model, sha
     results = chair_model.predict(shapes)
     scores = [score(r.canonical, r.canonical_shape(s), ChamferConvention(), seed=1) for r, s in zip(results, shapes)]
     assert len(shapes) == 60
-    assert np.mean([s.iou for s in scores]) >= card["iou"] - 0.005
-    assert np.mean([s.chamfer for s in scores]) <= card["chamfer_l1"] + 0.0005
+    assert np.mean([s.iou for s in scores]) >= card["iou"] - 0.001
+    assert np.mean([s.chamfer for s in scores]) <= card["chamfer_l1"] + 0.0001
