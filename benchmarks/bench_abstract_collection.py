@@ -25,7 +25,6 @@ import tempfile
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import load_line, run_at_revision, run_isolated, table  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "shapenetvox32" / "03001627"

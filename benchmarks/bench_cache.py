@@ -21,12 +21,10 @@ Nothing here asserts a time: it prints and exits 0.
 from __future__ import annotations
 
 import argparse
-import sys
 import tempfile
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import load_line, run_isolated, table  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "shapenetvox32" / "03001627"

@@ -11,13 +11,10 @@ parts; the distance blend is also run with :func:`primkit.deformation.unfold`. T
 figures (90 ordered pairs) are in the module docstring of primkit.deformation. Nothing is asserted: it prints and exits 0.
 """
 
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import table  # noqa: E402
 
 from primkit import deformation as D, synthetic  # noqa: E402

@@ -19,11 +19,9 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks._common import load_line, maxrss_kib, run_isolated, table  # noqa: E402
 

@@ -18,11 +18,9 @@ import argparse
 import os
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks._common import table  # noqa: E402
 from primkit import data, io, synthetic  # noqa: E402

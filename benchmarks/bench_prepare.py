@@ -45,7 +45,6 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import load_line, maxrss_kib, run_at_revision, run_isolated, table  # noqa: E402
 
 RESOLUTION = 32

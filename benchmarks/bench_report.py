@@ -15,16 +15,23 @@ import argparse
 import os
 import re
 import statistics
-import sys
 import tempfile
 from pathlib import Path
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # the DevTools driver
 
 from _common import table  # noqa: E402
 
 # a page without the scene is ready at once; an older page's canvas viewer sets the same flag
 READY = "document.body && (document.body.dataset.ready === '1' || !document.getElementById('scene'))"
+
+
+def _chromium():
+    """The DevTools driver the report's test uses (``tests/chromium.py``), loaded from its file."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("chromium", Path(__file__).resolve().parents[1] / "tests" / "chromium.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.CHROMIUM, module.load_page
 
 
 def _without_scene(page: str) -> str:
@@ -45,7 +52,7 @@ def main(argv=None) -> int:
     import torch
 
     torch.set_num_threads(1)
-    from chromium import CHROMIUM, load_page
+    CHROMIUM, load_page = _chromium()
 
     from primkit import synthetic
     from primkit.report import build_report

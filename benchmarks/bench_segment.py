@@ -16,13 +16,10 @@ Usage: ``python benchmarks/bench_segment.py [--points 1000000] [--parts 20] [--f
 from __future__ import annotations
 
 import argparse
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from benchmarks._common import load_line, maxrss_kib, run_isolated, table  # noqa: E402
 from primkit import primitives, segmentation  # noqa: E402

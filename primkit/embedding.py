@@ -64,20 +64,20 @@ matrix only when asked.
 The baseline the paper compares with is :func:`voxel_iou_distances` (1 - IoU of the prepared
 occupancy grids, also in the canonical frame).
 
-Measured (400 procedural chairs, ``synthetic.write_collection(..., "chair", 400)``, 28.5% with
-arms, so nearest neighbours agree on "has arms" by chance 0.592; back tilt 0-25 degrees)::
+Measured with the bundled chair model (``python scripts/similarity_by_parts.py``: 400 procedural
+chairs, ``synthetic.write_collection(..., "chair", 400)``, 28.5% with arms, so nearest neighbours
+agree on "has arms" by chance 0.592; back tilt 0-25 degrees)::
 
-    model                          all parts: arms   back,seat: arms   back orientation: Spearman
-    bundled chair                       0.978             0.743                 0.875
-    bundled chair, refine=100           0.968             0.625                 0.995
-    trained on these chairs             0.948             0.845                 0.985
-    trained on these chairs, refine     0.938             0.840                 0.989
+    descriptor                     refine=0   refine=100
+    all parts: arms                  0.920      0.963
+    back,seat: arms                  0.733      0.615
+    back orientation: Spearman       0.898      0.993
 
-(Spearman between the distance to the most upright chair and the true tilt.) Use refinement
-for orientations: the network alone reads the back's lean at about 0.7 degree per degree of tilt
-with 2.9 degrees of scatter; 100 steps bring it to 0.97 with 0.5. No model here has an arm
-part: arms are covered by the front legs and by a seat cuboid that thickens, so the seat still
-carries a little of "has arms" (least after refinement, which fits the seat to the seat).
+(Spearman between the back-orientation distance to the most upright chair and the true tilt.) Use
+refinement for orientations: the network alone under-reads the back's lean. The chair model has
+arm parts (indices 12, 13 and 15, named ``arms``); back and seat alone still carry a little of
+"has arms" from the network, and next to nothing after refinement, which fits each cuboid to its
+own part.
 """
 
 from __future__ import annotations

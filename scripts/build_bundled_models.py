@@ -31,8 +31,6 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "scripts"))
 
 from primkit import data, geometry, io, segmentation  # noqa: E402
 from primkit.model import modelfile, orientation  # noqa: E402

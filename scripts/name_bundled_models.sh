@@ -15,7 +15,7 @@ for category in chair table airplane animal; do
   model="$runs/$category.safetensors"
   [ -f "$model" ] || { echo "$model: missing, skipped" >&2; continue; }
   if [ "$category" = chair ]; then
-    mapfile -t files < <(.venv/bin/python -c 'import sys; sys.path.insert(0, "scripts"); import partnet_chairs as p
+    mapfile -t files < <(PYTHONPATH=scripts .venv/bin/python -c 'import partnet_chairs as p
 print("\n".join(str(f) for f in p.split()[0][:100]))')
     .venv/bin/primkit name-parts "${files[@]}" --model "$model" -o "$runs/named/$category.safetensors" \
       --labels ../shared/data/partnet_chair_boxes --force

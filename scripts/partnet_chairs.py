@@ -28,7 +28,6 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
 from primkit import data  # noqa: E402
 from primkit.segmentation import Segmenter, VoxelLabelArchive, evaluate_voxels  # noqa: E402

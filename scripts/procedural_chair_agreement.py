@@ -16,13 +16,8 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
-from pathlib import Path
 
 import numpy as np
-
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
 
 from primkit import data, io, synthetic  # noqa: E402
 from primkit.model.abstractor import Abstractor  # noqa: E402

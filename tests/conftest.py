@@ -28,3 +28,11 @@ def prepared_chairs(chairs):
     from primkit import data, io
 
     return [data.prepare(io.Mesh(s.vertices, s.faces), face_labels=s.face_labels, name=f"chair{i}") for i, s in enumerate(chairs)]
+
+
+def pytest_collection_modifyitems(config, items):
+    """A ``slow`` test is also ``integration``, so the fast loop ``-m "not integration"`` (which
+    replaces the default ``-m "not slow"``) leaves the slow ones out too."""
+    for item in items:
+        if item.get_closest_marker("slow") is not None and item.get_closest_marker("integration") is None:
+            item.add_marker(pytest.mark.integration)

@@ -34,6 +34,8 @@ import pytest
 
 from primkit import data, io, synthetic
 
+pytestmark = pytest.mark.integration  # real runs killed and run again
+
 PRIMKIT = Path(sys.executable).with_name("primkit")
 ENV = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONUNBUFFERED": "1"}
 

@@ -65,25 +65,77 @@ def test_threads_follow_the_cores_free(clean_env):
     assert parallel.choose_threads(monitor=FakeMonitor([2.0])) == 1  # never fewer than one
 
 
+def _busy_seconds(cpus) -> float:
+    """Busy CPU seconds of ``cpus`` since boot, read here from /proc/stat (user, nice, system, irq,
+    softirq, steal of each ``cpuN`` line): the machine's side of the account the monitor keeps."""
+    import os
+
+    busy = 0
+    for line in open("/proc/stat").read().splitlines():
+        name, *fields = line.split()
+        if name.startswith("cpu") and name[3:].isdigit() and int(name[3:]) in cpus:
+            user, nice, system, _idle, _iowait, irq, softirq, steal = (int(x) for x in fields[:8])
+            busy += user + nice + system + irq + softirq + steal
+    return busy / os.sysconf("SC_CLK_TCK")
+
+
+def _process_seconds(pid) -> float:
+    """CPU seconds (user + system) of process ``pid``, from /proc/PID/stat."""
+    import os
+
+    fields = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def _own_seconds() -> float:
+    import resource
+
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return usage.ru_utime + usage.ru_stime
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 def test_cpu_monitor_sees_a_real_busy_process_and_not_itself():
+    """The monitor's count is the machine's busy time minus this process's own, whatever else runs:
+    both are read here independently over the monitor's own interval, and the interval lasts until
+    the process being watched has had 0.3 CPU seconds (however loaded the machine is), so counting
+    or missing it would be off by far more than the 0.1 s that clock ticks allow."""
     mon = parallel.CpuMonitor()
+    tolerance = 0.1  # CPU seconds: a few 10 ms ticks at each end of the interval
+
+    # another process spinning: counted
     spinner = subprocess.Popen([sys.executable, "-c", "while True: pass"])
     try:
-        time.sleep(0.3)
-        mon.others(0.0)  # start the interval with the spinner running
-        busy = mon.others(1.0)
+        time.sleep(0.2)
+        machine0, spun0 = _busy_seconds(mon.cpus), _process_seconds(spinner.pid)
+        mon.others(0.0)
+        t0 = mon._last[0]
+        while _process_seconds(spinner.pid) - spun0 < 0.3 and time.monotonic() - t0 < 30:
+            time.sleep(0.05)
+        busy = mon.others(0.0)
+        t1 = mon._last[0]
+        machine1, spun1 = _busy_seconds(mon.cpus), _process_seconds(spinner.pid)
     finally:
         spinner.kill()
         spinner.wait()
-    # the spinner alone keeps up to one core busy; what else runs on a shared machine only adds
-    assert busy >= 0.5
-    # this process's own work is not counted: spinning here reads no more than the machine's rest
+    spun = spun1 - spun0
+    assert spun >= 0.3 - tolerance
+    assert busy * (t1 - t0) >= spun - tolerance  # the spinner's time is in the count
+    assert busy * (t1 - t0) <= machine1 - machine0 + tolerance
+
+    # this process spinning: not counted
+    machine0, own0 = _busy_seconds(mon.cpus), _own_seconds()
     mon.others(0.0)
-    t0 = time.monotonic()
-    while time.monotonic() - t0 < 0.5:
+    t0 = mon._last[0]
+    while _own_seconds() - own0 < 0.3 and time.monotonic() - t0 < 30:
         pass
     mine = mon.others(0.0)
-    assert mine <= parallel.available_cores() - 0.5
+    t1 = mon._last[0]
+    machine1, own1 = _busy_seconds(mon.cpus), _own_seconds()
+    own = own1 - own0
+    assert own >= 0.3
+    expected = max(0.0, (machine1 - machine0) - own)  # the rest of the machine
+    assert abs(mine * (t1 - t0) - expected) <= tolerance, (mine * (t1 - t0), expected, own)
 
 
 def test_governor_steps_down_and_up_and_gives_the_count_back(clean_env):

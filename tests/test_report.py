@@ -17,6 +17,8 @@ from primkit.viz import web
 
 from chromium import CHROMIUM, load_page
 
+pytestmark = pytest.mark.integration  # the whole chain, then headless Chromium
+
 needs_chromium = pytest.mark.skipif(CHROMIUM is None, reason="chromium not installed (scripts/setup.sh installs it: "
                                     "apt-get install chromium)")
 

@@ -10,6 +10,8 @@ import pytest
 from primkit import data, parallel, synthetic
 from primkit.cli import main
 
+pytestmark = pytest.mark.integration  # Dask and Ray clusters started
+
 
 def _outputs(folder):
     return {p.name: p.read_bytes() for p in sorted(folder.iterdir())}

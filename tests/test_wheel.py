@@ -22,6 +22,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+pytestmark = pytest.mark.integration  # a wheel built and installed into a fresh virtual environment
+
 ROOT = Path(__file__).resolve().parents[1]
 
 

@@ -309,29 +309,37 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"primkit {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
 
-    p = sub.add_parser("demo", help="the main job: generate procedural chairs, train, abstract, draw a picture")
+    p = sub.add_parser("demo", help="the main job: generate procedural chairs, train, abstract, draw a picture",
+        description="The main job: generate part-labelled procedural chairs, abstract the held-out ones with the bundled chair model, train an abstractor from scratch, and run the applications into one folder (report/index.html, pictures, cuboids, report.json).",
+        epilog="examples:\n  primkit demo\n  primkit demo -o /tmp/demo --quick --force\n", formatter_class=argparse.RawDescriptionHelpFormatter)
     add_output(p, "output folder (default primkit-demo)", default="primkit-demo", required=False)
     p.add_argument("--quick", action="store_true", help="a much shorter run (for tests)")
     add_force(p)
     p.set_defaults(func=_cmd_demo)
 
-    p = sub.add_parser("generate", help="write procedural part-labelled shapes")
-    p.add_argument("category", choices=["chair", "table", "airplane", "animal"])
-    p.add_argument("-n", "--count", type=int, default=10)
+    p = sub.add_parser("generate", help="write procedural part-labelled shapes",
+        description="Write procedural part-labelled shapes: for each shape a mesh (.ply), a part label per face (.seg) and its attributes (.json).",
+        epilog="examples:\n  primkit generate chair -n 200 -o chairs/\n  primkit generate chair -n 200 -o chairs/ --rate has_arms=0.5\n", formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("category", choices=["chair", "table", "airplane", "animal"], help="the kind of shape to generate")
+    p.add_argument("-n", "--count", type=int, default=10, help="how many shapes (default 10)")
     add_output(p, "output folder")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0, help="random seed: the same seed gives the same shapes (default 0)")
     p.add_argument("--rate", action="append", metavar="ATTRIBUTE=FRACTION",
                    help="fraction of shapes with a yes/no attribute, e.g. --rate has_arms=0.5 (repeatable)")
     add_force(p)
     p.set_defaults(func=_cmd_generate)
 
-    p = sub.add_parser("prepare", help="prepare shapes into the cache (grids, samples, distances)")
-    p.add_argument("inputs", nargs="+")
+    p = sub.add_parser("prepare", help="prepare shapes into the cache (grids, samples, distances)",
+        description="Prepare shapes into the cache (occupancy grids, surface samples, distance fields), so that train, abstract and the applications start at once.",
+        epilog="examples:\n  primkit prepare chairs/\n  primkit prepare chairs/ --cache /shared/cache --shard 3/16\n", formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("inputs", nargs="+", help="shape files or folders (searched recursively)")
     add_prepare_options(p)
     add_scale_out(p)
     p.set_defaults(func=_cmd_prepare)
 
-    p = sub.add_parser("train", help="train an abstractor on a folder of shapes")
+    p = sub.add_parser("train", help="train an abstractor on a folder of shapes",
+        description="Train a cuboid abstractor on a collection of shapes (unsupervised). Writes the model file, a checkpoint beside it (Ctrl-C saves and stops; --resume goes on) and a plot of the losses.",
+        epilog="examples:\n  primkit train chairs/ -o chair.safetensors\n  primkit train ../shared/data/shapenetvox32/03001627 --preset chair -o chair.safetensors\n", formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("inputs", nargs="+", help="folders or files of shapes")
     add_output(p, "model file to write (.safetensors)")
     p.add_argument("--preset", default=None, help="a bundled model's recipe (chair, table, airplane, animal): schedule, "
@@ -346,7 +354,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--stage1", type=int, default=None, help="stage-1 iterations (all parts on)")
     p.add_argument("--stage2", type=int, default=None, help="stage-2 iterations (existence learned)")
     p.add_argument("--full-schedule", action="store_true", help="the paper's 20k + 30k iterations whatever the collection size")
-    p.add_argument("--seed", type=int, default=None)
+    p.add_argument("--seed", type=int, default=None, help="random seed of the initialisation and batches (default 0)")
     p.add_argument("--device", default=None, help="cpu or cuda (default: cuda when available)")
     p.add_argument("--resume", default=None, help="checkpoint to resume from (<model>.checkpoint.safetensors)")
     p.add_argument("--data-terms", default=None, help="the training data's terms of use, recorded in the model file")
@@ -356,8 +364,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("abstract", help="abstract shapes (or pictures, with an image model) with a trained model: JSON + "
                        "coloured cuboid mesh per shape; --png: the shapes beside their cuboids (for an image model, each "
-                       "picture with its cuboids drawn over it)")
-    p.add_argument("inputs", nargs="+")
+                       "picture with its cuboids drawn over it)",
+        description="Abstract shapes (or pictures, with an image model) with a trained model: for each input <name>.cuboids.json (the indexed cuboids) and <name>.cuboids.ply (a mesh coloured by part).",
+        epilog="examples:\n  primkit abstract chairs/ --model chair -o out/\n  primkit abstract chairs/ --model chair -o out/ --align auto --refine 200 --png out.png\n  primkit abstract photo.png --model chair-image -o out/ --png over.png\n", formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("inputs", nargs="+", help="shape files or folders (searched recursively)")
     add_output(p, "output folder")
     add_abstraction_options(p)
     add_scale_out(p)
@@ -374,8 +384,10 @@ def build_parser() -> argparse.ArgumentParser:
     add_force(p)
     p.set_defaults(func=_cmd_abstract)
 
-    p = sub.add_parser("eval", help="Chamfer, IoU, coverage, consistency and parts of a model's abstractions")
-    p.add_argument("inputs", nargs="+")
+    p = sub.add_parser("eval", help="Chamfer, IoU, coverage, consistency and parts of a model's abstractions",
+        description="Score a model's abstractions: Chamfer-L1, IoU, coverage, consistency and parts per shape, printed with their convention.",
+        epilog="examples:\n  primkit eval chairs/ --model chair\n  primkit eval FOLDER --model chair --split held-out --json scores.json\n", formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("inputs", nargs="+", help="shape files or folders (searched recursively)")
     add_abstraction_options(p)
     p.add_argument("--split", choices=["all", "held-out", "train"], default="all",
                    help="evaluate on the files the model held out from training (its recorded rule), or those it trained on")
@@ -385,13 +397,17 @@ def build_parser() -> argparse.ArgumentParser:
     add_force(p)
     p.set_defaults(func=_cmd_eval)
 
-    p = sub.add_parser("models", help="list the bundled models with their model cards")
+    p = sub.add_parser("models", help="list the bundled models with their model cards",
+        description="List the bundled models with their model cards (data, terms, schedule, training time, held-out metrics, part names).",
+        epilog="examples:\n  primkit models\n  primkit models chair -v\n", formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("name", nargs="*", help="only these models")
     p.add_argument("-v", "--verbose", action="store_true", help="print the whole card")
     p.set_defaults(func=_cmd_models)
 
-    p = sub.add_parser("info", help="print a model file's metadata (without loading its weights)")
-    p.add_argument("model")
+    p = sub.add_parser("info", help="print a model file's metadata (without loading its weights)",
+        description="Print a model file's metadata as JSON, after the checks loading makes (architecture against the tensors), without loading its weights.",
+        epilog="examples:\n  primkit info chair.safetensors\n  primkit info chair\n", formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("model", help="a model file (.safetensors) or a bundled model's name")
     p.set_defaults(func=_cmd_info)
 
     # The application commands live one per module beside this one (segment.py, embed.py, ...):

@@ -7,6 +7,7 @@ inference, pictures).
 
 from __future__ import annotations
 
+import argparse
 import json
 from pathlib import Path
 
@@ -151,15 +152,17 @@ def run_train_image(args) -> int:
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("train-image", help="distil a volume model into an image model (rendered views)")
+    p = subparsers.add_parser("train-image", help="distil a volume model into an image model (rendered views)",
+        description="Distil a volume model into an image model: render views of the teacher's training shapes and train a network to predict the teacher's cuboids (same indices and names) and the viewpoint from one picture.",
+        epilog="examples:\n  primkit train-image ../shared/data/shapenetvox32/03001627 --teacher chair -o chair-image.safetensors\n", formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("inputs", nargs="+", help="shape files or folders (the teacher's category)")
     add_output(p, "the image model file to write (.safetensors)")
     p.add_argument("--teacher", default="chair", help="the volume model to distil (a file or a bundled name)")
     p.add_argument("--views", type=int, default=2, help="rendered views per shape (default 2)")
     p.add_argument("--size", type=int, default=64, help="image side in pixels (default 64; divisible by 32)")
-    p.add_argument("--iterations", type=int, default=9000)
-    p.add_argument("--batch-size", type=int, default=64)
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--iterations", type=int, default=9000, help="training iterations (default 9000)")
+    p.add_argument("--batch-size", type=int, default=64, help="pictures per batch (default 64)")
+    p.add_argument("--seed", type=int, default=0, help="random seed of the views and the training (default 0)")
     p.add_argument("--swap-backgrounds", type=float, default=0.75,
                    help="fraction of each batch laid over fresh random backgrounds at every step (default 0.75; "
                         "0: keep the rendered ones). Measured on held-out chairs with unseen backgrounds: "

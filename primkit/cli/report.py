@@ -3,6 +3,7 @@ deform) on a collection, into a static HTML page (:func:`primkit.report.build_re
 
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
 
 from ._common import (add_abstraction_options, add_force, add_output, check_outputs, collect, err, input_paths, model_file,
@@ -39,7 +40,9 @@ def _run(args) -> int:
 
 def register(subparsers) -> None:
     p = subparsers.add_parser("report", help="a static HTML report of a collection: thumbnails, segmentation, "
-                              "similarity map, deformation, metrics, interactive 3D scene")
+                              "similarity map, deformation, metrics, interactive 3D scene",
+        description="Run the whole chain (abstract, segment, embed, deform) on a collection and write one static HTML page that opens offline: thumbnails, co-segmentation, the similarity map, a deformation, a metrics table and a 3D scene.",
+        epilog="examples:\n  primkit report chairs/ --model chair -o report/\n", formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("inputs", nargs="+", help="folders or files of shapes")
     add_abstraction_options(p)
     add_output(p, "output folder (index.html, report.json, images/)")

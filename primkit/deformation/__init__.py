@@ -54,7 +54,7 @@ irregular COSEG meshes (74% closer, flips left). Harmonic displacement instead o
 solve (it does not reproduce affine maps) flattened the deformation (82% closer). The pairs not
 closer are five of chair 23 (a swivel chair whose base the model explains with a near-degenerate
 cuboid) and 19->15 (already close). ``deform`` and ``edit`` default to ``unfold=False`` so that
-the result is the plain blend :meth:`Binding.apply` that :mod:`primkit.viz.viewers.deformation_viewer` shows.
+the result is the plain blend :meth:`Binding.apply` that :mod:`primkit.viewers.deformation_viewer` shows.
 
 Thin cuboids: the network often predicts a thin part (a leg) a few thousandths thick, fitting it
 loosely. A ratio of half-extents with such a denominator blows the part up, and transferring the

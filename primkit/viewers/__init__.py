@@ -4,8 +4,7 @@ Each viewer is a function that builds a ``pyvista.Plotter`` and returns it with 
 small object (``plotter`` plus one method per widget callback), so tests drive the controls
 without a window (``off_screen=True``) and check their effect on the scene; ``show()`` is the
 caller's choice. They sit above the applications and the drawing kit, and import any layer below
-the command line (never :mod:`primkit.cli`); ``primkit view`` builds them from the command line, and
-the checkout's ``apps/`` scripts run those commands.
+the command line (never :mod:`primkit.cli`); ``primkit view`` builds them from the command line.
 
 * :mod:`primkit.viewers.abstraction_viewer` - one shape and its cuboids: a toggle per part, opacity, picking.
 * :mod:`primkit.viewers.collection_browser` - a grid of shapes, one colour per part index, mesh / cuboids /

@@ -27,7 +27,10 @@ def trained(tmp_path_factory):
 
 def test_train_writes_model_plot_and_metadata(trained, capsys):
     root, shapes, model = trained
-    assert (root / "m.training.png").stat().st_size > 1000
+    from pictures import read_picture
+
+    plot = read_picture(root / "m.training.png")  # the losses and the parts in use, as coloured curves
+    assert plot.foreground_fraction > 0.02 and plot.coloured_pixels > 300
     assert main(["info", str(model)]) == 0
     meta = json.loads(capsys.readouterr().out)
     assert meta["training"]["iterations"] == 50 and meta["training"]["data"]["terms"] == "procedural"
@@ -94,16 +97,27 @@ def test_bad_model_and_existing_output(trained, tmp_path, capsys):
     assert main(["abstract", str(tmp_path / "missing"), "--model", str(model), "-o", str(tmp_path / "o")]) == 2
 
 
+@pytest.mark.integration  # the main job end to end
 def test_demo_quick(tmp_path):
     out = tmp_path / "demo"
     assert main(["demo", "--quick", "-o", str(out)]) == 0
     report = json.loads((out / "report.json").read_text())
     assert "Chamfer" in report["convention"] and report["summary"]["count"] == 4
-    assert (out / "abstractions.png").stat().st_size > 5000
+    import numpy as np
+    from pictures import read_picture
+
+    from primkit.primitives import Cuboids
+
+    present = set()
+    for f in (out / "abstractions").glob("*.cuboids.json"):
+        present |= set(np.flatnonzero(Cuboids.from_dict(json.loads(f.read_text())).existence))
+    shown = read_picture(out / "abstractions.png").part_colours_shown(present)
+    assert sum(n >= 20 for n in shown.values()) >= len(shown) // 2, shown  # each part in its colour
     assert len(list((out / "abstractions").glob("*.cuboids.json"))) == 4
     bundled = json.loads((out / "bundled.json").read_text())  # the bundled chair model's step
     assert set(bundled) >= {"as given", "turned, align auto", "refined"}
-    assert (out / "bundled.png").stat().st_size > 5000
+    bundled_picture = read_picture(out / "bundled.png")
+    assert bundled_picture.foreground_fraction > 0.05 and bundled_picture.coloured_pixels > 2000
     assert main(["demo", "--quick", "-o", str(out)]) == 2  # refuses to overwrite without --force
 
 

@@ -269,6 +269,10 @@ def test_run_abstract_images_writes_outputs_and_reports_bad_files(tiny_model, tm
     assert Cuboids.from_dict(d).count == 20
     assert (out / "chair.cuboids.ply").is_file()
     assert Image.open(out / "chair.png").size == (2 * 32 * 4 + 8, 32 * 4)
+    from pictures import read_picture
+
+    drawn = read_picture(out / "chair.png")  # the picture, and the cuboids drawn over it
+    assert drawn.crop(0, 128).foreground_fraction > 0.02 and drawn.crop(136, 264).foreground_fraction > 0.02
     args.inputs = [str(tmp_path / "chair.png")]
     with pytest.raises(FileExistsError, match="--force"):  # outputs exist and no --force: refused before any work
         run_abstract_images(args)

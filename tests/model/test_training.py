@@ -186,6 +186,7 @@ def test_same_seed_same_model_and_resume_after_interrupt(prepared_chairs, tmp_pa
     assert not ckpt.exists()
 
 
+@pytest.mark.integration  # two processes under torchrun
 def test_two_process_ddp_on_gloo(prepared_chairs, tmp_path):
     for i, p in enumerate(prepared_chairs[:4]):
         p.save(tmp_path / f"s{i}.npz")

@@ -44,6 +44,7 @@ def expected(chair_file, model):
 # ---------------------------------------------------------------------------------------------
 
 
+@pytest.mark.integration  # a fresh interpreter
 def test_the_accessor_is_found_through_its_entry_point_without_importing_primkit(chair_file):
     code = ("import sys, pyvista as pv; m = pv.read(sys.argv[1]); before = 'primkit' in sys.modules; "
             "s = m.primkit.segment(model='chair'); import json; "

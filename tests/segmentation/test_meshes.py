@@ -207,7 +207,14 @@ def test_segment_command_goes_past_a_bad_file(tmp_path, capsys):
         assert len(labels) == len(io.read_mesh(folder / f"chair_{i:04d}.ply").faces)
         assert (out / f"chair_{i:04d}.parts.ply").is_file()
     assert (out / "summary.csv").read_text().count("\n") == 4
-    assert (out / "segmentation.png").stat().st_size > 1000
+    from pictures import read_picture
+
+    picture = read_picture(out / "segmentation.png")  # each chair's grey mesh beside it coloured by part
+    panel = picture.size[0] // 6
+    assert picture.crop(0, panel).coloured_pixels < 0.05 * picture.crop(0, panel).foreground.sum()
+    assert picture.crop(panel, 2 * panel).coloured_pixels > 0.5 * picture.crop(panel, 2 * panel).foreground.sum()
+    shown = picture.part_colours_shown({16, 18})  # the seat's and the back's colours, on every chair
+    assert min(shown.values()) > 1000, shown
     assert "collection-majority" in captured.out and "evaluation.json" in captured.out
     # the procedural .json beside the labels names the ground truth: seat, back, legs, ...
     import json

@@ -114,6 +114,7 @@ def _vulkan() -> bool:
 @pytest.mark.skipif(shutil.which("xvfb-run") is None or not _vulkan(),
                     reason="xvfb-run or a Vulkan driver missing (scripts/setup.sh installs xvfb, libvulkan1 and "
                            "mesa-vulkan-drivers)")
+@pytest.mark.integration  # Open3D's window under Xvfb
 def test_the_real_open3d_window_draws_the_parts_and_runs_its_actions(chair, tmp_path):
     path, _ = chair
     code = f"""

@@ -127,6 +127,7 @@ def test_collection_browser_modes_and_picking(shapes):
     p.close()
 
 
+@pytest.mark.integration  # a window under Xvfb, in a subprocess
 @pytest.mark.skipif(shutil.which("xvfb-run") is None, reason="xvfb-run not installed (scripts/setup.sh installs xvfb)")
 def test_viewer_opens_a_real_window_under_xvfb(tmp_path):
     """``primkit view abstraction`` in a real X window, closed after its first frame."""

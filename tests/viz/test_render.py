@@ -89,7 +89,10 @@ def test_thumbnail_renderer_matches_grid_and_is_reusable(tmp_path):
         again = thumbs.render(tile, path=tmp_path / "t.png")
     assert np.abs(first.astype(int) - grid.astype(int)).max() <= 8
     assert np.array_equal(first, again)
-    assert (tmp_path / "t.png").stat().st_size > 0
+    from PIL import Image
+
+    written = np.asarray(Image.open(tmp_path / "t.png"))
+    assert np.array_equal(written, again[..., : written.shape[-1]])  # the file holds the picture rendered
 
 
 def test_write_png_keeps_existing_files(tmp_path):
@@ -131,3 +134,10 @@ def test_render_abstractions_for_its_callers(tmp_path, prepared_chairs, chairs):
     from PIL import Image
 
     assert Image.open(path).size == (400, 100)
+    from pictures import read_picture
+
+    picture = read_picture(path)  # shape, cuboids, shape, cuboids: 100 px tiles
+    assert all(picture.crop(x, x + 100).foreground_fraction > 0.02 for x in range(0, 400, 100))
+    present = set(np.flatnonzero(results[0].canonical.existence)) | set(np.flatnonzero(results[1].canonical.existence))
+    shown = picture.part_colours_shown(present, min_pixels=1)
+    assert sum(n >= 10 for n in shown.values()) >= len(shown) // 2, shown  # small parts may hide behind others
