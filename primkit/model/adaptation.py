@@ -45,7 +45,7 @@ from . import orientation
 from .abstractor import Abstractor
 from .losses import LossWeights, MovingBaseline, reinforce_surrogate, shape_losses
 
-__all__ = ["AdaptConfig", "adapt", "collection_digest", "index_agreement"]
+__all__ = ["AdaptConfig", "ShapeSequence", "adapt", "collection_digest", "index_agreement"]
 
 
 @dataclass(frozen=True)
@@ -59,6 +59,7 @@ class AdaptConfig:
     samples_per_cuboid: int = 150
     pull: float = 1.0
     existence_pull: float = 1.0  # weight of the existence term within the pull (0: existence moves freely)
+    parsimony: float | None = None  # the REINFORCE reward per part dropped; None: the parent's training's
     parent_pass: str = "once"  # the parent's answers computed "once" per shape, or on "every-step"'s batch
     weights: str = "all"  # "all", "heads" (the four part heads) or "shape-heads" (not the existence head)
     batch_norm: str = "frozen"
@@ -75,6 +76,20 @@ def collection_digest(shapes) -> str:
     for s in shapes:
         h.update(np.packbits(np.asarray(s.occupancy, bool)).tobytes())
     return h.hexdigest()[:16]
+
+
+class ShapeSequence:
+    """Prepared shapes read when asked for: ``get(i)`` for ``i`` in ``range(count)``. What
+    :func:`adapt` streams from when the inputs of a run mix cached files and shapes in memory."""
+
+    def __init__(self, count: int, get):
+        self._count, self._get = int(count), get
+
+    def __len__(self) -> int:
+        return self._count
+
+    def __getitem__(self, i: int):
+        return self._get(int(i))
 
 
 class _Stream:
@@ -274,7 +289,7 @@ def adapt(model, shapes, config: AdaptConfig = AdaptConfig(), *, align: str | No
     training = (model.metadata.get("training") or {}).get("config") or {}
     weights = LossWeights(float(training.get("coverage_weight", 1.0)), float(training.get("consistency_weight", 1.0)),
                           float(training.get("symmetry_weight", 0.0)))
-    parsimony = float(training.get("parsimony", 8e-5))
+    parsimony = float(training.get("parsimony", 8e-5)) if config.parsimony is None else float(config.parsimony)
     net = copy.deepcopy(model.network).to("cpu")
     if config.weights != "all":  # the encoder keeps the parent's features; only the part heads move
         heads = ("half_extent_head", "quaternion_head", "translation_head")
