@@ -12,16 +12,20 @@ Status: experimental, off by default (``primkit adapt``, ``--adapt [STEPS]`` on 
 abstract, ``abstract_shapes(..., adapt=)``, ``Segmenter(..., adapt=)``). On the 10 COSEG chairs in ``../shared``, paper protocol, face accuracy: the
 parent 0.908; 600 steps without the pull 0.876 (every setting without it lowered it); with the
 pull toward the parent's answer (``pull=1``, the default) 0.918, no chair lower than the parent's
-by more than 0.001, 97.6% of surface samples keeping their part index (``docs/frames-and-parts.md``,
-section "Adaptation"; chosen on those same 10 chairs).
+by more than 0.001, 97.6% of surface samples keeping their part index (``docs/adaptation.md``;
+chosen on those same 10 chairs, by the first version, which ran the parent every step).
 
 Design:
 
 * the shapes are first turned into the frame the parent finds (``align="auto"``), so that they are
-  adapted in the model's canonical frame;
+  adapted in the model's canonical frame; in the same pass (``chunk`` shapes decoded at a time) the
+  parent's answer for each turned shape is computed once, in evaluation mode: the pull's target,
+  fixed because the inputs are never augmented;
+* batches are read from the cache at each step and turned by each shape's rotation (only the
+  rotations and the parent's answers are kept), so memory is flat in the collection's size;
 * every weight moves (``weights="all"``; or only the four part heads, or only the three shape
   heads), with Adam at ``learning_rate`` (1e-4: a tenth of the training's), and an optional pull
-  toward the parent's answer on the same batch: ``pull`` times the mean over shapes of
+  toward the parent's answer for the batch's shapes: ``pull`` times the mean over shapes of
   ``sum_k p0_k (||t_k - t0_k||^2 + ||z_k - z0_k||^2) + BCE(p_k, p0_k)`` (``t`` translations,
   ``z`` half extents, ``p`` existence probabilities; ``0`` the parent's);
 * batch normalisation keeps the parent's statistics (its layers stay in evaluation mode), so a
@@ -59,6 +63,8 @@ class AdaptConfig:
     samples_per_cuboid: int = 150
     pull: float = 1.0
     existence_pull: float = 1.0  # weight of the existence term within the pull (0: existence moves freely)
+    existence: str = "reinforce"  # how existence learns: "reinforce" (the training's) or "effect" (see adapt)
+    existence_learning_rate: float | None = None  # the existence head's own rate; None: ``learning_rate``
     parsimony: float | None = None  # the REINFORCE reward per part dropped; None: the parent's training's
     parent_pass: str = "once"  # the parent's answers computed "once" per shape, or on "every-step"'s batch
     weights: str = "all"  # "all", "heads" (the four part heads) or "shape-heads" (not the existence head)
@@ -184,11 +190,23 @@ def _steps(net, data, optimizer, generator, baseline, weights, parsimony, parent
         pred = net(occ)
         u = torch.rand(pred.existence.shape, generator=generator)
         present = (u < pred.existence.detach()).to(pred.existence.dtype)
-        losses = shape_losses(pred, present, pts, closest, weights, config.samples_per_cuboid)
+        effect = config.existence == "effect"
+        losses = shape_losses(pred, present, pts, closest, weights, config.samples_per_cuboid, presence_effects=effect)
         mean = losses.total.mean()
-        b = baseline.value if baseline.value is not None else float(mean.detach())
-        loss = mean + reinforce_surrogate(pred.existence_logits, present, losses.total, b, parsimony)
-        baseline.update(float(mean.detach()))
+        if effect:
+            # each part's own effect on the fit, loss(present) - loss(absent) with the other parts as
+            # drawn, plus the parsimony reward, taken on the logit itself: a sure part (p = 1.000, as
+            # the parent's back is on every stool) is never drawn absent, so neither REINFORCE nor
+            # the training's local gradient (through the sigmoid, times p (1 - p)) can lower it
+            # (bounded: a part stops being pushed once its probability has gone past 0.02 or 0.98)
+            adv = (losses.presence_effect + parsimony).detach()
+            p = pred.existence.detach()
+            gate = torch.where(adv > 0, p > 0.02, p < 0.98).to(adv.dtype)
+            loss = mean + (gate * adv * pred.existence_logits).sum(1).mean()
+        else:
+            b = baseline.value if baseline.value is not None else float(mean.detach())
+            loss = mean + reinforce_surrogate(pred.existence_logits, present, losses.total, b, parsimony)
+            baseline.update(float(mean.detach()))
         if config.pull:
             if answers is not None:  # the parent's answers, computed once (the input is never augmented)
                 ref_t, ref_z, w = (answers.translations[index], answers.half_extents[index], answers.existence[index])
@@ -280,6 +298,8 @@ def adapt(model, shapes, config: AdaptConfig = AdaptConfig(), *, align: str | No
         raise ValueError(f"AdaptConfig.weights must be 'all', 'heads' or 'shape-heads', got {config.weights!r}")
     if config.batch_norm not in ("frozen", "train"):
         raise ValueError(f"AdaptConfig.batch_norm must be 'frozen' or 'train', got {config.batch_norm!r}")
+    if config.existence not in ("reinforce", "effect"):
+        raise ValueError(f"AdaptConfig.existence must be 'reinforce' or 'effect', got {config.existence!r}")
     if config.parent_pass not in ("once", "every-step"):
         raise ValueError(f"AdaptConfig.parent_pass must be 'once' or 'every-step', got {config.parent_pass!r}")
     t0 = time.perf_counter()
@@ -297,7 +317,13 @@ def adapt(model, shapes, config: AdaptConfig = AdaptConfig(), *, align: str | No
         for name, p in net.named_parameters():
             p.requires_grad_(name.split(".")[0] in heads)
     parent = copy.deepcopy(net).eval() if config.pull and not once else None
-    optimizer = torch.optim.Adam([p for p in net.parameters() if p.requires_grad], lr=config.learning_rate)
+    moving = [(n, p) for n, p in net.named_parameters() if p.requires_grad]
+    head = [p for n, p in moving if n.startswith("existence_head.")]
+    rest = [p for n, p in moving if not n.startswith("existence_head.")]
+    groups = [{"params": rest}]
+    if head:
+        groups.append({"params": head, "lr": config.existence_learning_rate or config.learning_rate})
+    optimizer = torch.optim.Adam(groups, lr=config.learning_rate)
     generator = torch.Generator().manual_seed(config.seed)
     baseline = MovingBaseline(float(training.get("baseline_momentum", 0.9)))
     with torch.random.fork_rng(devices=[]):  # the caller's random state comes back afterwards

@@ -92,3 +92,39 @@ def test_a_cached_collection_streams_the_same_batches_as_its_decoded_list(parent
     assert streamed.metadata["adaptation"]["digest"] == listed.metadata["adaptation"]["digest"]
     for (k, a), b in zip(streamed.network.state_dict().items(), listed.network.state_dict().values()):
         assert torch.equal(a, b), k
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="issue 32: no recipe measured yet drops the back on stools: the parent "
+                   "gives the back slot p = 1.000 on every stool and a thin slab at the seat's rear that covers "
+                   "3-14% of the samples, so neither REINFORCE (never draws it absent) nor the parts' own effect "
+                   "on the fit lowers it (docs/adaptation.md)")
+def test_adapting_to_stools_and_chairs_drops_the_back_on_stools_and_keeps_the_seat(parent):
+    # the issue's check: adapted to a few procedural stools and chairs (no labels), the chair model's
+    # back index is not present on the stools, and the seat label's majority index is unchanged
+    stools = synthetic.generate("stool", 3, seed=3)
+    chairs = synthetic.generate("chair", 3, seed=21, rates={"swivel": 0.0, "has_arms": 0.0})
+    made = stools + chairs
+    shapes = [data.prepare(io.Mesh(s.vertices, s.faces), face_labels=s.face_labels, name=f"s{i}")
+              for i, s in enumerate(made)]
+    seat, back = synthetic.PART_NAMES["chair"].index("seat"), synthetic.PART_NAMES["chair"].index("back")
+
+    def indices(model):
+        results = model.predict(shapes, align="auto")
+        from primkit import primitives
+
+        return results, [primitives.assign_points(r.canonical_shape(s).points, r.canonical)
+                         for r, s in zip(results, shapes)]
+
+    def majority(idx, label, which):
+        return int(np.bincount(np.concatenate([idx[k][shapes[k].point_labels == label] for k in which])).argmax())
+
+    before, idx0 = indices(parent)
+    back_index = majority(idx0, back, range(3, 6))
+    seat_index = majority(idx0, seat, range(3))
+    assert all(back_index in r.canonical.present for r in before[:3])  # the parent puts a back on every stool
+    child = adapt(parent, shapes, AdaptConfig(steps=200, seed=0))
+    after, idx1 = indices(child)
+    assert majority(idx1, seat, range(3)) == seat_index
+    assert majority(idx1, back, range(3, 6)) == back_index  # the chairs keep their back
+    assert not any(back_index in r.canonical.present for r in after[:3])
