@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 import torch
+import trimesh
 
 from primkit import data, io, synthetic
 from primkit.model.abstractor import Abstractor
@@ -82,8 +83,7 @@ def test_a_cached_collection_streams_the_same_batches_as_its_decoded_list(parent
     folder = tmp_path / "in"
     folder.mkdir()
     for i, s in enumerate(synthetic.generate("chair", 3, seed=12)):
-        io.save_mesh(folder / f"c{i}.obj", io.Mesh(s.vertices, s.faces)) if hasattr(io, "save_mesh") else \
-            __import__("trimesh").Trimesh(s.vertices, s.faces).export(folder / f"c{i}.obj")
+        trimesh.Trimesh(s.vertices, s.faces, process=False).export(folder / f"c{i}.obj")
     coll = data.prepare_collection(folder, data.PrepareSettings(resolution=parent.resolution), cache_dir=tmp_path / "c",
                                    workers=1, progress=False)
     config = AdaptConfig(steps=3, batch_size=4, seed=2)
@@ -128,3 +128,20 @@ def test_adapting_to_stools_and_chairs_drops_the_back_on_stools_and_keeps_the_se
     assert majority(idx1, seat, range(3)) == seat_index
     assert majority(idx1, back, range(3, 6)) == back_index  # the chairs keep their back
     assert not any(back_index in r.canonical.present for r in after[:3])
+
+
+def test_the_command_writes_an_adapted_model_and_never_overwrites(parent, tmp_path, capsys):
+    from primkit.cli import main
+
+    folder = tmp_path / "in"
+    folder.mkdir()
+    for i, s in enumerate(synthetic.generate("stool", 2, seed=5)):
+        trimesh.Trimesh(s.vertices, s.faces, process=False).export(folder / f"s{i}.obj")
+    out = tmp_path / "mine.safetensors"
+    args = ["adapt", str(folder), "--model", "chair", "-o", str(out), "--steps", "2", "--cache", str(tmp_path / "c"),
+            "--workers", "1"]
+    assert main(args) == 0
+    info = Abstractor.load(out).metadata["adaptation"]
+    assert info["shapes"] == 2 and info["config"]["steps"] == 2 and info["parent"] == "chair"
+    assert main(args) != 0  # the output exists: refused without --force
+    assert "exists" in capsys.readouterr().err
