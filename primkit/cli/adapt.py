@@ -50,12 +50,11 @@ def run(args) -> int:
         err(str(exc).splitlines()[0])
         return 2
     coll = prepare_collection(files, settings, cache_dir=args.cache, workers=args.workers)
-    shapes = [coll[i] for i in range(len(coll))]
     status = report_errors(coll.errors)
-    if not shapes:
+    if not len(coll):
         err("no usable shapes to adapt to")
         return 1
-    child = adapt(parent, shapes, AdaptConfig(steps=args.steps, seed=args.seed), align=align, parent_name=str(args.model),
+    child = adapt(parent, coll, AdaptConfig(steps=args.steps, seed=args.seed), align=align, parent_name=str(args.model),
                   progress=True)
     save_adapted(child, output, overwrite=args.force)
     a = child.metadata["adaptation"]

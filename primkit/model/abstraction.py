@@ -260,8 +260,8 @@ def abstract_shapes(
     adapt : None, int or :class:`primkit.model.adaptation.AdaptConfig`
         Adapt the model to these inputs first, without labels (:func:`primkit.model.adaptation.adapt`;
         an int is the number of steps, with the other settings at their defaults); the shapes are
-        then abstracted by the adapted model, which ``Abstractions.model`` holds. Experimental: every
-        prepared shape is held in memory while adapting.
+        then abstracted by the adapted model, which ``Abstractions.model`` holds. Experimental; the
+        shapes are read from the cache at each batch, so memory does not grow with their number.
     settings : data.PrepareSettings, optional
         How to prepare (resolution, samples, axes); default the model's.
     names : one name per in-memory shape (default ``shape<i>``, ``i`` its position in ``inputs``).
@@ -325,10 +325,11 @@ def abstract_shapes(
         order = [(kind, usable.get(str(files[k])) if kind == "file" else k) for kind, k in order]
         order = [(kind, k) for kind, k in order if k is not None]
     if adapt:
-        from .adaptation import AdaptConfig, adapt as adapt_model
+        from .adaptation import AdaptConfig, ShapeSequence, adapt as adapt_model
 
         config = adapt if isinstance(adapt, AdaptConfig) else AdaptConfig(steps=int(adapt))
-        everything = [coll[k] if kind == "file" else memory[k][1] for kind, k in order]
+        everything = ShapeSequence(len(order), lambda i: coll[order[i][1]] if order[i][0] == "file"
+                                   else memory[order[i][1]][1])  # read from the cache at each batch
         named = str(model) if isinstance(model, (str, os.PathLike)) else None
         if everything:
             with parallel.torch_threads(parallel.choose_threads(interval=0.05)):

@@ -12,16 +12,20 @@ Status: experimental, off by default (``primkit adapt``, ``--adapt [STEPS]`` on 
 abstract, ``abstract_shapes(..., adapt=)``, ``Segmenter(..., adapt=)``). On the 10 COSEG chairs in ``../shared``, paper protocol, face accuracy: the
 parent 0.908; 600 steps without the pull 0.876 (every setting without it lowered it); with the
 pull toward the parent's answer (``pull=1``, the default) 0.918, no chair lower than the parent's
-by more than 0.001, 97.6% of surface samples keeping their part index (``docs/frames-and-parts.md``,
-section "Adaptation"; chosen on those same 10 chairs).
+by more than 0.001, 97.6% of surface samples keeping their part index (``docs/adaptation.md``;
+chosen on those same 10 chairs, by the first version, which ran the parent every step).
 
 Design:
 
 * the shapes are first turned into the frame the parent finds (``align="auto"``), so that they are
-  adapted in the model's canonical frame;
+  adapted in the model's canonical frame; in the same pass (``chunk`` shapes decoded at a time) the
+  parent's answer for each turned shape is computed once, in evaluation mode: the pull's target,
+  fixed because the inputs are never augmented;
+* batches are read from the cache at each step and turned by each shape's rotation (only the
+  rotations and the parent's answers are kept), so memory is flat in the collection's size;
 * every weight moves (``weights="all"``; or only the four part heads, or only the three shape
   heads), with Adam at ``learning_rate`` (1e-4: a tenth of the training's), and an optional pull
-  toward the parent's answer on the same batch: ``pull`` times the mean over shapes of
+  toward the parent's answer for the batch's shapes: ``pull`` times the mean over shapes of
   ``sum_k p0_k (||t_k - t0_k||^2 + ||z_k - z0_k||^2) + BCE(p_k, p0_k)`` (``t`` translations,
   ``z`` half extents, ``p`` existence probabilities; ``0`` the parent's);
 * batch normalisation keeps the parent's statistics (its layers stay in evaluation mode), so a
@@ -40,10 +44,12 @@ from dataclasses import asdict, dataclass
 import numpy as np
 import torch
 
+from .. import geometry
+from . import orientation
 from .abstractor import Abstractor
 from .losses import LossWeights, MovingBaseline, reinforce_surrogate, shape_losses
 
-__all__ = ["AdaptConfig", "adapt", "collection_digest", "index_agreement"]
+__all__ = ["AdaptConfig", "ShapeSequence", "adapt", "collection_digest", "index_agreement"]
 
 
 @dataclass(frozen=True)
@@ -56,6 +62,11 @@ class AdaptConfig:
     points_per_shape: int = 1000
     samples_per_cuboid: int = 150
     pull: float = 1.0
+    existence_pull: float = 1.0  # weight of the existence term within the pull (0: existence moves freely)
+    existence: str = "reinforce"  # how existence learns: "reinforce" (the training's) or "effect" (see adapt)
+    existence_learning_rate: float | None = None  # the existence head's own rate; None: ``learning_rate``
+    parsimony: float | None = None  # the REINFORCE reward per part dropped; None: the parent's training's
+    parent_pass: str = "once"  # the parent's answers computed "once" per shape, or on "every-step"'s batch
     weights: str = "all"  # "all", "heads" (the four part heads) or "shape-heads" (not the existence head)
     batch_norm: str = "frozen"
     seed: int = 0
@@ -73,26 +84,81 @@ def collection_digest(shapes) -> str:
     return h.hexdigest()[:16]
 
 
-class _Batches:
-    """Random batches of prepared shapes held in memory, as :meth:`primkit.model.training.ShapeTensors.batch`
-    draws them (the same layout: closest points planar in memory). Written here rather than
-    imported so that inference (``abstract_shapes(..., adapt=N)``) never imports the training module."""
+class ShapeSequence:
+    """Prepared shapes read when asked for: ``get(i)`` for ``i`` in ``range(count)``. What
+    :func:`adapt` streams from when the inputs of a run mix cached files and shapes in memory."""
 
-    def __init__(self, shapes):
-        n = min(len(s.points) for s in shapes)
-        self.occupancy = torch.from_numpy(np.stack([s.occupancy for s in shapes]).astype(np.float32))
-        planar = np.stack([np.moveaxis(np.asarray(s.closest, np.float32), -1, 0) for s in shapes])
-        self.closest = torch.from_numpy(planar).permute(0, 2, 3, 4, 1)
-        self.points = torch.from_numpy(np.stack([s.points[:n] for s in shapes]).astype(np.float32))
+    def __init__(self, count: int, get):
+        self._count, self._get = int(count), get
 
     def __len__(self) -> int:
-        return len(self.occupancy)
+        return self._count
+
+    def __getitem__(self, i: int):
+        return self._get(int(i))
+
+
+class _Stream:
+    """Random batches of the collection, turned into the frames found for it, read on demand.
+
+    Nothing but each shape's rotation is kept: a :class:`primkit.data.PreparedCollection` is read
+    from its cache's memory-mapped rows at each batch (:meth:`~primkit.data.PreparedCollection.gather`,
+    closest points decoded by :func:`primkit.geometry.decode_closest`), a list of prepared shapes is
+    read where it lies, and each batch is turned by its shapes' axis rotations (cells move with
+    their centres, exactly as :func:`primkit.model.orientation.rotate_prepared` turns a shape). So
+    memory is flat in the collection's size. Written here rather than importing
+    :class:`primkit.model.training.ShapeTensors` so that inference (``abstract_shapes(..., adapt=N)``)
+    never imports the training module, and because the batches are turned."""
+
+    def __init__(self, shapes, rotations: np.ndarray):
+        self.shapes = shapes
+        self.rotations = np.asarray(rotations, float)  # (s, 3, 3)
+        self.collection = hasattr(shapes, "gather") and hasattr(shapes, "settings")
+        if self.collection:
+            self.resolution, self.samples = shapes.settings.resolution, shapes.settings.samples
+        else:
+            self.resolution = shapes[0].resolution
+            self.samples = min(len(s.points) for s in shapes)
+        self._cells: dict = {}
+
+    def __len__(self) -> int:
+        return len(self.rotations)
+
+    def _source(self, a: np.ndarray):
+        key = tuple(np.rint(a).astype(int).ravel())
+        if key not in self._cells:
+            self._cells[key] = None if np.allclose(a, np.eye(3)) else orientation._source_cells(self.resolution, a)
+        return self._cells[key]
 
     def batch(self, index, points_per_shape: int, generator: torch.Generator):
-        occ = self.occupancy.index_select(0, index).unsqueeze(1)
-        closest = self.closest.permute(0, 4, 1, 2, 3).index_select(0, index).permute(0, 2, 3, 4, 1)
-        pick = torch.randint(0, self.points.shape[1], (len(index), points_per_shape), generator=generator)
-        return occ, closest, torch.gather(self.points[index], 1, pick[..., None].expand(-1, -1, 3))
+        """Occupancy (B, 1, R, R, R), closest points (B, R, R, R, 3) and (B, k, 3) random surface samples."""
+        res = self.resolution
+        index = np.asarray(index)
+        pick = torch.randint(0, self.samples, (len(index), points_per_shape), generator=generator).numpy()
+        if self.collection:
+            occ, codes, near, pts = self.shapes.gather(index, pick)
+            closest = (np.asarray(codes, np.float32) if near is None
+                       else geometry.decode_closest(codes, near, res, planar=True))
+            closest = np.moveaxis(closest.reshape(len(index), 3, res, res, res), 1, -1)
+        else:
+            block = [self.shapes[i] for i in index]
+            occ = np.stack([s.occupancy for s in block])
+            closest = np.stack([np.asarray(s.closest, np.float32) for s in block])
+            pts = np.stack([np.asarray(s.points, np.float32)[p] for s, p in zip(block, pick)])
+        occ_out = np.empty((len(index), 1, res, res, res), np.float32)
+        closest_out = np.empty((len(index), res, res, res, 3), np.float32)
+        pts_out = np.empty((len(index), points_per_shape, 3), np.float32)
+        for b, i in enumerate(index):
+            a = self.rotations[i]
+            src = self._source(a)
+            if src is None:
+                occ_out[b, 0], closest_out[b], pts_out[b] = occ[b], closest[b], pts[b]
+            else:
+                occ_out[b, 0] = occ[b][src].reshape(res, res, res)
+                closest_out[b] = closest[b][src].reshape(res, res, res, 3) @ a.T.astype(np.float32)
+                pts_out[b] = pts[b] @ a.T.astype(np.float32)
+        closest_t = torch.from_numpy(closest_out).permute(0, 4, 1, 2, 3).contiguous().permute(0, 2, 3, 4, 1)
+        return torch.from_numpy(occ_out), closest_t, torch.from_numpy(pts_out)
 
 
 def _freeze_batch_norm(net) -> None:
@@ -101,7 +167,17 @@ def _freeze_batch_norm(net) -> None:
             m.eval()
 
 
-def _steps(net, data, optimizer, generator, baseline, weights, parsimony, parent, config, progress) -> None:
+@dataclass
+class _ParentAnswers:
+    """The parent's answer for every shape of the collection (its own frame), fixed: (s, m, 3)
+    translations and half extents, (s, m) existence probabilities."""
+
+    translations: torch.Tensor
+    half_extents: torch.Tensor
+    existence: torch.Tensor
+
+
+def _steps(net, data, optimizer, generator, baseline, weights, parsimony, parent, answers, config, progress) -> None:
     """The stage-2 steps of :func:`adapt` (as :func:`primkit.model.training.train`'s stage 2)."""
     from tqdm.auto import tqdm
 
@@ -110,39 +186,93 @@ def _steps(net, data, optimizer, generator, baseline, weights, parsimony, parent
         _freeze_batch_norm(net)
     for _ in tqdm(range(config.steps), desc="adapting", unit="step", disable=not progress):
         index = torch.randint(0, len(data), (config.batch_size,), generator=generator)
-        occ, closest, pts = data.batch(index, config.points_per_shape, generator)
+        occ, closest, pts = data.batch(index.numpy(), config.points_per_shape, generator)
         pred = net(occ)
         u = torch.rand(pred.existence.shape, generator=generator)
         present = (u < pred.existence.detach()).to(pred.existence.dtype)
-        losses = shape_losses(pred, present, pts, closest, weights, config.samples_per_cuboid)
+        effect = config.existence == "effect"
+        losses = shape_losses(pred, present, pts, closest, weights, config.samples_per_cuboid, presence_effects=effect)
         mean = losses.total.mean()
-        b = baseline.value if baseline.value is not None else float(mean.detach())
-        loss = mean + reinforce_surrogate(pred.existence_logits, present, losses.total, b, parsimony)
-        baseline.update(float(mean.detach()))
+        if effect:
+            # each part's own effect on the fit, loss(present) - loss(absent) with the other parts as
+            # drawn, plus the parsimony reward, taken on the logit itself: a sure part (p = 1.000, as
+            # the parent's back is on every stool) is never drawn absent, so neither REINFORCE nor
+            # the training's local gradient (through the sigmoid, times p (1 - p)) can lower it
+            # (bounded: a part stops being pushed once its probability has gone past 0.02 or 0.98)
+            adv = (losses.presence_effect + parsimony).detach()
+            p = pred.existence.detach()
+            gate = torch.where(adv > 0, p > 0.02, p < 0.98).to(adv.dtype)
+            loss = mean + (gate * adv * pred.existence_logits).sum(1).mean()
+        else:
+            b = baseline.value if baseline.value is not None else float(mean.detach())
+            loss = mean + reinforce_surrogate(pred.existence_logits, present, losses.total, b, parsimony)
+            baseline.update(float(mean.detach()))
         if config.pull:
-            with torch.no_grad():
-                ref = parent(occ)
-            w = ref.existence
-            move = ((pred.translations - ref.translations) ** 2).sum(-1) + ((pred.half_extents - ref.half_extents) ** 2).sum(-1)
+            if answers is not None:  # the parent's answers, computed once (the input is never augmented)
+                ref_t, ref_z, w = (answers.translations[index], answers.half_extents[index], answers.existence[index])
+            else:  # the straightforward way: the parent's network run again on the batch
+                with torch.no_grad():
+                    ref = parent(occ)
+                ref_t, ref_z, w = ref.translations, ref.half_extents, ref.existence
+            move = ((pred.translations - ref_t) ** 2).sum(-1) + ((pred.half_extents - ref_z) ** 2).sum(-1)
             keep = torch.nn.functional.binary_cross_entropy(pred.existence, w, reduction="none")
-            loss = loss + config.pull * ((w * move).sum(1) + keep.sum(1)).mean()
+            loss = loss + config.pull * ((w * move).sum(1) + config.existence_pull * keep.sum(1)).mean()
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         optimizer.step()
     net.eval()
 
 
+def _frames_and_answers(model, shapes, align, chunk: int, want_answers: bool):
+    """The rotation :meth:`Abstractor.orient` chooses for each shape (``chunk`` shapes decoded at a
+    time; ``"auto"`` votes its expected up axis within each chunk), the parent's answers on the
+    turned shapes (one forward pass each, evaluation mode) and the collection's digest."""
+    count = len(shapes)
+    rotations = np.empty((count, 3, 3))
+    digest = hashlib.sha256()
+    t, z, p = [], [], []
+    net = model.network
+    was_training = net.training
+    net.eval()
+    try:
+        for lo in range(0, count, chunk):
+            block = [shapes[i] for i in range(lo, min(count, lo + chunk))]
+            for s in block:
+                digest.update(np.packbits(np.asarray(s.occupancy, bool)).tobytes())
+            if align in (None, "none"):
+                rotations[lo:lo + len(block)] = np.eye(3)
+                turned = block
+            else:
+                turned, reports = model.orient(block, align)
+                rotations[lo:lo + len(block)] = [np.asarray(r["rotation"], float) for r in reports]
+            if want_answers:
+                occ = torch.from_numpy(np.stack([s.occupancy for s in turned]).astype(np.float32)).unsqueeze(1)
+                device = next(net.parameters()).device
+                with torch.no_grad():
+                    ref = net(occ.to(device))
+                t.append(ref.translations.cpu())
+                z.append(ref.half_extents.cpu())
+                p.append(ref.existence.cpu())
+            del block, turned
+    finally:
+        net.train(was_training)
+    answers = _ParentAnswers(torch.cat(t), torch.cat(z), torch.cat(p)) if want_answers else None
+    return rotations, answers, digest.hexdigest()[:16]
+
+
 def adapt(model, shapes, config: AdaptConfig = AdaptConfig(), *, align: str | None = "auto",
-          parent_name: str | None = None, progress: bool = False) -> Abstractor:
+          parent_name: str | None = None, progress: bool = False, chunk: int = 64) -> Abstractor:
     """A copy of ``model`` whose network continued stage-2 training on ``shapes``, without labels.
 
     Parameters
     ----------
     model : Abstractor
         The parent (unchanged).
-    shapes : list of primkit.data.PreparedShape
+    shapes : primkit.data.PreparedCollection or list of primkit.data.PreparedShape
         The collection, as prepared (meshes, point clouds and voxel grids alike); turned here into
-        the frame the parent finds for it (:meth:`Abstractor.orient` with ``align``).
+        the frame the parent finds for it (:meth:`Abstractor.orient` with ``align``, ``chunk``
+        shapes at a time). A collection is read from its cache at each batch, so memory does not
+        grow with its size; a list is read where it lies.
     config : AdaptConfig
     align : str or None
         How the frames are found (:data:`primkit.model.orientation.ALIGN_MODES`); None or
@@ -151,6 +281,8 @@ def adapt(model, shapes, config: AdaptConfig = AdaptConfig(), *, align: str | No
         How the parent is named in the new model's metadata (a bundled model's name, a file).
     progress : bool
         A tqdm bar over the steps.
+    chunk : int
+        Shapes decoded at once while the frames and the parent's answers are found.
 
     Returns
     -------
@@ -160,39 +292,49 @@ def adapt(model, shapes, config: AdaptConfig = AdaptConfig(), *, align: str | No
     """
     import time
 
-    shapes = list(shapes)
-    if not shapes:
+    if not len(shapes):
         raise ValueError("no shapes to adapt to")
-    t0 = time.perf_counter()
-    turned = shapes if align in (None, "none") else model.orient(shapes, align)[0]
-    data = _Batches(turned)
-    training = (model.metadata.get("training") or {}).get("config") or {}
-    weights = LossWeights(float(training.get("coverage_weight", 1.0)), float(training.get("consistency_weight", 1.0)),
-                          float(training.get("symmetry_weight", 0.0)))
-    parsimony = float(training.get("parsimony", 8e-5))
-    net = copy.deepcopy(model.network).to("cpu")
     if config.weights not in ("all", "heads", "shape-heads"):
         raise ValueError(f"AdaptConfig.weights must be 'all', 'heads' or 'shape-heads', got {config.weights!r}")
     if config.batch_norm not in ("frozen", "train"):
         raise ValueError(f"AdaptConfig.batch_norm must be 'frozen' or 'train', got {config.batch_norm!r}")
+    if config.existence not in ("reinforce", "effect"):
+        raise ValueError(f"AdaptConfig.existence must be 'reinforce' or 'effect', got {config.existence!r}")
+    if config.parent_pass not in ("once", "every-step"):
+        raise ValueError(f"AdaptConfig.parent_pass must be 'once' or 'every-step', got {config.parent_pass!r}")
+    t0 = time.perf_counter()
+    once = bool(config.pull) and config.parent_pass == "once"
+    rotations, answers, digest = _frames_and_answers(model, shapes, align, chunk, once)
+    data = _Stream(shapes, rotations)
+    training = (model.metadata.get("training") or {}).get("config") or {}
+    weights = LossWeights(float(training.get("coverage_weight", 1.0)), float(training.get("consistency_weight", 1.0)),
+                          float(training.get("symmetry_weight", 0.0)))
+    parsimony = float(training.get("parsimony", 8e-5)) if config.parsimony is None else float(config.parsimony)
+    net = copy.deepcopy(model.network).to("cpu")
     if config.weights != "all":  # the encoder keeps the parent's features; only the part heads move
         heads = ("half_extent_head", "quaternion_head", "translation_head")
         heads += ("existence_head",) if config.weights == "heads" else ()  # "shape-heads": existence kept
         for name, p in net.named_parameters():
             p.requires_grad_(name.split(".")[0] in heads)
-    parent = copy.deepcopy(net).eval() if config.pull else None  # the parent's answers, for the pull
-    optimizer = torch.optim.Adam([p for p in net.parameters() if p.requires_grad], lr=config.learning_rate)
+    parent = copy.deepcopy(net).eval() if config.pull and not once else None
+    moving = [(n, p) for n, p in net.named_parameters() if p.requires_grad]
+    head = [p for n, p in moving if n.startswith("existence_head.")]
+    rest = [p for n, p in moving if not n.startswith("existence_head.")]
+    groups = [{"params": rest}]
+    if head:
+        groups.append({"params": head, "lr": config.existence_learning_rate or config.learning_rate})
+    optimizer = torch.optim.Adam(groups, lr=config.learning_rate)
     generator = torch.Generator().manual_seed(config.seed)
     baseline = MovingBaseline(float(training.get("baseline_momentum", 0.9)))
     with torch.random.fork_rng(devices=[]):  # the caller's random state comes back afterwards
         torch.manual_seed(config.seed)  # the cuboid surface samples of the losses
-        _steps(net, data, optimizer, generator, baseline, weights, parsimony, parent, config, progress)
+        _steps(net, data, optimizer, generator, baseline, weights, parsimony, parent, answers, config, progress)
     meta = copy.deepcopy(model.metadata)
     meta["adaptation"] = {
         "parent": parent_name or meta.get("name") or "unnamed",
         "parent_adaptation": model.metadata.get("adaptation"),
         "shapes": len(shapes),
-        "digest": collection_digest(shapes),
+        "digest": digest,
         "config": config.to_dict(),
         "seconds": round(time.perf_counter() - t0, 1),
         "labels_used": False,

@@ -32,7 +32,7 @@ Modules: :mod:`~primkit.synthetic.solids` (closed building blocks),
 (seeded collections and their files). ``primkit.synthetic`` imports only :mod:`primkit.io`.
 """
 
-from .categories import airplane, animal, chair, table
+from .categories import airplane, animal, chair, stool, table
 from .collection import generate, read_collection_labels, write_collection
 from .labelled import CATEGORIES, PART_GROUPS, PART_NAMES, LabelledShape
 
@@ -46,6 +46,7 @@ __all__ = [
     "chair",
     "generate",
     "read_collection_labels",
+    "stool",
     "table",
     "write_collection",
 ]

@@ -11,7 +11,7 @@ import numpy as np
 from .labelled import LabelledShape, assemble
 from .solids import airfoil, affine, checked, disk, ellipsoid, hull, ray_exit, rod, rot_y, rot_z, rounded_box, rounded_slab, tapered_square, union
 
-__all__ = ["chair", "table", "airplane", "animal", "GENERATORS"]
+__all__ = ["chair", "stool", "table", "airplane", "animal", "GENERATORS"]
 
 
 def _finish_attributes(name: str, sampled: dict, overrides: dict, choices: dict) -> dict:
@@ -181,6 +181,69 @@ def chair(seed: int | None = None, **overrides) -> LabelledShape:
             post = rod((x_post, seat_top - t / 2, z), (x_post, y_rest, z), min(0.4 * aw, 0.02))
             parts[name] = [rest, post]
 
+    return assemble("chair", parts, a, seed)
+
+
+_STOOL_CHOICES = {"base": ("legs4", "legs3", "column"), "seat_shape": ("round", "square"),
+                  "leg_style": ("round", "tapered", "square")}
+
+
+def stool(seed: int | None = None, **overrides) -> LabelledShape:
+    """A stool: a seat on three or four legs or on a column with a round foot, and no back.
+
+    Labelled with the chair's part names (:data:`PART_NAMES` ``["chair"]``: ``seat``, the legs,
+    ``column``, ``star_base`` for the foot; never ``back`` nor arms), so that a chair model's part
+    indices can be checked on it. Attributes (override any by keyword): ``base`` ("legs4",
+    "legs3", "column"), ``seat_shape`` ("round", "square"), ``seat_width`` (diameter or side),
+    ``seat_thickness``, ``leg_length`` (floor to seat underside: 0.40-0.75, low to bar stools),
+    ``leg_radius``, ``leg_style``, ``leg_splay_deg``, ``column_radius``, ``foot_radius``. Derived
+    and recorded: ``seat_height``.
+    """
+    rng = np.random.default_rng(seed)
+    sampled = {
+        "base": _pick(rng, _STOOL_CHOICES["base"], p=[0.45, 0.3, 0.25]),
+        "seat_shape": _pick(rng, _STOOL_CHOICES["seat_shape"]),
+        "seat_width": _uniform(rng, 0.32, 0.46),
+        "seat_thickness": _uniform(rng, 0.04, 0.08),
+        "leg_length": _uniform(rng, 0.40, 0.75),
+        "leg_radius": _uniform(rng, 0.018, 0.032),
+        "leg_style": _pick(rng, _STOOL_CHOICES["leg_style"]),
+        "leg_splay_deg": _uniform(rng, 0.0, 10.0),
+        "column_radius": _uniform(rng, 0.025, 0.04),
+        "foot_radius": _uniform(rng, 0.16, 0.24),
+    }
+    a = _finish_attributes("stool", sampled, overrides, _STOOL_CHOICES)
+    w, t = a["seat_width"], a["seat_thickness"]
+    seat_bottom = a["leg_length"]
+    a["seat_height"] = seat_bottom + t
+    parts: dict[str, list] = {}
+    edge = min(0.4 * t, 0.03)
+    if a["seat_shape"] == "round":
+        parts["seat"] = [disk((0.0, seat_bottom + t / 2, 0.0), w / 2, w / 2, t)]
+    else:
+        parts["seat"] = [rounded_box((w, t, w), edge).translate((0.0, seat_bottom + t / 2, 0.0))]
+    if a["base"] == "column":
+        cr = a["column_radius"]
+        parts["column"] = [rod((0.0, 0.03, 0.0), (0.0, seat_bottom + t / 2, 0.0), cr, cr)]
+        parts["star_base"] = [disk((0.0, 0.015, 0.0), a["foot_radius"], a["foot_radius"], 0.03)]
+    elif a["base"] == "legs4":
+        inset = a["leg_radius"] + 0.6 * edge + 0.005
+        half = w / 2 - inset if a["seat_shape"] == "square" else (w / 2 - inset) / math.sqrt(2.0)
+        parts.update(_legs_at(_corner_positions(half, half), seat_bottom + t / 2, seat_bottom, a))
+    else:  # three legs at 120 degrees, splayed outwards along their own direction
+        r_top = w / 2 - a["leg_radius"] - 0.01
+        out = seat_bottom * math.tan(math.radians(a["leg_splay_deg"]))
+        radius = a["leg_radius"]
+        for name, angle in (("leg_front_left", 60.0), ("leg_front_right", -60.0), ("leg_back_left", 180.0)):
+            u = np.array([math.cos(math.radians(angle)), 0.0, math.sin(math.radians(angle))])
+            top = r_top * u + np.array([0.0, seat_bottom + t / 2, 0.0])
+            bottom = (r_top + out) * u
+            if a["leg_style"] == "round":
+                parts[name] = [rod(bottom, top, radius, radius)]
+            elif a["leg_style"] == "tapered":
+                parts[name] = [rod(bottom, top, 0.6 * radius, radius)]
+            else:
+                parts[name] = [tapered_square(bottom, top, 0.6 * radius, radius)]
     return assemble("chair", parts, a, seed)
 
 
@@ -425,4 +488,5 @@ def animal(seed: int | None = None, **overrides) -> LabelledShape:
     return assemble("animal", parts, a, seed)
 
 
-GENERATORS = {"chair": chair, "table": table, "airplane": airplane, "animal": animal}
+GENERATORS = {"chair": chair, "table": table, "airplane": airplane, "animal": animal,
+              "stool": stool}  # stools are chairs without a back: labelled with the chair's part names

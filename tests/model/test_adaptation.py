@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 import torch
+import trimesh
 
 from primkit import data, io, synthetic
 from primkit.model.abstractor import Abstractor
@@ -53,3 +54,94 @@ def test_bad_settings_are_refused(parent, shapes):
         adapt(parent, shapes, AdaptConfig(steps=1, weights="encoder"))
     with pytest.raises(ValueError, match="no shapes"):
         adapt(parent, [], AdaptConfig(steps=1))
+
+
+def test_parent_answers_computed_once_equal_the_per_step_pass(parent, shapes):
+    # the pull's target is the parent's answer on an input that is never augmented: computed once per
+    # shape before the steps, it equals the parent's network run on each shape alone, turned as found
+    from primkit.model.adaptation import _frames_and_answers
+
+    rotations, answers, _ = _frames_and_answers(parent, shapes, "auto", chunk=2, want_answers=True)
+    turned, _ = parent.orient(shapes, "auto")
+    parent.network.eval()
+    for i, s in enumerate(turned):
+        np.testing.assert_allclose(rotations[i], s.frame.rotation @ np.linalg.inv(shapes[i].frame.rotation), atol=1e-9)
+        with torch.no_grad():
+            ref = parent.network(torch.from_numpy(s.occupancy[None, None].astype(np.float32)))
+        torch.testing.assert_close(answers.translations[i], ref.translations[0], rtol=0, atol=1e-5)
+        torch.testing.assert_close(answers.half_extents[i], ref.half_extents[0], rtol=0, atol=1e-5)
+        torch.testing.assert_close(answers.existence[i], ref.existence[0], rtol=0, atol=1e-5)
+    # and training with them moves the weights as the per-step pass does, up to float noise that
+    # Adam's normalised steps lift to at most a fraction of one step (lr 1e-4; 3 steps move ~3e-4)
+    once = adapt(parent, shapes, AdaptConfig(steps=3, batch_size=4, seed=5, parent_pass="once"))
+    every = adapt(parent, shapes, AdaptConfig(steps=3, batch_size=4, seed=5, parent_pass="every-step"))
+    for (k, a), b in zip(once.network.state_dict().items(), every.network.state_dict().values()):
+        torch.testing.assert_close(a, b, rtol=0, atol=1e-4, msg=k)
+
+
+def test_a_cached_collection_streams_the_same_batches_as_its_decoded_list(parent, tmp_path):
+    folder = tmp_path / "in"
+    folder.mkdir()
+    for i, s in enumerate(synthetic.generate("chair", 3, seed=12)):
+        trimesh.Trimesh(s.vertices, s.faces, process=False).export(folder / f"c{i}.obj")
+    coll = data.prepare_collection(folder, data.PrepareSettings(resolution=parent.resolution), cache_dir=tmp_path / "c",
+                                   workers=1, progress=False)
+    config = AdaptConfig(steps=3, batch_size=4, seed=2)
+    streamed = adapt(parent, coll, config)
+    listed = adapt(parent, [coll[i] for i in range(len(coll))], config)
+    assert streamed.metadata["adaptation"]["digest"] == listed.metadata["adaptation"]["digest"]
+    for (k, a), b in zip(streamed.network.state_dict().items(), listed.network.state_dict().values()):
+        assert torch.equal(a, b), k
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="issue 32: no recipe measured yet drops the back on stools: the parent "
+                   "gives the back slot p = 1.000 on every stool and a thin slab at the seat's rear that covers "
+                   "3-14% of the samples, so neither REINFORCE (never draws it absent) nor the parts' own effect "
+                   "on the fit lowers it (docs/adaptation.md)")
+def test_adapting_to_stools_and_chairs_drops_the_back_on_stools_and_keeps_the_seat(parent):
+    # the issue's check: adapted to a few procedural stools and chairs (no labels), the chair model's
+    # back index is not present on the stools, and the seat label's majority index is unchanged
+    stools = synthetic.generate("stool", 3, seed=3)
+    chairs = synthetic.generate("chair", 3, seed=21, rates={"swivel": 0.0, "has_arms": 0.0})
+    made = stools + chairs
+    shapes = [data.prepare(io.Mesh(s.vertices, s.faces), face_labels=s.face_labels, name=f"s{i}")
+              for i, s in enumerate(made)]
+    seat, back = synthetic.PART_NAMES["chair"].index("seat"), synthetic.PART_NAMES["chair"].index("back")
+
+    def indices(model):
+        results = model.predict(shapes, align="auto")
+        from primkit import primitives
+
+        return results, [primitives.assign_points(r.canonical_shape(s).points, r.canonical)
+                         for r, s in zip(results, shapes)]
+
+    def majority(idx, label, which):
+        return int(np.bincount(np.concatenate([idx[k][shapes[k].point_labels == label] for k in which])).argmax())
+
+    before, idx0 = indices(parent)
+    back_index = majority(idx0, back, range(3, 6))
+    seat_index = majority(idx0, seat, range(3))
+    assert all(back_index in r.canonical.present for r in before[:3])  # the parent puts a back on every stool
+    child = adapt(parent, shapes, AdaptConfig(steps=200, seed=0))
+    after, idx1 = indices(child)
+    assert majority(idx1, seat, range(3)) == seat_index
+    assert majority(idx1, back, range(3, 6)) == back_index  # the chairs keep their back
+    assert not any(back_index in r.canonical.present for r in after[:3])
+
+
+def test_the_command_writes_an_adapted_model_and_never_overwrites(parent, tmp_path, capsys):
+    from primkit.cli import main
+
+    folder = tmp_path / "in"
+    folder.mkdir()
+    for i, s in enumerate(synthetic.generate("stool", 2, seed=5)):
+        trimesh.Trimesh(s.vertices, s.faces, process=False).export(folder / f"s{i}.obj")
+    out = tmp_path / "mine.safetensors"
+    args = ["adapt", str(folder), "--model", "chair", "-o", str(out), "--steps", "2", "--cache", str(tmp_path / "c"),
+            "--workers", "1"]
+    assert main(args) == 0
+    info = Abstractor.load(out).metadata["adaptation"]
+    assert info["shapes"] == 2 and info["config"]["steps"] == 2 and info["parent"] == "chair"
+    assert main(args) != 0  # the output exists: refused without --force
+    assert "exists" in capsys.readouterr().err
