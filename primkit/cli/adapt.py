@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
 
 from ._common import (add_align, add_axes, add_cache, add_force, add_model, add_output, add_refine, add_workers,
@@ -10,12 +11,20 @@ from ._common import (add_align, add_axes, add_cache, add_force, add_model, add_
 
 
 def register(sub) -> None:
-    p = sub.add_parser("adapt", help="continue a model's training on your own shapes, without labels")
+    p = sub.add_parser(
+        "adapt", help="continue a model's training on your own shapes, without labels",
+        description="Fit a model to your own collection without labels: its unsupervised stage-2 training goes on "
+        "over the given shapes (found in the model's frame first), pulled toward the parent's answer so that part "
+        "indices and names stay. The new model's metadata names its parent, the collection and the settings.",
+        epilog="examples:\n  primkit adapt mine/ --model chair -o chair-mine.safetensors\n"
+        "  primkit adapt scans/ --model chair --steps 200 --seed 1 -o chair-scans.safetensors\n",
+        formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("inputs", nargs="+", help="shape files or folders (meshes, point clouds, voxel grids)")
     add_model(p)
     add_output(p, "the adapted model file (.safetensors)")
     p.add_argument("--steps", type=int, default=600, help="stage-2 steps (default 600)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0, help="random seed of the batches and samples (default 0): "
+                   "the same seed gives the same model")
     add_axes(p)
     add_align(p)
     add_refine(p)  # shared by every command with --model; adapting refines nothing
