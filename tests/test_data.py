@@ -247,12 +247,16 @@ def test_an_unwritable_cache_prepares_in_memory(tmp_path, capsys):
 
 
 def test_label_count_mismatch_is_reported(tmp_path):
+    """A .seg beside a mesh with another face count: said in a warning naming the .seg, and the
+    mesh prepared without labels (labels serve only the commands that use them)."""
     shape = synthetic.chair(0)
     p = io.write_mesh(tmp_path / "c.ply", shape.vertices, shape.faces)
     (tmp_path / "c.seg").write_text("1\n2\n")
-    with pytest.raises(io.ShapeFileError) as err:
-        data.prepare_file(p)
-    assert str(err.value).startswith(str(tmp_path / "c.seg"))
+    with pytest.warns(UserWarning) as caught:
+        prepared = data.prepare_file(p)
+    assert str(caught[0].message).startswith(str(tmp_path / "c.seg"))
+    assert "2 labels but the mesh has" in str(caught[0].message)
+    assert (prepared.point_labels == -1).all() and prepared.info["labels_error"].startswith(str(tmp_path / "c.seg"))
 
 
 @pytest.mark.shared

@@ -482,12 +482,14 @@ def _check_engine(engine) -> None:
 
 
 def _kernels():
-    """The compiled text parsers, or None without Numba (the readers then use trimesh and NumPy)."""
-    try:
-        from . import _text_kernels
-    except ImportError:  # pragma: no cover - numba is a dependency
-        return None
-    return _text_kernels
+    """The compiled text parsers of :mod:`primkit.io._text_kernels`, loaded (and compiled) on first
+    use. Numba is a dependency: a kernel that fails to import fails loudly, never silently slow."""
+    from types import SimpleNamespace
+
+    from ._text_kernels import OK, gather_tokens, parse_labels, parse_obj, parse_off, parse_rows
+
+    return SimpleNamespace(OK=OK, gather_tokens=gather_tokens, parse_labels=parse_labels, parse_obj=parse_obj,
+                           parse_off=parse_off, parse_rows=parse_rows)
 
 
 def _fill_slow(kernels, buf: np.ndarray, flat: np.ndarray, slow: np.ndarray) -> None:
