@@ -18,6 +18,7 @@ import argparse
 import statistics
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 from primkit import data
@@ -34,10 +35,14 @@ def main(argv=None) -> int:
     ap.add_argument("--count", type=int, default=600)
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--workers", type=int, default=None)
+    ap.add_argument("--grid-sample", type=int, default=None, choices=[1, 2, 8],
+                    help="label with this grid_sample instead of the file's (LabellerSettings)")
     args = ap.parse_args(argv)
     labeller = read_labeller(args.model)
     if labeller is None:
         raise SystemExit(f"{args.model}: no labeller in this model file (primkit name-parts writes one)")
+    if args.grid_sample is not None:
+        labeller = replace(labeller, settings=replace(labeller.settings, grid_sample=args.grid_sample))
     files = data.find_shape_files(args.chairs)[: args.count]
     plain, named = Segmenter(args.model, labeller=None), Segmenter(args.model, labeller=labeller)
     with tempfile.TemporaryDirectory(prefix="bench-labeller-") as cache:

@@ -276,6 +276,51 @@ def test_grid_neighbours_are_the_27_nearest_voxels_of_a_full_block():
     np.testing.assert_allclose(d[[1, 6, 7, 18, 19, 26]], [1, 1, 2**0.5, 2**0.5, 3**0.5, 3**0.5])
 
 
+@pytest.mark.parametrize("step", [2, 8])
+def test_grid_sampling_classifies_one_voxel_in_step_and_fills_the_rest(step):
+    from dataclasses import replace
+
+    rng = np.random.default_rng(6)
+    labeller, _ = _toy_labeller(rng, LabellerSettings(neighbours=8, smooth=0))
+    occupancy = rng.random((10, 9, 8)) < 0.5
+    index = np.argwhere(occupancy)
+    points = (index + 0.5) / 10 - 0.5
+    c = _cuboids(rng, absent=())
+    near = lab.grid_neighbours(index, occupancy.shape)
+    every = labeller.predict_proba(points, c, neighbours=near, grid_index=index)  # grid_sample 1
+    sampled = replace(labeller, settings=replace(labeller.settings, grid_sample=step))
+    got = sampled.predict_proba(points, c, neighbours=near, grid_index=index)
+    picked = index.sum(1) % 2 == 0 if step == 2 else np.all(index % 2 == 0, axis=1)
+    classified = 0
+    for i, v in enumerate(index):  # brute force: the picked voxels of the 26 around, by coordinates
+        around = [j for j, w in enumerate(index) if 0 < np.abs(w - v).max() <= 1 and picked[j]]
+        if picked[i] or not around:
+            np.testing.assert_allclose(got[i], every[i], atol=1e-12)  # classified: the same row
+            classified += 1
+        else:
+            np.testing.assert_allclose(got[i], every[around].mean(axis=0), atol=1e-12)
+    assert classified < len(index) * (0.7 if step == 2 else 0.4)
+    assert np.all(lab.decide(got) >= 0)
+
+
+def test_smoothing_is_the_mean_over_the_neighbours_repeated():
+    rng = np.random.default_rng(7)
+    labeller, _ = _toy_labeller(rng, LabellerSettings(neighbours=8, smooth=2, smooth_neighbours=4))
+    proba = rng.random((300, 3))
+    idx = rng.integers(0, 300, (300, 6))
+    want = proba.copy()
+    for _ in range(2):
+        want = np.array([want[row[:4]].sum(axis=0) / 4 for row in idx])
+    np.testing.assert_allclose(labeller.smooth(proba, None, idx), want, rtol=0, atol=1e-15)
+
+
+def test_grid_sample_is_read_back_and_checked():
+    assert LabellerSettings.from_dict({}).grid_sample == 1  # files written before it: every voxel
+    assert LabellerSettings.from_dict({"grid_sample": 2}).grid_sample == 2
+    with pytest.raises(ValueError, match="grid_sample"):
+        LabellerSettings.from_dict({"grid_sample": 3})
+
+
 def test_decide_drops_labels_below_their_share():
     proba = np.array([[0.6, 0.4, 0.0]] * 99 + [[0.1, 0.3, 0.6]])
     assert np.array_equal(lab.decide(proba), [0] * 99 + [2])
