@@ -385,6 +385,37 @@ def test_the_pyvista_accessor_carries_a_label_array(chairs, tmp_path):
     assert "label" not in plain.cell_data  # the bundled chair has no labeller
 
 
+def test_the_vtk_filter_carries_a_label_array(chairs, tmp_path):
+    """The VTK filter on a model file with a labeller: port 0 has cell_data["label"] beside
+    "part", the labeller's names of the faces as the library computes them; none without one."""
+    pv = pytest.importorskip("pyvista")
+    from primkit.model.abstraction import abstract
+    from primkit.plugins.vtk_filter import PrimkitSegmentation
+
+    rng = np.random.default_rng(8)
+    settings = LabellerSettings(neighbours=8, smooth=1, smooth_neighbours=5)
+    shapes = []
+    for _ in range(3):
+        c = _cuboids(rng, m=20, absent=(3, 7))
+        points = rng.uniform(-0.5, 0.5, (300, 3))
+        shapes.append((frame_features(points, c, rng.normal(size=(300, 3)), settings), (points[:, 0] > 0).astype(int)))
+    labeller = Labeller.fit(shapes, ["rear", "front"], 20, settings=settings, max_iter=10)
+    model = lab.write_labeller(resolve_model("chair"), tmp_path / "m.safetensors", labeller)
+    s = chairs[1]
+    mesh = pv.PolyData.from_regular_faces(s.vertices, s.faces)
+    f = PrimkitSegmentation(Model=str(model), RefineSteps=0)
+    f.SetInputDataObject(0, mesh)
+    f.Update()
+    out = pv.wrap(f.GetOutputDataObject(0))
+    a = abstract((s.vertices, s.faces), str(model), refine=0)
+    want = lab.label_elements(labeller, lab.mesh_elements(s.vertices, s.faces, a.result.frame), a.result.canonical)
+    assert np.array_equal(np.asarray(out.cell_data["label"]), want)
+    assert list(out.field_data["label_names"]) == ["rear", "front"] and "part" in out.cell_data
+    f.SetModel("chair")
+    f.Update()
+    assert "label" not in pv.wrap(f.GetOutputDataObject(0)).cell_data  # the bundled chair has no labeller
+
+
 def test_name_parts_learns_from_labelled_point_clouds(chairs, tmp_path):
     """Point clouds with <stem>.labels.npy beside them: name-parts learns a labeller from three,
     and segment --semantic names the fourth's points with it (codes of labels.csv)."""
