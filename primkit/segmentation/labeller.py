@@ -58,6 +58,7 @@ __all__ = [
     "write_labeller",
     "read_labeller",
     "has_labeller",
+    "names_by_index",
 ]
 
 #: Value of the ``format`` key of a labeller's JSON description.
@@ -587,7 +588,7 @@ class Labeller:
             proba = self.ensemble.predict_proba(self.features(points, cuboids, normals, context))
         else:
             classify, around, use = grid_sampling(grid_index, neighbours, step)
-            proba = np.empty((len(points), self.ensemble.classes))
+            proba = np.zeros((len(points), self.ensemble.classes))  # zeros: the unclassified weigh 0 in the fill
             proba[classify] = self.ensemble.predict_proba(self.features(
                 points[classify], cuboids, None if normals is None else np.asarray(normals, float)[classify],
                 points if context is None else context))  # the local shape among all the elements
@@ -806,3 +807,21 @@ def label_elements(labeller: Labeller, elements: Elements, canonical: primitives
     return labeller.predict(elements.points, canonical, elements.normals, elements.context, elements.neighbours,
                             elements.grid_index)
 
+
+
+def names_by_index(named, index, parts: int, label_names, fallback) -> list:
+    """Each part index's name on one shape: the label most of its elements carry.
+
+    ``named`` : (n,) int, each element's label (an index into ``label_names``; negative: none);
+    ``index`` : (n,) int, each element's part index (the nearest-cuboid rule); ``fallback`` : the
+    model's name of each of the ``parts`` indices, kept where an index holds no labelled element.
+    Ties go to the label listed first. A name then selects, on this shape, the cuboids that hold
+    mostly elements of that label (``edit --scale arms=...``: the cuboids of the arms).
+    """
+    named, index = np.asarray(named, np.int64), np.asarray(index, np.int64)
+    if named.shape != index.shape:
+        raise ValueError(f"`named` and `index` differ in shape: {named.shape} and {index.shape}")
+    keep = (named >= 0) & (index >= 0) & (index < parts)
+    counts = np.zeros((parts, len(label_names)), np.int64)
+    np.add.at(counts, (index[keep], named[keep]), 1)
+    return [str(label_names[int(np.argmax(row))]) if row.any() else str(fallback[k]) for k, row in enumerate(counts)]

@@ -281,7 +281,7 @@ def test_grid_sampling_classifies_one_voxel_in_step_and_fills_the_rest(step):
     from dataclasses import replace
 
     rng = np.random.default_rng(6)
-    labeller, _ = _toy_labeller(rng, LabellerSettings(neighbours=8, smooth=0))
+    labeller, _ = _toy_labeller(rng, LabellerSettings(neighbours=8, smooth=0, grid_sample=1))
     occupancy = rng.random((10, 9, 8)) < 0.5
     index = np.argwhere(occupancy)
     points = (index + 0.5) / 10 - 0.5
@@ -300,6 +300,7 @@ def test_grid_sampling_classifies_one_voxel_in_step_and_fills_the_rest(step):
         else:
             np.testing.assert_allclose(got[i], every[around].mean(axis=0), atol=1e-12)
     assert classified < len(index) * (0.7 if step == 2 else 0.4)
+    assert not np.array_equal(got, every)
     assert np.all(lab.decide(got) >= 0)
 
 
@@ -452,3 +453,46 @@ def test_name_parts_learns_from_labelled_point_clouds(chairs, tmp_path):
     np.save(folder / "c2.labels.npy", np.zeros(7, np.int64))
     assert main(["name-parts", *train, "--model", "chair", "--names", "seat,back,other", "-o", str(out), "--force",
                  "--workers", "1", "--refine", "0"]) == 1
+
+
+def test_names_by_index_is_each_index_majority_label():
+    rng = np.random.default_rng(9)
+    named = rng.integers(-1, 3, 500)
+    index = rng.integers(0, 6, 500)  # index 5 ...
+    index[index == 5] = 4  # ... holds nothing: it keeps its fallback name
+    got = lab.names_by_index(named, index, 6, ["a", "b", "c"], [f"p{k}" for k in range(6)])
+    for k in range(6):
+        mine = named[(index == k) & (named >= 0)]
+        want = "abc"[int(np.argmax(np.bincount(mine, minlength=3)))] if len(mine) else f"p{k}"
+        assert got[k] == want
+
+
+def test_edit_scales_the_cuboids_a_label_names(chairs, tmp_path, capsys):
+    """edit --scale NAME=... with a labelled model: NAME is a label of the labeller (not of the
+    model's index names); the cuboids edited are those whose faces mostly carry it."""
+    from primkit import io
+    from primkit.cli import main
+
+    rng = np.random.default_rng(10)
+    settings = LabellerSettings(neighbours=8, smooth=1, smooth_neighbours=5)
+    shapes = []
+    for _ in range(3):
+        c = _cuboids(rng, m=20, absent=(3, 7))
+        points = rng.uniform(-0.5, 0.5, (300, 3))
+        shapes.append((frame_features(points, c, rng.normal(size=(300, 3)), settings), (points[:, 1] > 0).astype(int)))
+    labeller = Labeller.fit(shapes, ["lower", "upper"], 20, settings=settings, max_iter=10)
+    model = lab.write_labeller(resolve_model("chair"), tmp_path / "m.safetensors", labeller)
+    s = chairs[2]
+    path = io.write_mesh(tmp_path / "c.off", s.vertices, s.faces)
+    edited = {}
+    for name in ("upper", "lower"):
+        rc = main(["edit", str(path), "--model", str(model), "--scale", f"{name}=1.2", "-o",
+                   str(tmp_path / f"{name}.off"), "--cache", str(tmp_path / "cache"), "--workers", "1"])
+        out = capsys.readouterr().out
+        assert rc == 0, out
+        line = next(x for x in out.splitlines() if x.startswith("edited: "))
+        edited[name] = {item.split("[")[0] for item in line[len("edited: "):].split(", ")}
+        assert edited[name] == {name}  # every cuboid edited carries the label asked for
+    rc = main(["edit", str(path), "--model", str(model), "--scale", "seat=1.2", "-o", str(tmp_path / "x.off"),
+               "--cache", str(tmp_path / "cache"), "--workers", "1"])
+    assert rc != 0 and "unknown part 'seat'" in capsys.readouterr().err  # index names give way to labels
