@@ -9,7 +9,7 @@ runs it) once with ``labeller=None`` (names by part index) and once with the mod
 Usage (from the repository root)::
 
     primkit name-parts CHAIRS... --model chair --labels ../shared/data/partnet_chair_boxes -o named.safetensors
-    python -m benchmarks.bench_labeller named.safetensors [--count 600] [--rounds 3] [--workers N]
+    python -m benchmarks.bench_labeller named.safetensors [--count 600] [--rounds 3] [--workers N] [--grid-sample 1,2,8]
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ import argparse
 import statistics
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 from primkit import data
@@ -34,30 +35,40 @@ def main(argv=None) -> int:
     ap.add_argument("--count", type=int, default=600)
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--workers", type=int, default=None)
+    ap.add_argument("--grid-sample", default=None, metavar="N[,N...]",
+                    help="label with this grid_sample (1, 2 or 8) instead of the file's (LabellerSettings); "
+                         "several: each timed in every round")
     args = ap.parse_args(argv)
     labeller = read_labeller(args.model)
     if labeller is None:
         raise SystemExit(f"{args.model}: no labeller in this model file (primkit name-parts writes one)")
+    steps = [int(x) for x in args.grid_sample.split(",")] if args.grid_sample else [labeller.settings.grid_sample]
     files = data.find_shape_files(args.chairs)[: args.count]
-    plain, named = Segmenter(args.model, labeller=None), Segmenter(args.model, labeller=labeller)
+    plain = Segmenter(args.model, labeller=None)
+    variants = [("index", plain)] + [
+        (f"labeller (grid_sample {g})", Segmenter(args.model, labeller=replace(
+            labeller, settings=replace(labeller.settings, grid_sample=g)))) for g in steps]
     with tempfile.TemporaryDirectory(prefix="bench-labeller-") as cache:
         plain.abstract_files(files, cache_dir=cache, workers=args.workers, progress=False)  # warm the cache
+        for _, segmenter in variants:  # untimed: the first pass pays for reading the cache and compiling
+            segmenter.segment_files(files[:20], cache_dir=cache, workers=args.workers, progress=False)
         rows = []
         for r in range(args.rounds):
             times = {}
-            for label, segmenter in ((("index", plain), ("labeller", named)) if r % 2 == 0
-                                     else (("labeller", named), ("index", plain))):
+            for label, segmenter in variants[r % len(variants):] + variants[: r % len(variants)]:  # order rotates
                 t0 = time.perf_counter()
                 segs, errors = segmenter.segment_files(files, cache_dir=cache, workers=args.workers, progress=False)
                 times[label] = time.perf_counter() - t0
                 assert len(segs) + len(errors) == len(files)
             rows.append(times)
-            print(f"round {r}: index names {times['index']:.1f} s, labeller {times['labeller']:.1f} s, "
-                  f"+{100 * (times['labeller'] / times['index'] - 1):.0f}%", flush=True)
-    ratios = [t["labeller"] / t["index"] for t in rows]
-    print(f"{len(files)} chairs, {len(labeller.ensemble.feature)} tree nodes, settings {labeller.settings}: "
-          f"labelling adds {100 * (statistics.median(ratios) - 1):.0f}% (median of {len(rows)} rounds; "
-          f"range {100 * (min(ratios) - 1):.0f}% to {100 * (max(ratios) - 1):.0f}%)")
+            print(f"round {r}: " + ", ".join(f"{k} {v:.1f} s" + ("" if k == "index" else
+                                                                  f" (+{100 * (v / times['index'] - 1):.0f}%)")
+                                           for k, v in times.items()), flush=True)
+    for label, _ in variants[1:]:
+        ratios = [t[label] / t["index"] for t in rows]
+        print(f"{len(files)} chairs, {len(labeller.ensemble.feature)} tree nodes, {label}: labelling adds "
+              f"{100 * (statistics.median(ratios) - 1):.0f}% (median of {len(rows)} rounds; "
+              f"range {100 * (min(ratios) - 1):.0f}% to {100 * (max(ratios) - 1):.0f}%)")
     return 0
 
 

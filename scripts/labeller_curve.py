@@ -143,7 +143,7 @@ def index_naming(chairs: Chairs, names) -> dict:
 def learn_and_label(chairs, train, evaluate, settings, *, position_only=False, **fit) -> dict:
     """Learn from ``train``, label ``evaluate`` as the library does (the classifier, smoothing over
     each voxel's 3 x 3 x 3 neighbourhood, rare labels dropped): name -> label codes."""
-    from primkit.segmentation.labeller import decide, grid_neighbours
+    from primkit.segmentation.labeller import decide, grid_neighbours, grid_sampling
 
     keep = _columns(chairs.parts, settings)
     data = [(chairs.full_features(n)[:, keep] if not position_only else chairs.arrays[n]["points"].astype(float),
@@ -154,9 +154,16 @@ def learn_and_label(chairs, train, evaluate, settings, *, position_only=False, *
     for n in evaluate:
         a = chairs.arrays[n]
         X = chairs.full_features(n)[:, keep] if not position_only else a["points"].astype(float)
-        proba = labeller.ensemble.predict_proba(X)
+        near = grid_neighbours(a["index"].astype(np.int64), (32, 32, 32))
+        # as Labeller.predict_proba on a grid: one voxel in grid_sample classified, the others filled
+        # (their features are rows of the full features: the local shape is read among all voxels)
+        classify, around, use = grid_sampling(a["index"].astype(np.int64), near, settings.grid_sample)
+        proba = np.zeros((len(X), len(labeller.names)))  # zeros: the unclassified weigh 0 in the fill
+        proba[classify] = labeller.ensemble.predict_proba(X[classify])
+        w = use.astype(float)
+        proba[~classify] = np.einsum("nk,nkc->nc", w, proba[around]) / w.sum(axis=1, keepdims=True)
         if settings.smooth:
-            idx = grid_neighbours(a["index"].astype(np.int64), (32, 32, 32))[:, : settings.smooth_neighbours]
+            idx = near[:, : settings.smooth_neighbours]
             for _ in range(settings.smooth):
                 proba = proba[idx].mean(axis=1)
         out[n] = known[decide(proba, settings.min_share)]
@@ -382,6 +389,8 @@ def main(argv=None) -> int:
     ap.add_argument("--draws", type=int, default=3, help="draws of the labelled chairs under 100")
     ap.add_argument("--only", action="append", default=None, help="sweep: these candidates only")
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--grid-sample", type=int, default=LabellerSettings().grid_sample, choices=[1, 2, 8],
+                    help="curve: classify one voxel in this many (LabellerSettings.grid_sample)")
     args = ap.parse_args(argv)
     args.scratch.mkdir(parents=True, exist_ok=True)
     sizes = [int(s) for s in args.sizes.split(",")] if args.sizes else None
@@ -393,7 +402,7 @@ def main(argv=None) -> int:
     elif args.command == "model":
         out = model_figures(args.model, args.part)
     elif args.command == "curve":
-        out = curve(args.scratch, args.part, sizes or SIZES, args.draws, LabellerSettings())
+        out = curve(args.scratch, args.part, sizes or SIZES, args.draws, LabellerSettings(grid_sample=args.grid_sample))
     else:
         out = coseg(args.scratch, LabellerSettings())
     if args.json:

@@ -70,6 +70,25 @@ def _abstract(args, paths, model=None):
     return out.model, [(a.prepared, a.result) for a in out], []
 
 
+def _labeller(model):
+    """The model file's labeller (:mod:`primkit.segmentation.labeller`), or None."""
+    from ..model.bundled import resolve_model
+    from ..segmentation.labeller import read_labeller
+
+    return read_labeller(resolve_model(model))
+
+
+def _labelled_names(labeller, mesh, frame, canonical, fallback) -> list:
+    """Each part index's name on this mesh: the labeller's label of most of its faces."""
+    from .. import primitives
+    from ..segmentation.labeller import label_elements, mesh_elements, names_by_index
+
+    elements = mesh_elements(mesh.vertices, mesh.faces, frame)
+    codes = label_elements(labeller, elements, canonical)
+    return names_by_index(codes, primitives.assign_points(elements.points, canonical), canonical.count,
+                          labeller.names, fallback)
+
+
 def _source_mesh(path, *, points: bool = False):
     """The source as read: a Mesh, or with ``points`` also a PointCloud (deformed point by point)."""
     from ..io import Mesh, PointCloud, ShapeFileError, read_shape
@@ -219,17 +238,24 @@ def _cmd_edit(args) -> int:
     src = Path(args.mesh)
     abstractor = load_model(args.model)
     names = abstractor.part_names
+    labeller = _labeller(args.model)
     edits = {"scale": {}, "rotate": {}, "move": {}, "lengthen": {}}
-    for kind in edits:  # checked before any shape is read
-        for text in getattr(args, kind) or []:
-            edits[kind].update(parse_edit(text, names, kind=kind))
-    if not any(edits.values()):
+    if not any(getattr(args, kind) for kind in edits):
         err("nothing to edit: give --scale, --rotate, --move or --lengthen")
         return 2
+    if labeller is None:  # checked before any shape is read (with a labeller: once the shape is labelled)
+        for kind in edits:
+            for text in getattr(args, kind) or []:
+                edits[kind].update(parse_edit(text, names, kind=kind))
     abstractor, pairs, errors = _abstract(args, [src], abstractor)
     if errors:
         return report_errors(errors)
     (shape, res), = pairs
+    if labeller is not None:  # a name selects the cuboids whose faces the labeller mostly gives it
+        names = _labelled_names(labeller, _source_mesh(src), shape.frame, res.canonical, names)
+        for kind in edits:
+            for text in getattr(args, kind) or []:
+                edits[kind].update(parse_edit(text, names, kind=kind))
     present = set(res.canonical.present.tolist())
     for kind, chosen in edits.items():
         missing = [k for k in chosen if k not in present]

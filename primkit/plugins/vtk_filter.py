@@ -4,7 +4,9 @@
 point cloud); out on port 0 the same surface with ``part`` cell data (the part index of each face)
 and ``part`` point data (of each vertex or point); out on port 1 the cuboids, one ``vtkPolyData`` of
 12 triangles per present cuboid with ``part`` cell data. Both outputs carry ``part_names`` field
-data. It re-executes when its input or its properties change, like any VTK filter::
+data. When the model file has a labeller (``primkit name-parts``, :mod:`primkit.segmentation.labeller`),
+port 0 also carries ``label`` beside ``part`` (cell data of a mesh's faces, point data of a cloud's
+points: each element's name, an index into the ``label_names`` field data). It re-executes when its input or its properties change, like any VTK filter::
 
     from primkit.plugins.vtk_filter import PrimkitSegmentation
     f = PrimkitSegmentation(Model="chair", RefineSteps=0)
@@ -44,7 +46,7 @@ class PrimkitSegmentation(VTKPythonAlgorithmBase):
         VTKPythonAlgorithmBase.__init__(self, nInputPorts=1, inputType="vtkPolyData", nOutputPorts=2,
                                         outputType="vtkPolyData")
         self._model, self._refine, self._up, self._front = "chair", 0, "auto", "auto"
-        self._loaded = None  # (model name, Abstractor): loaded once per model
+        self._loaded = None  # (model name, Abstractor, Labeller or None): loaded once per model
         for name, value in properties.items():
             setter = getattr(self, f"Set{name}", None)
             if setter is None:
@@ -95,9 +97,15 @@ class PrimkitSegmentation(VTKPythonAlgorithmBase):
     # ---- pipeline ------------------------------------------------------------------------------
 
     def _abstractor(self):
+        return self._load()[1]
+
+    def _load(self):
         if self._loaded is None or self._loaded[0] != self._model:
-            self._loaded = (self._model, load_model(self._model))
-        return self._loaded[1]
+            from ..model.bundled import resolve_model
+            from ..segmentation.labeller import read_labeller
+
+            self._loaded = (self._model, load_model(self._model), read_labeller(resolve_model(self._model)))
+        return self._loaded
 
     def RequestData(self, request, inInfo, outInfo):
         from vtkmodules.vtkCommonCore import vtkOutputWindow
@@ -108,7 +116,9 @@ class PrimkitSegmentation(VTKPythonAlgorithmBase):
         try:
             vertices, faces = from_pyvista(source)
             shape = (vertices, faces) if len(faces) else vertices
-            labelled = label_shapes([shape], self._abstractor(), up=self._up, front=self._front, refine=self._refine)[0]
+            _, abstractor, labeller = self._load()
+            labelled = label_shapes([shape], abstractor, up=self._up, front=self._front, refine=self._refine,
+                                    labeller=labeller)[0]
             parts = segmented_copy(source, labelled)
         except (ValueError, TypeError) as exc:
             vtkOutputWindow.GetInstance().DisplayErrorText(f"primkit segmentation: {str(exc).splitlines()[0]}\n")

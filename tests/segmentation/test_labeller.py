@@ -276,6 +276,52 @@ def test_grid_neighbours_are_the_27_nearest_voxels_of_a_full_block():
     np.testing.assert_allclose(d[[1, 6, 7, 18, 19, 26]], [1, 1, 2**0.5, 2**0.5, 3**0.5, 3**0.5])
 
 
+@pytest.mark.parametrize("step", [2, 8])
+def test_grid_sampling_classifies_one_voxel_in_step_and_fills_the_rest(step):
+    from dataclasses import replace
+
+    rng = np.random.default_rng(6)
+    labeller, _ = _toy_labeller(rng, LabellerSettings(neighbours=8, smooth=0, grid_sample=1))
+    occupancy = rng.random((10, 9, 8)) < 0.5
+    index = np.argwhere(occupancy)
+    points = (index + 0.5) / 10 - 0.5
+    c = _cuboids(rng, absent=())
+    near = lab.grid_neighbours(index, occupancy.shape)
+    every = labeller.predict_proba(points, c, neighbours=near, grid_index=index)  # grid_sample 1
+    sampled = replace(labeller, settings=replace(labeller.settings, grid_sample=step))
+    got = sampled.predict_proba(points, c, neighbours=near, grid_index=index)
+    picked = index.sum(1) % 2 == 0 if step == 2 else np.all(index % 2 == 0, axis=1)
+    classified = 0
+    for i, v in enumerate(index):  # brute force: the picked voxels of the 26 around, by coordinates
+        around = [j for j, w in enumerate(index) if 0 < np.abs(w - v).max() <= 1 and picked[j]]
+        if picked[i] or not around:
+            np.testing.assert_allclose(got[i], every[i], atol=1e-12)  # classified: the same row
+            classified += 1
+        else:
+            np.testing.assert_allclose(got[i], every[around].mean(axis=0), atol=1e-12)
+    assert classified < len(index) * (0.7 if step == 2 else 0.4)
+    assert not np.array_equal(got, every)
+    assert np.all(lab.decide(got) >= 0)
+
+
+def test_smoothing_is_the_mean_over_the_neighbours_repeated():
+    rng = np.random.default_rng(7)
+    labeller, _ = _toy_labeller(rng, LabellerSettings(neighbours=8, smooth=2, smooth_neighbours=4))
+    proba = rng.random((300, 3))
+    idx = rng.integers(0, 300, (300, 6))
+    want = proba.copy()
+    for _ in range(2):
+        want = np.array([want[row[:4]].sum(axis=0) / 4 for row in idx])
+    np.testing.assert_allclose(labeller.smooth(proba, None, idx), want, rtol=0, atol=1e-15)
+
+
+def test_grid_sample_is_read_back_and_checked():
+    assert LabellerSettings.from_dict({}).grid_sample == 1  # files written before it: every voxel
+    assert LabellerSettings.from_dict({"grid_sample": 2}).grid_sample == 2
+    with pytest.raises(ValueError, match="grid_sample"):
+        LabellerSettings.from_dict({"grid_sample": 3})
+
+
 def test_decide_drops_labels_below_their_share():
     proba = np.array([[0.6, 0.4, 0.0]] * 99 + [[0.1, 0.3, 0.6]])
     assert np.array_equal(lab.decide(proba), [0] * 99 + [2])
@@ -340,6 +386,37 @@ def test_the_pyvista_accessor_carries_a_label_array(chairs, tmp_path):
     assert "label" not in plain.cell_data  # the bundled chair has no labeller
 
 
+def test_the_vtk_filter_carries_a_label_array(chairs, tmp_path):
+    """The VTK filter on a model file with a labeller: port 0 has cell_data["label"] beside
+    "part", the labeller's names of the faces as the library computes them; none without one."""
+    pv = pytest.importorskip("pyvista")
+    from primkit.model.abstraction import abstract
+    from primkit.plugins.vtk_filter import PrimkitSegmentation
+
+    rng = np.random.default_rng(8)
+    settings = LabellerSettings(neighbours=8, smooth=1, smooth_neighbours=5)
+    shapes = []
+    for _ in range(3):
+        c = _cuboids(rng, m=20, absent=(3, 7))
+        points = rng.uniform(-0.5, 0.5, (300, 3))
+        shapes.append((frame_features(points, c, rng.normal(size=(300, 3)), settings), (points[:, 0] > 0).astype(int)))
+    labeller = Labeller.fit(shapes, ["rear", "front"], 20, settings=settings, max_iter=10)
+    model = lab.write_labeller(resolve_model("chair"), tmp_path / "m.safetensors", labeller)
+    s = chairs[1]
+    mesh = pv.PolyData.from_regular_faces(s.vertices, s.faces)
+    f = PrimkitSegmentation(Model=str(model), RefineSteps=0)
+    f.SetInputDataObject(0, mesh)
+    f.Update()
+    out = pv.wrap(f.GetOutputDataObject(0))
+    a = abstract((s.vertices, s.faces), str(model), refine=0)
+    want = lab.label_elements(labeller, lab.mesh_elements(s.vertices, s.faces, a.result.frame), a.result.canonical)
+    assert np.array_equal(np.asarray(out.cell_data["label"]), want)
+    assert list(out.field_data["label_names"]) == ["rear", "front"] and "part" in out.cell_data
+    f.SetModel("chair")
+    f.Update()
+    assert "label" not in pv.wrap(f.GetOutputDataObject(0)).cell_data  # the bundled chair has no labeller
+
+
 def test_name_parts_learns_from_labelled_point_clouds(chairs, tmp_path):
     """Point clouds with <stem>.labels.npy beside them: name-parts learns a labeller from three,
     and segment --semantic names the fourth's points with it (codes of labels.csv)."""
@@ -376,3 +453,46 @@ def test_name_parts_learns_from_labelled_point_clouds(chairs, tmp_path):
     np.save(folder / "c2.labels.npy", np.zeros(7, np.int64))
     assert main(["name-parts", *train, "--model", "chair", "--names", "seat,back,other", "-o", str(out), "--force",
                  "--workers", "1", "--refine", "0"]) == 1
+
+
+def test_names_by_index_is_each_index_majority_label():
+    rng = np.random.default_rng(9)
+    named = rng.integers(-1, 3, 500)
+    index = rng.integers(0, 6, 500)  # index 5 ...
+    index[index == 5] = 4  # ... holds nothing: it keeps its fallback name
+    got = lab.names_by_index(named, index, 6, ["a", "b", "c"], [f"p{k}" for k in range(6)])
+    for k in range(6):
+        mine = named[(index == k) & (named >= 0)]
+        want = "abc"[int(np.argmax(np.bincount(mine, minlength=3)))] if len(mine) else f"p{k}"
+        assert got[k] == want
+
+
+def test_edit_scales_the_cuboids_a_label_names(chairs, tmp_path, capsys):
+    """edit --scale NAME=... with a labelled model: NAME is a label of the labeller (not of the
+    model's index names); the cuboids edited are those whose faces mostly carry it."""
+    from primkit import io
+    from primkit.cli import main
+
+    rng = np.random.default_rng(10)
+    settings = LabellerSettings(neighbours=8, smooth=1, smooth_neighbours=5)
+    shapes = []
+    for _ in range(3):
+        c = _cuboids(rng, m=20, absent=(3, 7))
+        points = rng.uniform(-0.5, 0.5, (300, 3))
+        shapes.append((frame_features(points, c, rng.normal(size=(300, 3)), settings), (points[:, 1] > 0).astype(int)))
+    labeller = Labeller.fit(shapes, ["lower", "upper"], 20, settings=settings, max_iter=10)
+    model = lab.write_labeller(resolve_model("chair"), tmp_path / "m.safetensors", labeller)
+    s = chairs[2]
+    path = io.write_mesh(tmp_path / "c.off", s.vertices, s.faces)
+    edited = {}
+    for name in ("upper", "lower"):
+        rc = main(["edit", str(path), "--model", str(model), "--scale", f"{name}=1.2", "-o",
+                   str(tmp_path / f"{name}.off"), "--cache", str(tmp_path / "cache"), "--workers", "1"])
+        out = capsys.readouterr().out
+        assert rc == 0, out
+        line = next(x for x in out.splitlines() if x.startswith("edited: "))
+        edited[name] = {item.split("[")[0] for item in line[len("edited: "):].split(", ")}
+        assert edited[name] == {name}  # every cuboid edited carries the label asked for
+    rc = main(["edit", str(path), "--model", str(model), "--scale", "seat=1.2", "-o", str(tmp_path / "x.off"),
+               "--cache", str(tmp_path / "cache"), "--workers", "1"])
+    assert rc != 0 and "unknown part 'seat'" in capsys.readouterr().err  # index names give way to labels
