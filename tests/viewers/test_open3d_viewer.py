@@ -17,7 +17,8 @@ import pytest
 from primkit import io, synthetic
 from primkit.model.abstraction import load_model
 from primkit.primitives import Cuboids
-from primkit.segmentation import face_labels, point_labels
+from primkit.segmentation.meshes import surface_face_labels
+from primkit.segmentation.points import segment_points
 from primkit.viewers.open3d_viewer import open3d_viewer
 
 
@@ -58,7 +59,7 @@ def test_parts_toggle_refine_and_export(chair, model, tmp_path):
     path, mesh = chair
     viewer = open3d_viewer((mesh.vertices, mesh.faces), model, name="c", refine_step=30, export_folder=tmp_path / "x")
     cub = viewer.segmentation.cuboids
-    labels = face_labels(mesh.vertices, mesh.faces, cub)
+    labels = surface_face_labels(mesh.vertices, mesh.faces, cub)  # the default labelling: the graph cut
     assert np.array_equal(viewer.segmentation.labelled.face_labels, labels)
     names = {g["name"]: g for g in viewer.geometries()}
     for k in cub.present:
@@ -97,7 +98,7 @@ def test_point_cloud_in_the_viewer(chair, model, tmp_path):
     _, mesh = chair
     points = mesh.vertices[::2]
     viewer = open3d_viewer(points, model, name="cloud", export_folder=tmp_path)
-    labels = point_labels(points, viewer.segmentation.cuboids)
+    labels = segment_points(io.PointCloud(points), viewer.segmentation.cuboids).labels  # the default labelling
     for g in viewer.geometries():
         if g["name"].startswith("surface"):
             k = int(g["name"].split()[1])
