@@ -57,6 +57,7 @@ def wheel_python(tmp_path_factory):
 
 
 @pytest.mark.shared
+@pytest.mark.integration  # a wheel built and installed into a fresh virtual environment, as tests/test_wheel.py
 def test_pv_read_off_and_binvox_and_segment_from_the_wheel_without_import(shared_data, wheel_python, tmp_path):
     python, env = wheel_python
     cloud = tmp_path / "chair.xyz"
