@@ -2,56 +2,26 @@
 environment with no checkout on the path. The viewers draw a picture (``primkit view abstraction
 ... --png``) and a script abstracts a mesh through ``primkit.abstract``.
 
-To stay fast the wheel is built and installed without dependencies (``--no-deps
---no-build-isolation``) and the fresh environment sees the dependencies already installed here
-through a ``.pth`` file naming this environment's site-packages. A folder added by a ``.pth`` file
-has its own ``.pth`` files ignored, so this environment's editable install of the checkout stays
-off the path; every command runs from a temporary folder, and the test checks where primkit was
-imported from."""
+The environment is :mod:`wheel_env`'s (no dependencies installed, this environment's
+site-packages seen through a ``.pth`` file); every command runs from a temporary folder, and the
+test checks where primkit was imported from."""
 
 from __future__ import annotations
 
 import json
-import os
-import shutil
-import subprocess
-import sys
-import sysconfig
 from pathlib import Path
 
 import numpy as np
 import pytest
+from wheel_env import ROOT, fresh_environment
+from wheel_env import run as _run
 
 pytestmark = pytest.mark.integration  # a wheel built and installed into a fresh virtual environment
-
-ROOT = Path(__file__).resolve().parents[1]
-
-
-def _run(args, cwd, timeout=300):
-    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "PYTHONPATH")}
-    out = subprocess.run([str(a) for a in args], capture_output=True, text=True, cwd=cwd, env=env, timeout=timeout)
-    assert out.returncode == 0, f"{args[0]} failed:\n{out.stdout[-2000:]}\n{out.stderr[-3000:]}"
-    return out.stdout
-
 
 @pytest.fixture(scope="module")
 def fresh_env(tmp_path_factory):
     root = tmp_path_factory.mktemp("wheel")
-    # built from a copy, so that no stale build/ of the checkout can slip old modules into the wheel
-    source = root / "source"
-    shutil.copytree(ROOT, source, ignore=shutil.ignore_patterns(".git", ".venv", "build", "dist", "*.egg-info", "__pycache__",
-                                                               ".pytest_cache", ".primkit-cache", "out", "tests", "docs"))
-    _run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "--no-build-isolation", "--disable-pip-version-check",
-          "-w", root / "dist", source], cwd=root)
-    wheel = next((root / "dist").glob("primkit-*.whl"))
-    env = root / "env"
-    _run([sys.executable, "-m", "venv", "--without-pip", env], cwd=root)
-    python = env / "bin" / "python"
-    _run([sys.executable, "-m", "pip", "--python", python, "install", "-q", "--no-deps", "--no-build-isolation",
-          "--disable-pip-version-check", wheel], cwd=root)
-    site = Path(_run([python, "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"], cwd=root).strip())
-    (site / "primkit-test-dependencies.pth").write_text(sysconfig.get_paths()["purelib"] + "\n")
-    return env, root
+    return fresh_environment(root), root
 
 
 def test_the_wheel_carries_the_viewers_and_the_library(fresh_env):

@@ -6,16 +6,13 @@ from __future__ import annotations
 
 import inspect
 import json
-import os
 import re
-import shutil
-import subprocess
-import sys
-import sysconfig
 from pathlib import Path
 
 import numpy as np
 import pytest
+from wheel_env import fresh_environment
+from wheel_env import run as _run
 
 from primkit import io, synthetic
 from primkit.plugins import pyvista_readers
@@ -23,37 +20,15 @@ from primkit.plugins.common import label_shape
 from primkit.segmentation import voxel_centres
 from primkit.viz.palette import part_colors
 
-ROOT = Path(__file__).resolve().parents[2]
 CHAIR = "coseg_chairs/chairs_101-120/shapes/101.off"
 VOXELS = "standalone_meshes/chair.binvox"
 
 
-def _run(args, cwd, timeout=600):
-    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "PYTHONPATH")}
-    env["VTK_DEFAULT_OPENGL_WINDOW"] = "vtkEGLRenderWindow"
-    out = subprocess.run([str(a) for a in args], capture_output=True, text=True, cwd=cwd, env=env, timeout=timeout)
-    assert out.returncode == 0, f"{args[0]} failed:\n{out.stdout[-2000:]}\n{out.stderr[-3000:]}"
-    return out.stdout
-
-
 @pytest.fixture(scope="module")
 def wheel_python(tmp_path_factory):
-    """A fresh environment holding the wheel of this checkout (as tests/test_wheel.py builds it: no
-    dependencies installed, this environment's site-packages seen through a ``.pth`` file)."""
-    root = tmp_path_factory.mktemp("wheel")
-    source = root / "source"
-    shutil.copytree(ROOT, source, ignore=shutil.ignore_patterns(".git", ".venv", "build", "dist", "*.egg-info", "__pycache__",
-                                                               ".pytest_cache", ".primkit-cache", "out", "tests", "docs"))
-    _run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "--no-build-isolation", "--disable-pip-version-check",
-          "-w", root / "dist", source], cwd=root)
-    env = root / "env"
-    _run([sys.executable, "-m", "venv", "--without-pip", env], cwd=root)
-    python = env / "bin" / "python"
-    _run([sys.executable, "-m", "pip", "--python", python, "install", "-q", "--no-deps", "--no-build-isolation",
-          "--disable-pip-version-check", next((root / "dist").glob("primkit-*.whl"))], cwd=root)
-    site = Path(_run([python, "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"], cwd=root).strip())
-    (site / "primkit-test-dependencies.pth").write_text(sysconfig.get_paths()["purelib"] + "\n")
-    return python, env
+    """A fresh environment holding the wheel of this checkout (:mod:`wheel_env`)."""
+    env = fresh_environment(tmp_path_factory.mktemp("wheel"))
+    return env / "bin" / "python", env
 
 
 @pytest.mark.shared
