@@ -49,6 +49,7 @@ __all__ = [
     "Segmentation",
     "segment_mesh",
     "surface_face_labels",
+    "semantic_codes",
     "GroundTruth",
     "read_ground_truth",
     "parse_label_names",
@@ -91,6 +92,16 @@ def vertex_labels(vertices, cuboids: primitives.Cuboids) -> np.ndarray:
 _QUADRATURE = np.array(
     [[4, 1, 1], [1, 4, 1], [1, 1, 4], [2, 2, 2], [2, 2, 2]], dtype=float
 ) / 6.0
+
+
+def semantic_codes(labels, part_names, named=None, label_names=None) -> tuple[list, np.ndarray]:
+    """``(names, codes)`` of elements (points, voxels) labelled ``labels`` (part indices, -1 none):
+    the distinct names and each element's 1-based name code (-1 none). With a labeller's ``named``
+    (indices into ``label_names``, -1 none) its names; else each index's name
+    (:func:`primkit.model.parts.label_codes`, the same codes on every shape of a model)."""
+    if named is not None:
+        return list(label_names), np.where(named >= 0, named + 1, -1)
+    return parts.label_codes(part_names)[0], parts.named_labels(labels, part_names)
 
 
 def face_labels(vertices, faces, cuboids: primitives.Cuboids) -> np.ndarray:

@@ -12,7 +12,7 @@ from .. import io, primitives
 from ..model import parts
 from ..viz.palette import part_colors
 from . import graphcut
-from .meshes import point_labels
+from .meshes import point_labels, semantic_codes
 
 __all__ = ["PointSegmentation", "segment_points"]
 
@@ -52,9 +52,7 @@ class PointSegmentation:
         """``(names, codes)``: the distinct part names and each point's 1-based name code (-1 unassigned):
         the labeller's (``named``) when the model has one, else its index's name
         (:func:`primkit.model.parts.label_codes`, the same codes on every shape of a model)."""
-        if self.named is not None:
-            return list(self.label_names), np.where(self.named >= 0, self.named + 1, -1)
-        return parts.label_codes(self.part_names)[0], parts.named_labels(self.labels, self.part_names)
+        return semantic_codes(self.labels, self.part_names, self.named, self.label_names)
 
     def save(self, folder, *, semantic: bool = False, overwrite: bool = False) -> dict:
         """Write ``<name>.parts.npy`` (``(n,) int16``: the part index of each point, in input order,

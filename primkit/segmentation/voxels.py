@@ -205,9 +205,7 @@ class VoxelSegmentation:
         """``(names, codes)``: the distinct part names and each voxel's 1-based name code (-1 empty):
         the labeller's (``named``) when the model has one, else its index's name
         (:func:`primkit.model.parts.label_codes`, the same codes on every shape of a model)."""
-        if self.named is not None:
-            return list(self.label_names), np.where(self.named >= 0, self.named + 1, -1)
-        return parts.label_codes(self.part_names)[0], parts.named_labels(self.labels, self.part_names)
+        return meshes.semantic_codes(self.labels, self.part_names, self.named, self.label_names)
 
     def save(self, folder, *, semantic: bool = False, overwrite: bool = False) -> dict:
         """Write ``<name>.voxlabels.npy`` (``(R, R, R) int16``: the part index of each occupied voxel,
