@@ -359,6 +359,20 @@ def test_a_learned_labeller_names_the_faces_the_segmenter_writes(chairs, tmp_pat
     assert codes_names == labeller.names and np.array_equal(codes, named.named + 1)
 
 
+def _chair_with_a_labeller(tmp_path, *, seed, axis, names):
+    """The bundled chair model with a labeller learned from random 20-slot frames, naming points by
+    the sign of one coordinate: ``(labeller, model file)``."""
+    rng = np.random.default_rng(seed)
+    settings = LabellerSettings(neighbours=8, smooth=1, smooth_neighbours=5)
+    shapes = []
+    for _ in range(3):
+        c = _cuboids(rng, m=20, absent=(3, 7))
+        points = rng.uniform(-0.5, 0.5, (300, 3))
+        shapes.append((frame_features(points, c, rng.normal(size=(300, 3)), settings), (points[:, axis] > 0).astype(int)))
+    labeller = Labeller.fit(shapes, names, 20, settings=settings, max_iter=10)
+    return labeller, lab.write_labeller(resolve_model("chair"), tmp_path / "m.safetensors", labeller)
+
+
 def test_the_pyvista_accessor_carries_a_label_array(chairs, tmp_path):
     """A model file with a labeller (here learned from random 20-slot frames): the accessor's copy
     has cell_data["label"], the labeller's names of the faces (as the library computes them)."""
@@ -366,15 +380,7 @@ def test_the_pyvista_accessor_carries_a_label_array(chairs, tmp_path):
     from primkit.model.abstraction import abstract
     from primkit.plugins import pyvista_accessor  # noqa: F401  (registers dataset.primkit)
 
-    rng = np.random.default_rng(6)
-    settings = LabellerSettings(neighbours=8, smooth=1, smooth_neighbours=5)
-    shapes = []
-    for _ in range(3):
-        c = _cuboids(rng, m=20, absent=(3, 7))
-        points = rng.uniform(-0.5, 0.5, (300, 3))
-        shapes.append((frame_features(points, c, rng.normal(size=(300, 3)), settings), (points[:, 1] > 0).astype(int)))
-    labeller = Labeller.fit(shapes, ["low", "high"], 20, settings=settings, max_iter=10)
-    model = lab.write_labeller(resolve_model("chair"), tmp_path / "m.safetensors", labeller)
+    labeller, model = _chair_with_a_labeller(tmp_path, seed=6, axis=1, names=["low", "high"])
     s = chairs[0]
     mesh = pv.PolyData.from_regular_faces(s.vertices, s.faces)
     out = mesh.primkit.segment(model=str(model), refine=0)
@@ -393,15 +399,7 @@ def test_the_vtk_filter_carries_a_label_array(chairs, tmp_path):
     from primkit.model.abstraction import abstract
     from primkit.plugins.vtk_filter import PrimkitSegmentation
 
-    rng = np.random.default_rng(8)
-    settings = LabellerSettings(neighbours=8, smooth=1, smooth_neighbours=5)
-    shapes = []
-    for _ in range(3):
-        c = _cuboids(rng, m=20, absent=(3, 7))
-        points = rng.uniform(-0.5, 0.5, (300, 3))
-        shapes.append((frame_features(points, c, rng.normal(size=(300, 3)), settings), (points[:, 0] > 0).astype(int)))
-    labeller = Labeller.fit(shapes, ["rear", "front"], 20, settings=settings, max_iter=10)
-    model = lab.write_labeller(resolve_model("chair"), tmp_path / "m.safetensors", labeller)
+    labeller, model = _chair_with_a_labeller(tmp_path, seed=8, axis=0, names=["rear", "front"])
     s = chairs[1]
     mesh = pv.PolyData.from_regular_faces(s.vertices, s.faces)
     f = PrimkitSegmentation(Model=str(model), RefineSteps=0)
