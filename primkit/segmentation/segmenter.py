@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import io, parallel
-from ..data import parallel_map
+from ..parallel import parallel_map
 from ..model.abstraction import abstract, abstract_shapes, load_model
 from .labeller import (Labeller, LabellerSettings, frame_features, grid_elements, label_elements, mesh_elements,
                        point_elements, read_labeller)
