@@ -11,12 +11,14 @@ library when its command runs (the model layer imports torch, the drawing kit VT
 
 from __future__ import annotations
 
+import logging
 import re
 import sys
 from pathlib import Path
 
 __all__ = [
     "err",
+    "configure_logging",
     "report_errors",
     "collect",
     "output_names",
@@ -37,6 +39,8 @@ __all__ = [
     "parse_shard_option",
     "shard_of",
     "add_png",
+    "add_quiet",
+    "progress_of",
     "add_prepare_options",
     "add_abstraction_options",
     "add_adapt",
@@ -50,6 +54,29 @@ SHARED_OPTIONS = ("model", "output", "force", "up", "front", "align", "refine", 
 
 def err(msg: str) -> None:
     print(f"primkit: error: {msg}", file=sys.stderr)
+
+
+class _StderrHandler(logging.Handler):
+    """The library's log records on the command's stderr (the one in place when each is written):
+    ``primkit: note: ...`` for notes (INFO), ``primkit: ...`` for warnings (their message names
+    what they are about: ``cache: ...``)."""
+
+    def emit(self, record) -> None:
+        try:
+            text = record.getMessage()
+            prefix = "primkit: note: " if record.levelno < logging.WARNING else "primkit: "
+            print(prefix + text, file=sys.stderr)
+        except Exception:  # noqa: BLE001 - logging must never stop the command
+            self.handleError(record)
+
+
+def configure_logging(quiet: bool = False) -> None:
+    """Show the library's notes (INFO) and warnings of the ``primkit`` loggers on stderr; with
+    ``quiet``, the warnings only. Called once per command (again: the level is updated)."""
+    logger = logging.getLogger("primkit")
+    if not any(isinstance(h, _StderrHandler) for h in logger.handlers):
+        logger.addHandler(_StderrHandler())
+    logger.setLevel(logging.WARNING if quiet else logging.INFO)
 
 
 #: above this many errors, report_errors ends with a count of each reason
@@ -240,6 +267,15 @@ def shard_of(args, items: list) -> list:
     from ..parallel import shard_indices
 
     return [items[i] for i in shard_indices(len(items), parse_shard_option(args))]
+
+
+def add_quiet(p) -> None:
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bars and no notes (warnings and errors still show)")
+
+
+def progress_of(args) -> bool:
+    """Whether the command shows progress bars: not with ``--quiet``."""
+    return not getattr(args, "quiet", False)
 
 
 def add_png(p) -> None:

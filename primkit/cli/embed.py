@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from ._common import (abstraction_options, add_abstraction_options, add_scale_out, add_force, add_output, add_png, check_outputs, collect,
-                      err, input_paths, model_file, output_names, report_errors)
+                      err, input_paths, model_file, output_names, progress_of, report_errors)
 
 #: Above this many shapes ``embed`` writes no full distance matrix unless --distances yes.
 _MATRIX_LIMIT = 4000
@@ -44,7 +44,7 @@ def _abstract(args, files):
 
     abstractor = load_model(args.model)
     settings = replace(settings_from_args(args, abstractor.settings), resolution=abstractor.resolution)
-    out = abstract_shapes(files, abstractor, settings=settings, **abstraction_options(args))
+    out = abstract_shapes(files, abstractor, settings=settings, progress=progress_of(args), **abstraction_options(args))
     grids = [a.canonical_shape().occupancy for a in out]
     return abstractor, out.results, np.array(grids, dtype=bool), out.errors
 
@@ -102,17 +102,19 @@ def _picture_path(path):
 
 def _cmd_embed(args) -> int:
     from .. import embedding
+    from ..data import plan_run
     from ..io import check_suffix, write_array
 
     out = Path(args.output)
     names_out = ["distances.npy", "distances.csv", "map.csv"]
     if args.metric == "descriptor":
         names_out += ["descriptors.npy"]
-    files = collect(args.inputs)
-    output_names(files)  # says which inputs shared a name (the rows of the CSV files)
     svg = None if args.svg is None else check_suffix(args.svg, ".svg", "a map")
-    check_outputs(args, [out / n for n in names_out] + [_picture_path(args.png), svg], input_paths(files, model_file(args.model)))
-    abstractor, results, grids, errors = _abstract(args, files)
+    # the names are the rows of the CSV files (the plan says which inputs shared one)
+    plan = plan_run(args.inputs, out, extra=[out / n for n in names_out] + [_picture_path(args.png), svg],
+                    reads=[model_file(args.model)])
+    plan.check(args.force)
+    abstractor, results, grids, errors = _abstract(args, plan)
     if len(results) < 3:
         err(f"{len(results)} usable shape(s): a map needs at least 3")
         report_errors(errors)
@@ -144,7 +146,7 @@ def _cmd_embed(args) -> int:
     what = "voxel IoU" if X is None else f"parts {args.parts or 'all'} ({len(desc.parts_)} indices), {','.join(desc.what_)}"
     if args.png or args.svg:
         meshes = _thumb_meshes(results, grids, args.thumbnails, None if desc is None else desc.parts_)
-        images = embedding.render_thumbnails(meshes, size=args.thumb_size, progress=True)
+        images = embedding.render_thumbnails(meshes, size=args.thumb_size, progress=progress_of(args))
         embedding.draw_map(coords, images, args.png, svg=args.svg, title=f"t-SNE map of {s} shapes: {what}")
     print(f"{s} shapes embedded ({what}) -> {out}")
     return report_errors(errors)

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from ._common import (add_force, add_output, add_prepare_options, check_outputs, collect, err, input_paths, model_file,
-                      output_names, report_errors, settings_from_args)
+                      output_names, progress_of, report_errors, settings_from_args)
 
 __all__ = ["register", "run_train_image", "run_abstract_images", "collect_images"]
 
@@ -117,16 +117,10 @@ def run_train_image(args) -> int:
         err("no usable training shapes")
         return 2
     settings = views.ViewSettings(size=args.size)
-    occ, geometry = [], {"surface_points": [], "closest": []}
-    for shape in coll:
-        occ.append(shape.occupancy)
-        if args.geometric:  # 2,000 of each shape's surface samples are plenty for 1,000 per step
-            geometry["surface_points"].append(shape.points[:2000])
-            geometry["closest"].append(shape.closest)
-    geometry = {k: np.stack(v) for k, v in geometry.items()} if args.geometric else {}
+    occ, geometry = _teacher_arrays(coll, args.geometric)
     swap = float(args.swap_backgrounds)
     rendered = views.render_views(occ, args.views, settings=settings, palette="seen", seed=args.seed,
-                                  names=[data.shape_name(p) for p in coll.paths], progress=True,
+                                  names=[data.shape_name(p) for p in coll.paths], progress=progress_of(args),
                                   keep_foreground=swap > 0)
     targets = teacher.predict_canonical(np.stack(occ))
     config = ImageTrainConfig(iterations=args.iterations, batch_size=args.batch_size, seed=args.seed,
@@ -149,6 +143,19 @@ def run_train_image(args) -> int:
     print(f"image model: {len(coll)} shapes, {len(rendered)} views, {result.seconds / 60:.1f} min, "
           f"final loss {result.history[-1]['total']:.4f} -> {out}")
     return report_errors(coll.errors)
+
+
+def _teacher_arrays(coll, geometric: bool):
+    """The prepared shapes' occupancy grids, and (``geometric``) their samples and closest points."""
+    import numpy as np
+
+    occ, geometry = [], {"surface_points": [], "closest": []}
+    for shape in coll:
+        occ.append(shape.occupancy)
+        if geometric:  # 2,000 of each shape's surface samples are plenty for 1,000 per step
+            geometry["surface_points"].append(shape.points[:2000])
+            geometry["closest"].append(shape.closest)
+    return occ, ({k: np.stack(v) for k, v in geometry.items()} if geometric else {})
 
 
 def register(subparsers) -> None:

@@ -15,6 +15,7 @@ from . import cache as _cache
 from .cache import CACHE_FORMAT, CacheSegment, CacheIndex, cache_key, encode_row, old_cache_entries, \
     compact_by_default, default_cache_dir
 from .files import find_shape_files, prepare_file, shape_name, shape_names
+from .plan import RunPlan
 from .preparation import PreparedShape, PrepareSettings
 
 
@@ -140,7 +141,9 @@ def prepare_collection(
 
     Parameters
     ----------
-    files_or_folder : path or list of paths
+    files_or_folder : path, list of paths, or RunPlan
+        A :class:`primkit.data.RunPlan` gives its files, their names and what it does of them
+        (its ``selection``: the shard less what a cut run finished).
     workers : int, optional
         Processes to use; all cores by default. ``1`` prepares in this process.
     progress : bool
@@ -157,11 +160,15 @@ def prepare_collection(
     """
     from concurrent.futures import ThreadPoolExecutor
 
-    if isinstance(files_or_folder, (str, os.PathLike)):
-        files = find_shape_files(files_or_folder)
+    if isinstance(files_or_folder, RunPlan):  # a planned run: its files, names and what it does of them
+        files, all_names = list(files_or_folder.files), list(files_or_folder.names)
+        shard = files_or_folder.selection if shard is None else shard
     else:
-        files = [Path(p) for p in files_or_folder]
-    all_names = shape_names(files)
+        if isinstance(files_or_folder, (str, os.PathLike)):
+            files = find_shape_files(files_or_folder)
+        else:
+            files = [Path(p) for p in files_or_folder]
+        all_names = shape_names(files)
     keep = parallel.shard_indices(len(files), shard)
     files, all_names = [files[i] for i in keep], [all_names[i] for i in keep]
     cache = Path(cache_dir) if cache_dir is not None else default_cache_dir()
