@@ -42,6 +42,7 @@ from .viz.camera import CANONICAL_RADIUS
 from .viz.render import cuboid_layer, mesh_layer, segmentation_layer, ThumbnailRenderer, Tile, write_png
 from .model.abstractor import Abstractor
 from .model.abstraction import abstract_shapes
+from .model.parts import default_part_names
 from .metrics import score
 
 __all__ = ["ReportShape", "Report", "build_report", "write_report", "scene_figure", "partners"]
@@ -122,7 +123,7 @@ def scene_figure(shapes, part_names, part_count: int, faces_per_shape: int = SCE
     for s in shapes:
         v, f, lab = _decimate(s.vertices, s.faces, s.labels, faces_per_shape)
         items.append((s.name, v, f, lab, s.cuboids))
-    names = list(part_names) + [f"part{k}" for k in range(len(part_names), part_count)]
+    names = list(part_names) + default_part_names(part_count)[len(part_names):]
     figure = web.scene_figure(items, names, count=part_count)
     _frame_scene(figure)
     return figure

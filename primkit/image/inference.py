@@ -13,7 +13,8 @@ from .. import primitives
 from ..io import atomic_output
 from ..model.bundled import resolve_model
 from ..model.modelfile import ModelFileError, check_tensors, load_model, read_header, save_model
-from ..viz.palette import part_colors
+from ..model.parts import default_part_names
+from ..primitives.palette import part_colors
 from .camera import Camera, project, ViewSettings
 from .network import ImageNet, ImageNetConfig, images_to_float, state_shapes
 
@@ -120,7 +121,7 @@ class ImageAbstractor:
     @property
     def part_names(self) -> list:
         names = self.metadata.get("part_names")
-        return list(names) if names else [f"part{k}" for k in range(self.network.config.parts)]
+        return list(names) if names else default_part_names(self.network.config.parts)
 
     @property
     def view_settings(self):

@@ -47,7 +47,8 @@ torch is imported only when one of them is called.
 
 Modules: :mod:`~primkit.primitives.cuboids` (the value type), :mod:`~primkit.primitives.rotations`,
 :mod:`~primkit.primitives.distances` (points against cuboids), :mod:`~primkit.primitives.sampling`,
-:mod:`~primkit.primitives.differentiable` (the torch twins). ``primkit.primitives`` imports only
+:mod:`~primkit.primitives.differentiable` (the torch twins), :mod:`~primkit.primitives.palette` (the
+colour of each part index). ``primkit.primitives`` imports only
 :mod:`primkit.io` (to write JSON atomically).
 """
 

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import io
+from ..model.parts import default_part_names
 from ..segmentation import face_labels as segmentation_face_labels
 from ..segmentation import point_labels
 from ..viz.backend import pyvista_module
@@ -91,7 +92,7 @@ def add_cuboid_edges(plotter, cuboids, *, opacity: float = 1.0, line_width: floa
 def describe_part(cuboids, k: int, names) -> str:
     """Several lines: index, name and parameters of part ``k``."""
     q = cuboids.quaternions[k]
-    lines = [f"part {k}: {names[k] if k < len(names) else f'part{k}'}",
+    lines = [f"part {k}: {names[k] if k < len(names) else default_part_names(k + 1)[k]}",
              "size " + " x ".join(f"{2 * z:.3f}" for z in cuboids.half_extents[k]),
              "centre (" + ", ".join(f"{t:.3f}" for t in cuboids.translations[k]) + ")",
              "rotation wxyz (" + ", ".join(f"{x:.3f}" for x in q) + ")"]
