@@ -45,7 +45,7 @@ from .model.abstraction import abstract_shapes
 from .model.parts import default_part_names
 from .metrics import score
 
-__all__ = ["ReportShape", "Report", "build_report", "write_report", "scene_figure", "partners"]
+__all__ = ["ReportShape", "Report", "build_report", "write_report", "page_scene_figure", "partners"]
 
 THUMB = 160  # thumbnail size in pixels
 SCENE_FACES = 3000  # triangles per shape in the interactive scene
@@ -116,7 +116,7 @@ def _decimate(vertices, faces, labels, target: int):
     return small.vertices, small.faces, labels[nearest]
 
 
-def scene_figure(shapes, part_names, part_count: int, faces_per_shape: int = SCENE_FACES) -> dict:
+def page_scene_figure(shapes, part_names, part_count: int, faces_per_shape: int = SCENE_FACES) -> dict:
     """The plotly figure of the page's 3D scene (:func:`primkit.viz.web.scene_figure`): each
     :class:`ReportShape` decimated to about ``faces_per_shape`` triangles, with its labels and cuboids."""
     items = []
@@ -294,7 +294,7 @@ def write_report(output, shapes, results, part_names, *, overwrite: bool = False
     except Exception as exc:  # noqa: BLE001
         notes["deformation"] = f"deformation not drawn: {type(exc).__name__}: {exc}"
     count = results[0].canonical.count if results else 20
-    scene = scene_figure(shapes, part_names, count)
+    scene = page_scene_figure(shapes, part_names, count)
     summary = _summary_json(shapes, part_names, similarity, deform, notes, meta or {})
     with io.atomic_output(out / "report.json", overwrite=overwrite) as tmp:
         Path(tmp).write_text(json.dumps(summary, indent=1))

@@ -75,8 +75,8 @@ def test_a_failing_final_save_keeps_a_checkpoint_that_resumes_to_the_same_model(
     assert not out.with_name(out.name + ".lock").exists()
     monkeypatch.undo()
     result = training.train(shapes, out, config, progress=False, resume=ckpt)
-    got, _ = modelfile.load_model(out)
-    want, _ = modelfile.load_model(reference.model_path)
+    got, _ = modelfile.load_model_file(out)
+    want, _ = modelfile.load_model_file(reference.model_path)
     assert sorted(got) == sorted(want)
     assert all(np.array_equal(got[k].numpy(), want[k].numpy()) for k in want)
     assert result.history == reference.history

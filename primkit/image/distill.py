@@ -155,7 +155,7 @@ def train_image_model(images: np.ndarray, shape_index: np.ndarray, cameras: np.n
     ----------
     images : (k, S, S, 3) uint8
     shape_index : (k,) int, which teacher row each image shows
-    cameras : (k, 4) float, camera arrays (:class:`primkit.image.camera.Camera`)
+    cameras : (k, 4) float, camera arrays (:class:`primkit.image.camera.OrbitCamera`)
     teacher : dict of (s, m, ...) arrays, :meth:`primkit.model.abstractor.Abstractor.predict_canonical`
     network : continue training this network instead of a new one
     foreground : (k, S, S, 3) uint8, alpha : (k, S, S) uint8, optional

@@ -96,7 +96,7 @@ class ShapeTensors:
     (1 GiB, about 1,800 shapes of 10,000 samples at 32^3; ``PRIMKIT_STACK_LIMIT_MIB``, or
     ``stack_limit``) is decoded once into the tensors below, the fastest batches. A larger one
     is *streamed*: nothing is loaded, each batch is gathered from the cache's memory-mapped rows
-    and decoded (:meth:`primkit.data.PreparedCollection.gather`, :func:`decode_closest`; a few
+    and decoded (:meth:`primkit.data.PreparedCollection.gather`, :func:`decode_closest_torch`; a few
     ms a batch), so that training starts at once and holds only its batch whatever the
     collection's size. A list of :class:`primkit.data.PreparedShape` is stacked. Every way gives
     the same batches, bit for bit, for the same shapes and generator.
@@ -106,7 +106,7 @@ class ShapeTensors:
     occupancy : (S, R, R, R) uint8
     closest : (S, R, R, R, 3) float32
         Stored coordinate-planar (a ``(S, 3, R, R, R)`` tensor seen through a permutation), the
-        layout :func:`primkit.model.distance_field.lookup_distance_sq` reads without a copy.
+        layout :func:`primkit.model.distance_field.lookup_distance_sq_torch` reads without a copy.
     points : (S, n, 3) float32
     point_labels : (S, n) int32
         These four when stacked (``streamed`` False).
@@ -155,7 +155,7 @@ class ShapeTensors:
             idx = np.arange(lo, min(count, lo + chunk))
             occ, codes, near, pts = coll.gather(idx, np.broadcast_to(every, (len(idx), n)))
             self.occupancy[lo:lo + len(idx)] = torch.from_numpy(occ.view(np.uint8))
-            closest = torch.from_numpy(codes) if near is None else decode_closest(codes, near, res)
+            closest = torch.from_numpy(codes) if near is None else decode_closest_torch(codes, near, res)
             planar[lo:lo + len(idx)] = closest.reshape(len(idx), 3, res, res, res)
             self.points[lo:lo + len(idx)] = torch.from_numpy(pts)
         self.closest = planar.permute(0, 2, 3, 4, 1)
@@ -180,7 +180,7 @@ class ShapeTensors:
             occ, codes, near, pts = self._collection.gather(index.numpy(), pick.numpy())
             occ = torch.from_numpy(occ).unsqueeze(1).to(device=device, dtype=torch.float32)
             res = self._resolution
-            closest = torch.from_numpy(codes) if near is None else decode_closest(codes, near, res)
+            closest = torch.from_numpy(codes) if near is None else decode_closest_torch(codes, near, res)
             closest = closest.reshape(len(index), 3, res, res, res).to(device)
             return occ, closest.permute(0, 2, 3, 4, 1), torch.from_numpy(pts).to(device)
         occ = self.occupancy.index_select(0, index).unsqueeze(1).to(device=device, dtype=torch.float32)
@@ -192,7 +192,7 @@ class ShapeTensors:
         return occ, closest, pts
 
 
-def decode_closest(codes, near, resolution: int) -> torch.Tensor:
+def decode_closest_torch(codes, near, resolution: int) -> torch.Tensor:
     """The torch twin of :func:`primkit.geometry.decode_closest` (planar), the same float32
     values bit for bit (the same operations in the same order; ``tests/model/test_training.py``):
     (b, 3, R^3) closest points from (b, 3, R^3) uint8 codes and (b, R^3 / 8) near bits. Measured
@@ -468,7 +468,7 @@ def _read_checkpoint(path, network: NetworkConfig, config: TrainConfig) -> tuple
     if changed:
         print(f"primkit: note: resuming {path} with settings that differ from its own: {', '.join(changed)}",
               file=sys.stderr)
-    weights, _ = modelfile.load_model(path, map_location="cpu")
+    weights, _ = modelfile.load_model_file(path, map_location="cpu")
     return weights, ck
 
 

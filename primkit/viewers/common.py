@@ -13,11 +13,11 @@ from ..segmentation import point_labels
 from ..viz.backend import pyvista_module
 from ..viz.interop import to_pyvista
 
-__all__ = ["face_labels", "part_labels", "PointShape", "drawable", "add_cuboid_edges", "describe_part", "text_of", "pick_actor", "on_click",
+__all__ = ["face_labels_or_unlabelled", "part_labels", "PointShape", "drawable", "add_cuboid_edges", "describe_part", "text_of", "pick_actor", "on_click",
            "display_position", "new_plotter"]
 
 
-def face_labels(vertices, faces, cuboids) -> np.ndarray:
+def face_labels_or_unlabelled(vertices, faces, cuboids) -> np.ndarray:
     """(f,) int: the co-segmentation (:func:`primkit.segmentation.face_labels`), -1 when no part is present."""
     if not cuboids.existence.any():
         return np.full(len(faces), -1, np.int64)
@@ -28,7 +28,7 @@ def part_labels(vertices, faces, cuboids) -> np.ndarray:
     """The co-segmentation of what a viewer draws: per face for a mesh, per point when ``faces``
     is empty (a point cloud); -1 when no part is present."""
     if len(faces):
-        return face_labels(vertices, faces, cuboids)
+        return face_labels_or_unlabelled(vertices, faces, cuboids)
     if not cuboids.existence.any():
         return np.full(len(vertices), -1, np.int64)
     return point_labels(vertices, cuboids)

@@ -48,7 +48,6 @@ from __future__ import annotations
 import numpy as np
 
 from ..io.objects import O3DMesh, colors_to_uint8, from_pyvista, is_tensor_geometry, mesh_from_o3d, points_from_o3d
-from ..model.parts import default_part_names
 from ..primitives import CORNER_SIGNS, Cuboids
 from ..primitives.palette import part_colors
 from .backend import pyvista_module
@@ -414,6 +413,8 @@ def to_pyvista_blocks(cuboids: Cuboids, names=None, *, colors=None, edges: bool 
     """
     pv = pyvista_module()
     c = _check_cuboids(cuboids)
+    from ..model.parts import default_part_names  # here: reading files through pyvista must not load primkit.model
+
     names = list(names) if names is not None else default_part_names(c.count)
     if len(names) < c.count:
         raise ValueError(f"`names` must have one name per part slot ({c.count}), got {len(names)}")

@@ -53,7 +53,7 @@ def test_consistency_loss_matches_weighted_brute_force(prepared_chairs):
     closest = torch.from_numpy(np.stack([p.closest for p in prepared_chairs[:2]])).double()
     z, q, t = random_cuboids(2, 4, seed=1)
     present = torch.tensor([[1, 1, 0, 1], [0, 1, 1, 1]], dtype=torch.float64)
-    samples, w = primitives.sample_surface_torch(z, q, t, 60, generator=torch.Generator().manual_seed(0))
+    samples, w = primitives.sample_cuboid_surfaces_torch(z, q, t, 60, generator=torch.Generator().manual_seed(0))
     got = losses.consistency_loss(closest, samples, w, present)
     # brute force: every sample's distance by looping over the 8 neighbouring cells
     from primkit.geometry import grid_centres
@@ -86,7 +86,7 @@ def test_loss_gradients_match_finite_differences(prepared_chairs):
     present = torch.ones(1, 3, dtype=torch.float64)
 
     def total(z, q, t):
-        samples, w = primitives.sample_surface_torch(z, q, t, 30, generator=torch.Generator().manual_seed(5))
+        samples, w = primitives.sample_cuboid_surfaces_torch(z, q, t, 30, generator=torch.Generator().manual_seed(5))
         return (losses.coverage_loss(pts, z, q, t, present) + losses.consistency_loss(closest, samples, w, present)
                 + losses.symmetry_loss(samples, w, z, q, t, present))
 
@@ -266,4 +266,4 @@ def test_torch_decoding_of_closest_points_is_numpys_bit_for_bit():
     codes = rng.integers(0, 256, (3, 3, res**3), dtype=np.uint8)
     near = rng.integers(0, 256, (3, res**3 // 8), dtype=np.uint8)
     want = geometry.decode_closest(codes, near, res, planar=True)
-    assert torch.equal(training.decode_closest(codes, near, res), torch.from_numpy(want))
+    assert torch.equal(training.decode_closest_torch(codes, near, res), torch.from_numpy(want))
