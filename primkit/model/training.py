@@ -40,7 +40,7 @@ from .losses import (LossWeights, MovingBaseline, SlotPlacement, local_existence
                      shape_losses)
 from .network import AbstractionNet, NetworkConfig
 
-logger = logging.getLogger(__name__)
+_logger = logging.getLogger(__name__)
 
 __all__ = ["TrainConfig", "ShapeTensors", "PreparedDataset", "TrainResult", "train", "isolated_torch_state",
            "training_outputs", "check_training_outputs", "check_checkpoint", "claim_output"]
@@ -725,14 +725,14 @@ def _train(shapes, output, config, device, resume, progress, description, thread
                 if ckpt_path is not None and rank == 0 and _save_checkpoint(
                         ckpt_path, net, optimizer, generator, baseline, it + 1, history, config,
                         {"placement": placement.state_dict()}):
-                    logger.warning("interrupted after iteration %d: checkpoint saved to %s (resume with --resume)", it + 1, ckpt_path)
+                    _logger.warning("interrupted after iteration %d: checkpoint saved to %s (resume with --resume)", it + 1, ckpt_path)
                 break
             if ckpt_path is not None and rank == 0 and (it + 1) % config.checkpoint_every == 0 and it + 1 < total:
                 _save_checkpoint(ckpt_path, net, optimizer, generator, baseline, it + 1, history, config,
                                      {"placement": placement.state_dict()})
     except KeyboardInterrupt:
         interrupted = True
-        logger.warning("interrupted twice: stopped without saving this iteration (the last checkpoint stands)")
+        _logger.warning("interrupted twice: stopped without saving this iteration (the last checkpoint stands)")
     finally:
         bar.close()
         governor.close()
