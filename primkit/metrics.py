@@ -39,7 +39,7 @@ from typing import TYPE_CHECKING, Any, Sequence
 import numpy as np
 
 from .geometry import grid_centres, lookup_distance_sq
-from .primitives import assign_points, contains, Cuboids, sample_surface, union_distance, union_surface_samples
+from .primitives import assign_points, contains, Cuboids, sample_cuboid_surfaces, union_distance, union_surface_samples
 from .primitives.cuboids import check_cuboids
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -310,7 +310,7 @@ def consistency_error(cuboids: Cuboids, closest: Any, samples_per_cuboid: int = 
 
     Each present cuboid gets ``samples_per_cuboid`` surface samples, split equally over its six
     faces, each weighted by ``area(face) / (samples_per_cuboid / 6)``
-    (:func:`primkit.primitives.sample_surface`); the squared distances come from
+    (:func:`primkit.primitives.sample_cuboid_surfaces`); the squared distances come from
     :func:`lookup_distance_sq` and are averaged with these weights (sum of weight * d^2 over the sum
     of weights, the total surface area). This is the consistency loss of the method, normalised by
     area. Overlapping parts are not cut: every part's whole surface counts. ``nan`` when no part
@@ -329,7 +329,7 @@ def consistency_error(cuboids: Cuboids, closest: Any, samples_per_cuboid: int = 
     if not c.existence.any():
         return float("nan")
     present = c.subset(c.present)
-    s = sample_surface(present, samples_per_cuboid, seed)
+    s = sample_cuboid_surfaces(present, samples_per_cuboid, seed)
     d2 = lookup_distance_sq(closest, s.points.reshape(-1, 3))
     w = s.weights.ravel()
     return float(np.sum(w * d2) / np.sum(w))

@@ -319,7 +319,7 @@ def main(argv=None) -> int:
             continue
         print(f"== {name}", file=sys.stderr)
         preset = get_preset(name)
-        weights, meta = modelfile.load_model(src)
+        weights, meta = modelfile.load_model_file(src)
         abstractor = Abstractor.load(src)
         metrics = {"convention": CONV.describe(), "held_out": held_out(abstractor, meta, args.limit, args.refine, args.pictures, name, args.cache)}
         if name == "chair" and (SHARED / "partnet_chair_boxes").is_dir() and args.partnet:

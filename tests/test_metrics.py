@@ -298,7 +298,7 @@ def test_coverage_matches_brute_force():
 
 def test_lookup_matches_the_torch_distance_field():
     torch = pytest.importorskip("torch")
-    from primkit.model.distance_field import lookup_distance_sq as torch_lookup_distance_sq
+    from primkit.model.distance_field import lookup_distance_sq_torch as torch_lookup_distance_sq
 
     rng = np.random.default_rng(8)
     closest = rng.uniform(-0.5, 0.5, size=(6, 6, 6, 3)).astype(np.float32)
@@ -347,9 +347,9 @@ def test_consistency_is_area_weighted_mean():
     res = 8
     closest = rng.uniform(-0.5, 0.5, size=(res, res, res, 3))
     c = random_cuboids(rng, 3, present=[1, 1, 0])
-    from primkit.primitives import sample_surface
+    from primkit.primitives import sample_cuboid_surfaces
 
-    s = sample_surface(c.subset(c.present), 60, seed=4)
+    s = sample_cuboid_surfaces(c.subset(c.present), 60, seed=4)
     d2 = lookup_distance_sq(closest, s.points.reshape(-1, 3)).reshape(s.weights.shape)
     expected = (s.weights * d2).sum() / s.weights.sum()
     assert M.consistency_error(c, closest, samples_per_cuboid=60, seed=4) == pytest.approx(expected, rel=1e-12)

@@ -17,7 +17,7 @@ import sys
 
 __all__ = ["main", "build_parser"]
 
-from ._common import configure_logging, err
+from ._common import command_logging, err
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -46,14 +46,14 @@ def main(argv=None) -> int:
 
     parser = build_parser()
     args = parser.parse_args(argv)
-    configure_logging(quiet=getattr(args, "quiet", False))  # the library's notes and warnings on stderr
     for stream in (sys.stdout, sys.stderr):  # file names that are not UTF-8 are printed with their bytes
         try:
             stream.reconfigure(errors="surrogateescape")
         except (AttributeError, ValueError, OSError):  # a stream that is not a TextIOWrapper
             pass
     try:
-        return int(args.func(args) or 0)
+        with command_logging(quiet=getattr(args, "quiet", False)):  # the library's notes and warnings on stderr
+            return int(args.func(args) or 0)
     except KeyboardInterrupt:
         err("interrupted")
         return 130

@@ -11,6 +11,7 @@ library when its command runs (the model layer imports torch, the drawing kit VT
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import re
 import sys
@@ -18,7 +19,7 @@ from pathlib import Path
 
 __all__ = [
     "err",
-    "configure_logging",
+    "command_logging",
     "report_errors",
     "collect",
     "output_names",
@@ -70,13 +71,20 @@ class _StderrHandler(logging.Handler):
             self.handleError(record)
 
 
-def configure_logging(quiet: bool = False) -> None:
-    """Show the library's notes (INFO) and warnings of the ``primkit`` loggers on stderr; with
-    ``quiet``, the warnings only. Called once per command (again: the level is updated)."""
+@contextlib.contextmanager
+def command_logging(quiet: bool = False):
+    """Within the block (a command's run), the library's notes (INFO) and warnings of the
+    ``primkit`` loggers on stderr; with ``quiet``, the warnings only. Afterwards the loggers are as
+    they were (a program calling :func:`primkit.cli.main` keeps its own logging)."""
     logger = logging.getLogger("primkit")
-    if not any(isinstance(h, _StderrHandler) for h in logger.handlers):
-        logger.addHandler(_StderrHandler())
+    handler, level = _StderrHandler(), logger.level
+    logger.addHandler(handler)
     logger.setLevel(logging.WARNING if quiet else logging.INFO)
+    try:
+        yield
+    finally:
+        logger.removeHandler(handler)
+        logger.setLevel(level)
 
 
 #: above this many errors, report_errors ends with a count of each reason

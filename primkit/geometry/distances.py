@@ -148,7 +148,7 @@ def distance_grid(vertices: np.ndarray, faces: np.ndarray, resolution: int = 32,
 
 def lookup_distance_sq(closest: Any, points: Any) -> np.ndarray:
     """Squared distance to the surface from a closest-point grid (NumPy twin of
-    :func:`primkit.model.distance_field.lookup_distance_sq`).
+    :func:`primkit.model.distance_field.lookup_distance_sq_torch`).
 
     ``d(x)^2 = min over the 8 cell centres around x of |x - closest[cell]|^2``, the cells being
     ``floor(u)`` and ``floor(u) + 1`` per axis with ``u = (x + 0.5) R - 0.5``, clamped to the

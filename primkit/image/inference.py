@@ -12,10 +12,11 @@ import torch
 from .. import primitives
 from ..io import atomic_output
 from ..model.bundled import resolve_model
-from ..model.modelfile import ModelFileError, check_tensors, load_model, read_header, save_model
-from ..viz.palette import part_colors
-from .camera import Camera, project, ViewSettings
-from .network import ImageNet, ImageNetConfig, images_to_float, state_shapes
+from ..model.modelfile import ModelFileError, check_tensors, load_model_file, read_header, save_model
+from ..model.parts import default_part_names
+from ..primitives.palette import part_colors
+from .camera import OrbitCamera, project, ViewSettings
+from .network import ImageNet, ImageNetConfig, images_to_float, image_net_state_shapes
 
 __all__ = ["KIND", "read_image", "read_image_network", "ImageAbstraction", "ImageAbstractor", "draw_over_image"]
 
@@ -37,7 +38,7 @@ def read_image_network(path) -> tuple[ImageNetConfig, dict]:
     if names is not None and not (isinstance(names, list) and len(names) == config.parts
                                   and all(isinstance(n, str) for n in names)):
         raise ModelFileError(path, f"part_names must be a list of {config.parts} strings (one per part slot)")
-    check_tensors(path, state_shapes(config), tensors, what="image network")
+    check_tensors(path, image_net_state_shapes(config), tensors, what="image network")
     return config, meta
 
 
@@ -79,7 +80,7 @@ class ImageAbstraction:
     source: str = ""
 
     def camera(self, distance: float, view_angle_deg: float):
-        return Camera(self.azimuth_deg, self.elevation_deg, distance, view_angle_deg)
+        return OrbitCamera(self.azimuth_deg, self.elevation_deg, distance, view_angle_deg)
 
     def to_dict(self) -> dict:
         d = self.cuboids.to_dict()
@@ -104,7 +105,7 @@ class ImageAbstractor:
         """A bundled image model's name or a model file, validated (:func:`read_image_network`) before allocation."""
         path = resolve_model(path)
         config, _ = read_image_network(path)
-        weights, meta = load_model(path)
+        weights, meta = load_model_file(path)
         net = ImageNet(config)
         net.load_state_dict(weights)
         return cls(net, meta)
@@ -120,7 +121,7 @@ class ImageAbstractor:
     @property
     def part_names(self) -> list:
         names = self.metadata.get("part_names")
-        return list(names) if names else [f"part{k}" for k in range(self.network.config.parts)]
+        return list(names) if names else default_part_names(self.network.config.parts)
 
     @property
     def view_settings(self):

@@ -9,7 +9,8 @@ of given cuboids, refinement), :mod:`~primkit.model.orientation` (``align="auto"
 :mod:`~primkit.model.parts` (part names) -> :mod:`~primkit.model.losses`,
 :mod:`~primkit.model.network`, :mod:`~primkit.model.bundled` (the shipped model files) ->
 :mod:`~primkit.model.distance_field`, :mod:`~primkit.model.modelfile` (the file format). Inference
-never imports training. Below the model, it may import :mod:`primkit.data`, :mod:`primkit.viz`
-(the palette of written meshes, conversions of pyvista and Open3D inputs), :mod:`primkit.primitives`,
-:mod:`primkit.geometry` and :mod:`primkit.io`; torch is imported by the modules that need it.
+never imports training. Below the model, it may import :mod:`primkit.data`, :mod:`primkit.primitives`
+(with the palette of written meshes), :mod:`primkit.geometry` and :mod:`primkit.io` (with the
+conversions of pyvista and Open3D inputs, :mod:`primkit.io.objects`); torch is imported by the modules
+that need it. The drawing kit, :mod:`primkit.viz`, sits above the model.
 """

@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import data, io, parallel
-from ..viz import interop
+from ..io import objects as foreign
 from . import orientation
 from .abstractor import MIN_EXTENT, AbstractionResult, Abstractor
 
@@ -185,12 +185,12 @@ def as_shape(obj):
         return io.PointCloud(obj.vertices)
     if package == "open3d":
         if type(obj).__name__ == "TriangleMesh":
-            m = interop.mesh_from_o3d(obj)
+            m = foreign.mesh_from_o3d(obj)
             return io.Mesh(m.vertices, m.faces)
         if type(obj).__name__ == "PointCloud":
-            return io.PointCloud(interop.points_from_o3d(obj)[0])
+            return io.PointCloud(foreign.points_from_o3d(obj)[0])
     if package in ("pyvista", "vtkmodules", "vtk"):
-        vertices, faces = interop.from_pyvista(obj)
+        vertices, faces = foreign.from_pyvista(obj)
         return io.Mesh(vertices, faces) if len(faces) else io.PointCloud(vertices)
     if isinstance(obj, tuple) and len(obj) == 2:
         return io.Mesh(*(x.detach().cpu().numpy() if _is_tensor(x) else x for x in obj))
@@ -233,7 +233,7 @@ def abstract_shapes(
     names=None,
     cache=None,
     workers: int | None = None,
-    progress: bool = True,
+    progress: bool = False,
     executor=None,
     shard=None,
     batch_size: int = 128,
@@ -266,7 +266,8 @@ def abstract_shapes(
     settings : data.PrepareSettings, optional
         How to prepare (resolution, samples, axes); default the model's.
     names : one name per in-memory shape (default ``shape<i>``, ``i`` its position in ``inputs``).
-    cache, workers, progress : the preparation cache folder, processes and progress bars.
+    cache, workers, progress : the preparation cache folder, processes and progress bars (tqdm,
+        on stderr; off by default).
     executor, shard : where files are prepared, and which shard of them is abstracted
         (:func:`primkit.data.prepare_collection`'s); shapes given as arrays are never sharded.
     batch_size : shapes read from the cache and abstracted at once.

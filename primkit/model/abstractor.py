@@ -38,8 +38,9 @@ import numpy as np
 
 from .. import data, io, primitives
 from . import orientation
+from .parts import default_part_names
 from .bundled import resolve_model
-from ..viz.palette import part_colors
+from ..primitives.palette import part_colors
 from .fitting import fit_losses
 from .fitting import refine as refine_cuboids
 from .network import load_network
@@ -200,7 +201,7 @@ class Abstractor:
     @property
     def part_names(self) -> list[str]:
         names = self.metadata.get("part_names")
-        return list(names) if names else [f"part{k}" for k in range(self.parts)]
+        return list(names) if names else default_part_names(self.parts)
 
     @property
     def hold_out_every(self) -> int:

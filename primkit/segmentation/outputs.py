@@ -16,13 +16,13 @@ from .points import PointSegmentation
 from .voxels import VoxelSegmentation
 
 __all__ = ["summary_header", "read_summary", "write_summary", "summary_name", "shape_kind", "shape_outputs",
-           "label_codes_text", "written_before", "plan_segmentation", "write_picture", "SUMMARIES", "LABEL_SUFFIXES",
+           "label_codes_text", "written_before", "plan_segmentation", "write_picture", "SUMMARIES",
            "EVALUATIONS"]
 
 #: the summary file of each kind of shape
 SUMMARIES = {"mesh": "summary.csv", "voxels": "summary-voxels.csv", "points": "summary-points.csv"}
 #: the labels file of each kind of shape (after its name)
-LABEL_SUFFIXES = {"mesh": ".seg", "voxels": ".voxlabels.npy", "points": ".parts.npy"}
+_LABEL_SUFFIXES = {"mesh": ".seg", "voxels": ".voxlabels.npy", "points": ".parts.npy"}
 
 
 def summary_name(kind: str, shard) -> str:
@@ -57,7 +57,7 @@ def shape_kind(path) -> str:
 def shape_outputs(out, name: str, kind: str) -> list[Path]:
     """A shape's three files, in the order they are written (its ``.cuboids.json`` last)."""
     out = Path(out)
-    return [out / f"{name}{LABEL_SUFFIXES[kind]}", out / f"{name}.parts.ply", out / f"{name}.cuboids.json"]
+    return [out / f"{name}{_LABEL_SUFFIXES[kind]}", out / f"{name}.parts.ply", out / f"{name}.cuboids.json"]
 
 
 def label_codes_text(part_names, labeller=None) -> str:

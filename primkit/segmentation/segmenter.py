@@ -238,14 +238,14 @@ class Segmenter:
             run.unevaluated_clouds = len(kinds["points"])
         return run
 
-    def abstract_files(self, paths, *, cache_dir=None, workers=None, progress=True, executor=None, shard=None):
+    def abstract_files(self, paths, *, cache_dir=None, workers=None, progress=False, executor=None, shard=None):
         """Abstractions of shape files: ``(results, errors)`` (:func:`primkit.model.abstraction.abstract_shapes`;
         ``executor`` prepares there, ``shard`` abstracts only that shard of the files)."""
         out = abstract_shapes(paths, self.abstractor, up=self.up, front=self.front, cache=cache_dir, workers=workers,
                               progress=progress, executor=executor, shard=shard, **self.predict_options)
         return out.results, out.errors
 
-    def segment_files(self, paths, *, cache_dir=None, workers=None, progress=True, executor=None, shard=None):
+    def segment_files(self, paths, *, cache_dir=None, workers=None, progress=False, executor=None, shard=None):
         """Abstract and co-segment shape files (or a :class:`primkit.data.RunPlan`'s: what it does of them).
 
         Returns ``(segmentations, errors)``: one :class:`Segmentation` (meshes),
@@ -263,7 +263,7 @@ class Segmenter:
                                                   executor=pool, shard=shard)
             return self.segment_results(results, workers=workers, progress=progress, errors=errors, executor=pool)
 
-    def segment_results(self, results, *, workers=None, progress=True, errors=(), executor=None):
+    def segment_results(self, results, *, workers=None, progress=False, errors=(), executor=None):
         """Co-segment the source files of abstraction results (in parallel processes, or on ``executor``)."""
         jobs = [(r.source, r.cuboids, r.name, self.part_names, self.labeller, r, self.labelling) for r in results]
         segs, errors = [], list(errors)
