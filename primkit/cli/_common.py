@@ -50,7 +50,7 @@ __all__ = [
 
 #: the shared options' destinations, as ``tests/cli/test_options.py`` checks them
 SHARED_OPTIONS = ("model", "output", "force", "up", "front", "align", "refine", "cache", "workers", "png", "executor",
-                  "shard")
+                  "shard", "quiet")
 
 
 def err(msg: str) -> None:
@@ -193,8 +193,10 @@ def settings_from_args(args, base=None):
 
 def abstraction_options(args) -> dict:
     """The keyword arguments of :func:`primkit.model.abstraction.abstract_shapes` that the shared
-    options give (the inputs' axes only when given, so the library's defaults stand otherwise)."""
-    options = {"align": args.align, "refine": args.refine, "cache": args.cache, "workers": args.workers}
+    options give (the inputs' axes only when given, so the library's defaults stand otherwise;
+    ``progress``: :func:`progress_of`)."""
+    options = {"align": args.align, "refine": args.refine, "cache": args.cache, "workers": args.workers,
+               "progress": progress_of(args)}
     if getattr(args, "executor", None) is not None:
         options["executor"] = args.executor
     if getattr(args, "shard", None) is not None:
@@ -282,8 +284,14 @@ def add_quiet(p) -> None:
 
 
 def progress_of(args) -> bool:
-    """Whether the command shows progress bars: not with ``--quiet``."""
-    return not getattr(args, "quiet", False)
+    """Whether the command shows progress bars: only when its stderr is a terminal (no carriage
+    returns in a log or a pipe), and not with ``--quiet``. The library draws none unless asked."""
+    if getattr(args, "quiet", False):
+        return False
+    try:
+        return bool(sys.stderr.isatty())
+    except (AttributeError, ValueError):  # a closed or replaced stream
+        return False
 
 
 def add_png(p) -> None:
@@ -297,6 +305,7 @@ def add_prepare_options(p) -> None:
     add_axes(p)
     add_cache(p)
     add_workers(p)
+    add_quiet(p)
 
 
 def add_abstraction_options(p) -> None:
@@ -309,6 +318,7 @@ def add_abstraction_options(p) -> None:
     add_cache(p)
     add_workers(p)
     add_adapt(p)
+    add_quiet(p)
 
 
 def add_adapt(p) -> None:

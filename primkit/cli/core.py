@@ -83,7 +83,7 @@ def _train_claimed(args) -> int:
         check_checkpoint(args.resume, NetworkConfig(parts=c.parts, grid=settings.resolution, encoder=c.encoder,
                                                     fc_width=c.fc_width))
     files, held = split_files(collected, plan.hold_out_every)
-    coll = prepare_collection(files, settings, cache_dir=args.cache, workers=args.workers)
+    coll = prepare_collection(files, settings, cache_dir=args.cache, workers=args.workers, progress=progress_of(args))
     status = report_errors(coll.errors)
     if len(coll) == 0:
         err("no usable shapes to train on")
@@ -93,7 +93,8 @@ def _train_claimed(args) -> int:
     print(f"training on {len(shapes)} shapes ({len(held)} held out): {config.stage1_iterations} + {config.stage2_iterations} "
           f"iterations, {config.parts} parts, batch {config.batch_size}", file=sys.stderr)
     description = plan.description(args.inputs, len(held), args.data_terms)
-    result = train(shapes, out, config, device=args.device, resume=args.resume, description=description, overwrite=args.force)
+    result = train(shapes, out, config, device=args.device, resume=args.resume, description=description, overwrite=args.force,
+                   progress=progress_of(args))
     if result.interrupted:
         return 130
     if result.model_path is not None:
@@ -141,7 +142,7 @@ def _cmd_abstract(args) -> int:
     plan = plan_run(args.inputs, args.output, outputs=_output_suffixes(args), shard=args.shard,
                     skip_done=args.skip_done, extra=[_picture_path(args.png)], reads=[model_path])
     plan.check(args.force)
-    options = dict(abstraction_options(args), shard=None, progress=progress_of(args))
+    options = dict(abstraction_options(args), shard=None)
     out = abstract_shapes(plan, model, existence_threshold=args.threshold,
                           prune_threshold=None if args.prune <= 0 else args.prune, **options)
     for a in out:
@@ -279,7 +280,7 @@ def _cmd_info(args) -> int:
 def _cmd_demo(args) -> int:
     from ..demo import run_demo
 
-    return run_demo(args.output, quick=args.quick, force=args.force)
+    return run_demo(args.output, quick=args.quick, force=args.force, progress=progress_of(args))
 
 
 def register(sub) -> None:
@@ -288,6 +289,7 @@ def register(sub) -> None:
         epilog="examples:\n  primkit demo\n  primkit demo -o /tmp/demo --quick --force\n", formatter_class=argparse.RawDescriptionHelpFormatter)
     add_output(p, "output folder (default primkit-demo)", default="primkit-demo", required=False)
     p.add_argument("--quick", action="store_true", help="a much shorter run (for tests)")
+    add_quiet(p)
     add_force(p)
     p.set_defaults(func=_cmd_demo)
 

@@ -44,7 +44,7 @@ def _abstract(args, files):
 
     abstractor = load_model(args.model)
     settings = replace(settings_from_args(args, abstractor.settings), resolution=abstractor.resolution)
-    out = abstract_shapes(files, abstractor, settings=settings, progress=progress_of(args), **abstraction_options(args))
+    out = abstract_shapes(files, abstractor, settings=settings, **abstraction_options(args))
     grids = [a.canonical_shape().occupancy for a in out]
     return abstractor, out.results, np.array(grids, dtype=bool), out.errors
 
@@ -191,7 +191,7 @@ def _cmd_similar(args) -> int:
     if args.png:
         sel = None if desc is None else desc.parts_
         meshes = _thumb_meshes([query] + [results[j] for j in order], np.concatenate([qgrid, grids[order]]), args.thumbnails, sel)
-        images = embedding.render_thumbnails(meshes, size=160)
+        images = embedding.render_thumbnails(meshes, size=160, progress=progress_of(args))
         what = "voxel IoU" if X is None else f"parts {args.parts or 'all'}, {','.join(desc.what_)}"
         embedding.draw_matches(images[0], images[1:], [results[j].name for j in order], dist, args.png,
                                query_name=query.name, title=f"nearest to {query.name} by {what}")

@@ -112,7 +112,7 @@ def run_train_image(args) -> int:
     if args.limit:
         train_files = train_files[: args.limit]
     coll = data.prepare_collection(train_files, settings_from_args(args, teacher.settings), cache_dir=args.cache,
-                                   workers=args.workers)
+                                   workers=args.workers, progress=progress_of(args))
     if len(coll) == 0:
         err("no usable training shapes")
         return 2

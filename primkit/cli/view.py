@@ -19,6 +19,7 @@ from pathlib import Path
 
 from ._common import (
     abstraction_options,
+    progress_of,
     add_abstraction_options,
     add_force,
     add_png,
@@ -66,7 +67,7 @@ def _meshes(args, inputs, progress: bool = True):
     from ..model.abstraction import abstract_shapes
     from ..viewers.common import drawable
 
-    out = abstract_shapes(inputs, args.model, progress=progress, **abstraction_options(args))
+    out = abstract_shapes(inputs, args.model, **dict(abstraction_options(args), progress=progress and progress_of(args)))
     shapes, errors = [], list(out.errors)
     for a in out:
         try:
@@ -165,7 +166,7 @@ def _view_open3d(args, off, size) -> int:
         err("view open3d --png --window takes the picture from Open3D's window and needs a display: run it under X "
             "or xvfb-run -a (without --window it draws off screen)")
         return 2
-    options = {k: v for k, v in abstraction_options(args).items() if k not in ("cache", "workers")}
+    options = {k: v for k, v in abstraction_options(args).items() if k not in ("cache", "workers", "progress")}
     viewer = open3d_viewer(given, args.model, name=Path(args.shape).stem, refine_step=args.refine_step,
                            export_folder=args.export, **options)
     if args.png is not None:

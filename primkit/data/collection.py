@@ -3,8 +3,8 @@
 
 from __future__ import annotations
 
+import logging
 import os
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -18,6 +18,7 @@ from .files import find_shape_files, prepare_file, shape_name, shape_names
 from .plan import RunPlan
 from .preparation import PreparedShape, PrepareSettings
 
+_logger = logging.getLogger(__name__)
 
 def _key_job(args) -> tuple:
     path, settings = args
@@ -119,7 +120,7 @@ def prepare_collection(
     *,
     cache_dir=None,
     workers: int | None = None,
-    progress: bool = True,
+    progress: bool = False,
     compact: bool | None = None,
     executor=None,
     shard=None,
@@ -147,7 +148,10 @@ def prepare_collection(
     workers : int, optional
         Processes to use; all cores by default. ``1`` prepares in this process.
     progress : bool
-        Show a progress bar (tqdm, on stderr).
+        Show a progress bar (tqdm, on stderr); off by default.
+
+    Notes on the cache (an older format, damaged entries, the other codes, a cache that cannot be
+    written) are WARNING records of the ``primkit.data.collection`` logger.
     executor : optional
         Where to prepare the shapes the cache lacks: an executor (anything with
         ``concurrent.futures.Executor.map``) or an address for :func:`primkit.parallel.executor_from`
@@ -175,8 +179,8 @@ def prepare_collection(
     root = cache / f"v{CACHE_FORMAT}"
     old = old_cache_entries(cache)
     if old:
-        print(f"primkit: cache: {cache} holds {old} entr{'y' if old == 1 else 'ies'} of an older format, not read: "
-              f"shapes are prepared again into {root} (delete {cache}/?? to free the space)", file=sys.stderr)
+        _logger.warning(f"cache: {cache} holds {old} entr{'y' if old == 1 else 'ies'} of an older format, not read: "
+                        f"shapes are prepared again into {root} (delete {cache}/?? to free the space)")
     compact = compact_by_default() if compact is None else bool(compact)
     index = CacheIndex(root, settings, compact)
     # keys: the bytes of every file hashed, in threads (reading and hashlib release the GIL)
@@ -229,16 +233,16 @@ def prepare_collection(
                 flush()
     flush()
     if index.damaged:
-        print(f"primkit: cache: {index.damaged} damaged entr{'y' if index.damaged == 1 else 'ies'} in {root} "
-              "(truncated or not an entry) prepared again", file=sys.stderr)
+        _logger.warning(f"cache: {index.damaged} damaged entr{'y' if index.damaged == 1 else 'ies'} in {root} "
+                        "(truncated or not an entry) prepared again")
     other = sum(key in index.other_codes for key in misses)
     if other:
         kinds = ("float32 values (PRIMKIT_CACHE_CODES=exact)", "compact codes") if compact else \
                 ("compact codes", "float32 values (PRIMKIT_CACHE_CODES=exact)")
-        print(f"primkit: cache: {other} shape{'' if other == 1 else 's'} in {root} stored as {kinds[0]} prepared again "
-              f"as {kinds[1]}, this run's kind", file=sys.stderr)
+        _logger.warning(f"cache: {other} shape{'' if other == 1 else 's'} in {root} stored as {kinds[0]} prepared "
+                        f"again as {kinds[1]}, this run's kind")
     if unwritable:
-        print(f"primkit: cache: {root} cannot be written ({unwritable}): shapes prepared in memory", file=sys.stderr)
+        _logger.warning(f"cache: {root} cannot be written ({unwritable}): shapes prepared in memory")
     paths, found, errs, names = [], [], [], []
     for p, name in zip(files, all_names):
         if str(p) in errors:

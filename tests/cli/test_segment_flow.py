@@ -58,7 +58,7 @@ def segmented(tmp_path_factory):
     root = tmp_path_factory.mktemp("flow")
     synthetic.write_collection(root / "in", "chair", 3, seed=7)
     argv = ["segment", str(root / "in"), "--model", "chair", "-o", str(root / "seg"), "--cache", str(root / "cache"),
-            "--workers", "1", "--png", str(root / "cli.png")]
+            "--workers", "1", "--png", str(root / "cli.png"), "--quiet"]
     code, stops = _trace(argv)
     assert code == 0
     return root, stops
