@@ -24,7 +24,7 @@ __all__ = [
     "collect",
     "output_names",
     "input_paths",
-    "check_outputs",
+    "check_command_outputs",
     "model_file",
     "settings_from_args",
     "abstraction_options",
@@ -37,8 +37,6 @@ __all__ = [
     "add_cache",
     "add_workers",
     "add_scale_out",
-    "parse_shard_option",
-    "shard_of",
     "add_png",
     "add_quiet",
     "progress_of",
@@ -116,34 +114,19 @@ def report_errors(errors) -> int:
 
 
 def collect(inputs) -> list[Path]:
-    """The shape files of the command line's inputs (files as given, folders searched
-    recursively), in order. A missing input, or a folder with no shape file in it, is a one-line
-    error (FileNotFoundError) before any work."""
-    from ..data import find_shape_files
-    from ..io import MESH_SUFFIXES, POINT_SUFFIXES, VOXEL_SUFFIXES
+    """The shape files of the command line's inputs (:func:`primkit.data.collect_files`: files as
+    given, folders searched recursively; a missing input or an empty folder is a one-line error)."""
+    from ..data import collect_files
 
-    files = []
-    for item in inputs:
-        found = find_shape_files(item)
-        if not found:
-            suffixes = " ".join(dict.fromkeys(MESH_SUFFIXES + POINT_SUFFIXES + VOXEL_SUFFIXES))
-            raise FileNotFoundError(f"{item}: no shape files in this folder (searched recursively for {suffixes})")
-        files.extend(found)
-    return files
+    return collect_files(inputs)
 
 
 def output_names(files) -> list[str]:
-    """The names outputs take after each of ``files`` (:func:`primkit.data.shape_names`), saying on
-    stderr which inputs shared a name and what they are called instead."""
-    from ..data import shape_name, shape_names
+    """The names outputs take after each of ``files`` (the run plan's, :func:`primkit.data.plan_run`,
+    which notes which inputs shared a name and what they are called instead)."""
+    from ..data import plan_run
 
-    names = shape_names(files)
-    plain = [shape_name(p) for p in files]
-    for shared in dict.fromkeys(n for n, m in zip(plain, names) if n != m):
-        items = [(p, m) for p, n, m in zip(files, plain, names) if n == shared]
-        print(f"primkit: note: {len(items)} inputs are named {shared} ({', '.join(str(p) for p, _ in items)}); "
-              f"their outputs are named {', '.join(m for _, m in items)}", file=sys.stderr)
-    return names
+    return plan_run(files).names
 
 
 def input_paths(files, *extra) -> list[Path]:
@@ -171,7 +154,7 @@ def model_file(model) -> Path | None:
         return None
 
 
-def check_outputs(args, outputs, inputs=()) -> list[Path]:
+def check_command_outputs(args, outputs, inputs=()) -> list[Path]:
     """:func:`primkit.io.check_outputs` with the command's ``--force``: before any work, every
     output can be written, is no input, and replaces nothing without ``--force``."""
     from ..io import check_outputs as check
@@ -199,8 +182,6 @@ def abstraction_options(args) -> dict:
                "progress": progress_of(args)}
     if getattr(args, "executor", None) is not None:
         options["executor"] = args.executor
-    if getattr(args, "shard", None) is not None:
-        options["shard"] = parse_shard_option(args)
     options.update({k: getattr(args, k) for k in ("up", "front") if getattr(args, k, None) is not None})
     if getattr(args, "adapt", None):
         options["adapt"] = args.adapt
@@ -263,20 +244,6 @@ def add_scale_out(p, shard: bool = True) -> None:
                    help="only the K-th of N shards of the inputs (every N-th file from the K-th), for job arrays; "
                         "auto: from torchrun's RANK/WORLD_SIZE or SLURM's array or task variables. The shards' outputs "
                         "are named as one run's and merge without clashes")
-
-
-def parse_shard_option(args):
-    """``(k, n)`` of ``args.shard``, or None."""
-    from ..parallel import parse_shard
-
-    return parse_shard(getattr(args, "shard", None))
-
-
-def shard_of(args, items: list) -> list:
-    """The items of ``args.shard``'s shard (all of them without one)."""
-    from ..parallel import shard_indices
-
-    return [items[i] for i in shard_indices(len(items), parse_shard_option(args))]
 
 
 def add_quiet(p) -> None:

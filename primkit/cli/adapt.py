@@ -7,7 +7,7 @@ import argparse
 from pathlib import Path
 
 from ._common import (add_align, add_axes, add_cache, add_force, add_model, add_output, add_quiet, add_refine, add_workers,
-                      check_outputs, collect, err, input_paths, model_file, progress_of, report_errors,
+                      check_command_outputs, collect, err, input_paths, model_file, progress_of, report_errors,
                       settings_from_args)
 
 
@@ -49,7 +49,7 @@ def run(args) -> int:
         output = Path(args.output)
         if output.suffix != ".safetensors":
             raise ValueError(f"{output}: the adapted model is written as '.safetensors'")
-        check_outputs(args, [output], input_paths(files, model_file(args.model)))
+        check_command_outputs(args, [output], input_paths(files, model_file(args.model)))
         if args.steps < 1:
             raise ValueError(f"--steps must be at least 1, got {args.steps}")
         if args.refine:

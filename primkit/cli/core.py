@@ -17,7 +17,7 @@ from ._common import (
     add_prepare_options,
     add_quiet,
     add_scale_out,
-    check_outputs,
+    check_command_outputs,
     collect,
     err,
     input_paths,
@@ -142,9 +142,8 @@ def _cmd_abstract(args) -> int:
     plan = plan_run(args.inputs, args.output, outputs=_output_suffixes(args), shard=args.shard,
                     skip_done=args.skip_done, extra=[_picture_path(args.png)], reads=[model_path])
     plan.check(args.force)
-    options = dict(abstraction_options(args), shard=None)
     out = abstract_shapes(plan, model, existence_threshold=args.threshold,
-                          prune_threshold=None if args.prune <= 0 else args.prune, **options)
+                          prune_threshold=None if args.prune <= 0 else args.prune, **abstraction_options(args))
     for a in out:
         print(_abstraction_line(a, _save_abstraction(a, out.model, args)))
     if args.png and out.shapes:
@@ -212,7 +211,7 @@ def _cmd_eval(args) -> int:
     if args.json:
         from ..io import check_suffix
 
-        check_outputs(args, [check_suffix(args.json, ".json", "a scores file")], input_paths(files, model_file(args.model)))
+        check_command_outputs(args, [check_suffix(args.json, ".json", "a scores file")], input_paths(files, model_file(args.model)))
     out = abstract_shapes(files, abstractor, **abstraction_options(args))
     conv = ChamferConvention(power=args.chamfer_power)
     scores = [score(a.canonical, a.canonical_shape(), conv) for a in out]

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from ..model.parts import resolve_parts
-from ._common import (abstraction_options, add_abstraction_options, add_force, add_output, add_png, check_outputs, err,
+from ._common import (abstraction_options, add_abstraction_options, add_force, add_output, add_png, check_command_outputs, err,
                       input_paths, model_file, report_errors)
 
 __all__ = ["register", "parse_edit"]
@@ -55,7 +55,7 @@ def _outputs(args, inputs, *, points: bool = False) -> tuple[Path, Path | None, 
         out = check_suffix(args.output, MESH_WRITE_SUFFIXES, "a deformed mesh")
     png = check_suffix(args.png, ".png", "a picture") if args.png else None
     js = check_suffix(args.json, ".json", "the quality measures") if args.json else out.with_suffix(".json")
-    check_outputs(args, (out, png, js), input_paths([Path(p) for p in inputs if Path(p).is_file()], model_file(args.model)))
+    check_command_outputs(args, (out, png, js), input_paths([Path(p) for p in inputs if Path(p).is_file()], model_file(args.model)))
     return out, png, js
 
 

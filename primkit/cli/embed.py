@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._common import (abstraction_options, add_abstraction_options, add_scale_out, add_force, add_output, add_png, check_outputs, collect,
+from ._common import (abstraction_options, add_abstraction_options, add_scale_out, add_force, add_output, add_png, check_command_outputs, collect,
                       err, input_paths, model_file, output_names, progress_of, report_errors)
 
 #: Above this many shapes ``embed`` writes no full distance matrix unless --distances yes.
@@ -163,7 +163,7 @@ def _cmd_similar(args) -> int:
     if not files:
         raise ValueError(f"no shape files found in {', '.join(args.inputs)} besides the query")
     output_names(query_files + files)
-    check_outputs(args, [out / "similar.csv", _picture_path(args.png)], input_paths(query_files + files, model_file(args.model)))
+    check_command_outputs(args, [out / "similar.csv", _picture_path(args.png)], input_paths(query_files + files, model_file(args.model)))
     abstractor, results, grids, errors = _abstract(args, query_files + files)
     if not results or str(results[0].source) != str(query_files[0]):
         err(f"{query_files[0]}: the query could not be used")

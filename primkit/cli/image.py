@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._common import (add_force, add_output, add_prepare_options, check_outputs, collect, err, input_paths, model_file,
+from ._common import (add_force, add_output, add_prepare_options, check_command_outputs, collect, err, input_paths, model_file,
                       output_names, progress_of, report_errors, settings_from_args)
 
 __all__ = ["register", "run_train_image", "run_abstract_images", "collect_images"]
@@ -64,7 +64,7 @@ def run_abstract_images(args) -> int:
     out = Path(args.output)
     png = None if args.png is None else check_suffix(args.png, ".png", "a picture")
     outputs = [out / f"{n}.cuboids{ext}" for n in output_names(files) for ext in (".json", ".ply")]
-    check_outputs(args, outputs + [png], files + [model_file(args.model)])  # before any work
+    check_command_outputs(args, outputs + [png], files + [model_file(args.model)])  # before any work
     results, errors = model.predict_files(files)
     failed += errors
     vs = model.view_settings
@@ -106,7 +106,7 @@ def run_train_image(args) -> int:
         err(str(exc))
         return 2
     files = collect(args.inputs)
-    check_outputs(args, [out], input_paths(files, model_file(args.teacher)))  # before any work
+    check_command_outputs(args, [out], input_paths(files, model_file(args.teacher)))  # before any work
     every = teacher.hold_out_every if args.hold_out is None else args.hold_out
     train_files, _ = data.split_files(files, every)
     if args.limit:

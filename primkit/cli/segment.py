@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._common import (add_abstraction_options, add_force, add_output, add_png, add_scale_out, check_outputs, collect, err,
+from ._common import (add_abstraction_options, add_force, add_output, add_png, add_scale_out, check_command_outputs, collect, err,
                       input_paths, progress_of, report_errors)
 
 __all__ = ["register"]
@@ -131,7 +131,7 @@ def _cmd_name_parts(args) -> int:
     segmenter = Segmenter(args.model, up=args.up, front=args.front, align=args.align, refine=args.refine,
                           adapt=getattr(args, "adapt", None), labeller=None)
     files = [f for f in collect(args.inputs) if not f.name.endswith(POINT_LABELS)]  # a cloud's labels, not a cloud
-    check_outputs(args, [check_suffix(out, ".safetensors", "a model file")],
+    check_command_outputs(args, [check_suffix(out, ".safetensors", "a model file")],
                   input_paths(files, _model_path(args.model), args.labels))
     results, errors = segmenter.abstract_files(files, cache_dir=args.cache, workers=args.workers,
                                                progress=progress_of(args))

@@ -23,7 +23,7 @@ from ._common import (
     add_abstraction_options,
     add_force,
     add_png,
-    check_outputs,
+    check_command_outputs,
     collect,
     err,
     input_paths,
@@ -188,7 +188,7 @@ def _run(args) -> int:
     if args.png is not None:  # before any work: a .png that can be written and is none of the inputs
         given = [getattr(args, k) for k in ("shape", "source", "target") if getattr(args, k, None)]
         given += list(getattr(args, "folder", None) or [])
-        check_outputs(args, [check_suffix(args.png, ".png", "a picture")],
+        check_command_outputs(args, [check_suffix(args.png, ".png", "a picture")],
                       input_paths([f for g in given for f in collect([g])], model_file(args.model)))
     off = args.png is not None and not args.window
     return _VIEWERS[args.viewer](args, off, _size(args.size))
