@@ -55,8 +55,8 @@ def _bundled_step(out: Path, folder: Path, cache: Path, quick: bool) -> None:
     for key, (results, inputs) in runs.items():
         scores = [score(r.canonical, r.canonical_shape(s), conv) for r, s in zip(results, inputs)]
         summ = summarize(scores)
-        report[key] = {"parts": summ["parts"]["mean"], "iou": summ["iou"]["mean"], "chamfer": summ["chamfer"]["mean"]}
-        print(f"  {key:20s}: parts {summ['parts']['mean']:.1f}, IoU {summ['iou']['mean']:.3f}, Chamfer {summ['chamfer']['mean']:.4f}",
+        report[key] = {"parts": summ.parts.mean, "iou": summ.iou.mean, "chamfer": summ.chamfer.mean}
+        print(f"  {key:20s}: parts {summ.parts.mean:.1f}, IoU {summ.iou.mean:.3f}, Chamfer {summ.chamfer.mean:.4f}",
               file=sys.stderr)
     undone = [bool(np.allclose(r.frame.rotation, s.frame.rotation)) for r, s in zip(runs["turned, align auto"][0], shapes)]
     report["turned, align auto"]["orientation_recovered"] = f"{sum(undone)}/{len(undone)}"
@@ -118,15 +118,15 @@ def run_demo(output="primkit-demo", *, quick: bool = False, force: bool = False,
     _, meta = synthetic.read_collection_labels(test_set[0].source)
     agreement = part_label_agreement([r.canonical for r in results], [s.points for s in shapes],
                                      [s.point_labels for s in shapes], names=meta["part_names"])
-    report = {"convention": conv.describe(), "summary": summarize(scores), "part_index_agreement": agreement}
+    summ = summarize(scores)
+    report = {"convention": conv.describe(), "summary": summ.to_dict(), "part_index_agreement": agreement.to_dict()}
     with io.atomic_output(out / "report.json", overwrite=True) as tmp:
         Path(tmp).write_text(json.dumps(report, indent=1))
     render_abstractions(results, [(a.vertices, a.faces) for a in test_set], out / "abstractions.png")
-    summ = report["summary"]
-    print(f"held-out chairs: {len(scores)}; parts {summ['parts']['mean']:.1f}; IoU {summ['iou']['mean']:.3f}; "
-          f"Chamfer {summ['chamfer']['mean']:.4f} ({conv.describe()})")
+    print(f"held-out chairs: {len(scores)}; parts {summ.parts.mean:.1f}; IoU {summ.iou.mean:.3f}; "
+          f"Chamfer {summ.chamfer.mean:.4f} ({conv.describe()})")
     print("part -> primitive index agreement across held-out chairs: "
-          + ", ".join(f"{k} {v['agreement']:.0%} (#{v['index']})" for k, v in agreement["per_label"].items()))
+          + ", ".join(f"{k} {v.agreement:.0%} (#{v.index})" for k, v in agreement.per_label.items()))
     report_dir = _chain_step(out, test_dir, cache, force)
     print(f"wrote {out}/bundled.png, {out}/abstractions.png, {out}/report.json, {out}/abstractions/, {model_path}"
           + (f"; open {report_dir}/index.html" if report_dir else ""))

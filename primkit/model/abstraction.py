@@ -360,13 +360,13 @@ def _fit_losses(results, prepared) -> list:
 
     # the network's own fit: a refined shape's loss before refinement (fit_losses too), and a shape
     # left with no part (a high existence threshold) says nothing of the model
-    refined = [r.refinement["loss_before"] for r in results if r.refinement is not None]
+    refined = [r.refinement.loss_before for r in results if r.refinement is not None]
     pairs = [(r, p) for r, p in zip(results, prepared) if r.refinement is None and r.canonical.existence.any()]
     if not pairs:
         return refined
     shapes = [r.canonical_shape(p) for r, p in pairs]
     return refined + list(fit_losses([r.canonical for r, _ in pairs], shapes, points=1000,
-                                     samples_per_cuboid=96)["total"])
+                                     samples_per_cuboid=96).total)
 
 
 def _card_check(abstractor, losses) -> tuple:

@@ -43,9 +43,10 @@ from .bundled import resolve_model
 from ..primitives.palette import part_colors
 from .fitting import fit_losses
 from .fitting import refine as refine_cuboids
+from .orientation import Alignment
 from .network import load_network
 
-__all__ = ["Abstractor", "AbstractionResult", "MIN_EXTENT", "ORIENTATION_POINTS", "ORIENTATION_SAMPLES",
+__all__ = ["Abstractor", "AbstractionResult", "Refinement", "MIN_EXTENT", "ORIENTATION_POINTS", "ORIENTATION_SAMPLES",
            "drop_unsized_parts"]
 
 #: Surface points of a shape and samples per cuboid with which orientations are scored.
@@ -110,6 +111,20 @@ def drop_unsized_parts(cuboids: primitives.Cuboids, points, min_extent: float = 
 
 
 @dataclass(frozen=True)
+class Refinement:
+    """How ``refine`` changed one shape's cuboids: ``steps`` Adam steps, and the fit loss
+    (:func:`primkit.model.fitting.fit_losses`) before and after."""
+
+    steps: int
+    loss_before: float
+    loss_after: float
+
+    def to_dict(self) -> dict:
+        """JSON-ready (the ``refinement`` entry of ``<name>.cuboids.json``)."""
+        return {"steps": self.steps, "loss_before": self.loss_before, "loss_after": self.loss_after}
+
+
+@dataclass(frozen=True)
 class AbstractionResult:
     """The abstraction of one shape.
 
@@ -122,6 +137,10 @@ class AbstractionResult:
         The same in the canonical frame of the network.
     frame : geometry.CanonicalFrame
     source : str
+    alignment : orientation.Alignment or None
+        How ``align`` turned the shape; None when it was not asked.
+    refinement : Refinement or None
+        What ``refine`` did; None when it was not asked.
     """
 
     name: str
@@ -129,8 +148,8 @@ class AbstractionResult:
     canonical: primitives.Cuboids
     frame: object
     source: str = ""
-    alignment: dict | None = None
-    refinement: dict | None = None
+    alignment: Alignment | None = None
+    refinement: Refinement | None = None
 
     def to_dict(self) -> dict:
         d = self.cuboids.to_dict()
@@ -139,18 +158,19 @@ class AbstractionResult:
         d["frame"] = "input"
         d["canonical_frame"] = self.frame.to_dict()
         if self.alignment is not None:
-            d["alignment"] = self.alignment
+            d["alignment"] = self.alignment.to_dict()
         else:  # as declared (or the defaults): say which axes were taken as up and front
-            d["alignment"] = {"mode": "none", **orientation.describe_rotation(self.frame.rotation)}
+            axes = orientation.describe_rotation(self.frame.rotation)
+            d["alignment"] = {"mode": "none", "up": axes.up, "front": axes.front}
         if self.refinement is not None:
-            d["refinement"] = self.refinement
+            d["refinement"] = self.refinement.to_dict()
         return d
 
     def canonical_shape(self, shape):
         """The prepared ``shape`` in the frame of ``canonical`` (turned when ``align`` chose an orientation)."""
         if self.alignment is None:
             return shape
-        return orientation.rotate_prepared(shape, np.asarray(self.alignment["rotation"], float))
+        return orientation.rotate_prepared(shape, np.asarray(self.alignment.rotation, float))
 
     def save(self, folder, *, overwrite: bool = False, mesh_format: str = ".ply") -> tuple[Path, Path]:
         """Write ``<name>.cuboids.json`` and ``<name>.cuboids<mesh_format>`` into ``folder``."""
@@ -271,11 +291,11 @@ class Abstractor:
                 pick = rng.choice(len(s.points), min(points, len(s.points)), replace=False)
                 scored.extend([replace(s, points=s.points[pick])] * len(candidates))
             out[start : start + len(block)] = fit_losses(cubs, scored, points=0, samples_per_cuboid=samples_per_cuboid,
-                                                         )["total"].reshape(len(block), len(candidates))
+                                                         ).total.reshape(len(block), len(candidates))
         return out
 
     def orient(self, shapes, mode: str = "auto", existence_threshold: float = 0.5, *, up_margin: float | None = None,
-               chunk: int = 16, vote_shapes: int = 24):
+               chunk: int = 16, vote_shapes: int = 24) -> tuple[list, list[Alignment]]:
         """Shapes turned into the orientation ``mode`` finds (:data:`primkit.model.orientation.ALIGN_MODES`).
 
         Each candidate orientation is predicted and scored with the fit losses
@@ -291,7 +311,8 @@ class Abstractor:
         collection's up axis on every shape left one in ten Princeton chairs and three in ten
         tables on their side). It costs 24 candidates a shape, as ``"any"`` does.
 
-        Returns ``(turned shapes, reports)``; a report gives the ``mode``, the chosen ``rotation``
+        Returns ``(turned shapes, reports)``; a report (:class:`~primkit.model.orientation.Alignment`)
+        gives the ``mode``, the chosen ``rotation``
         of the canonical frame, the input axes taken as ``up`` and ``front``, the loss of the
         chosen orientation and of the shape as given, and how the up axis was decided.
         """
@@ -335,14 +356,9 @@ class Abstractor:
         for i, s in enumerate(shapes):
             chosen = orientation.rotate_prepared(s, rotations[choice[i]])
             turned_out.append(chosen)
-            reports.append({
-                "mode": mode,
-                "rotation": rotations[choice[i]].tolist(),
-                **orientation.describe_rotation(chosen.frame.rotation),
-                "up_decided_by": up_decided[i],
-                "loss": loss[i],
-                "loss_as_given": as_given[i],
-            })
+            axes = orientation.describe_rotation(chosen.frame.rotation)
+            reports.append(Alignment(mode, rotations[choice[i]].copy(), axes.up, axes.front, up_decided[i], loss[i],
+                                     as_given[i]))
         return turned_out, reports
 
     def predict(
@@ -395,11 +411,10 @@ class Abstractor:
         if refine:
             refined = []
             for i in range(0, len(shapes), batch_size):
-                part, losses = refine_cuboids(cubs[i : i + batch_size], shapes[i : i + batch_size], refine, seed=seed)
-                refined.extend(part)
-                for j in range(len(part)):
-                    refinements[i + j] = {"steps": int(refine), "loss_before": float(losses["before"][j]),
-                                          "loss_after": float(losses["after"][j])}
+                done = refine_cuboids(cubs[i : i + batch_size], shapes[i : i + batch_size], refine, seed=seed)
+                refined.extend(done.cuboids)
+                for j in range(len(done.cuboids)):
+                    refinements[i + j] = Refinement(int(refine), float(done.loss_before[j]), float(done.loss_after[j]))
             cubs = refined
             if min_extent is not None:
                 cubs = [drop_unsized_parts(c, s.points, min_extent) for c, s in zip(cubs, shapes)]

@@ -108,7 +108,7 @@ def test_refine_improves_the_fit(chair_model, procedural_chairs):
     _, shapes = procedural_chairs
     results = chair_model.predict(shapes[:3], refine=100)
     for r in results:
-        assert r.refinement["loss_after"] < r.refinement["loss_before"]
+        assert r.refinement.loss_after < r.refinement.loss_before
 
 
 def test_align_auto_finds_up_on_turned_chairs(chair_model, procedural_chairs):
