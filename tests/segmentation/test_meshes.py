@@ -44,10 +44,11 @@ def test_point_labels_match_brute_force():
         got = segmentation.point_labels(pts, cub)
         want = np.array([_brute_force_label(p, cub) for p in pts])
         np.testing.assert_array_equal(got, want)
-    labels, dist = primitives.assign_points(pts, cub, return_distance=True, chunk=64)  # several chunks
-    np.testing.assert_array_equal(labels, got)
+    both = primitives.assign_points_with_distance(pts, cub, chunk=64)  # several chunks
+    np.testing.assert_array_equal(both.labels, got)
+    np.testing.assert_array_equal(primitives.assign_points(pts, cub, chunk=64), got)
     d = primitives.point_cuboid_distance(pts, cub)
-    np.testing.assert_allclose(dist, d[np.arange(len(pts)), labels], atol=1e-12)
+    np.testing.assert_allclose(both.distance, d[np.arange(len(pts)), got], atol=1e-12)
 
 
 def test_ties_go_to_the_larger_cuboid_then_the_lower_index():
