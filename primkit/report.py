@@ -245,12 +245,13 @@ def _deformation(shapes, similarity, folder: Path, overwrite: bool) -> dict:
 
 def build_report(paths, model, output, *, refine: int = 0, align=None, up=None, front=None, overwrite: bool = False,
                  settings=None, model_label: str | None = None,
-                 cache_dir=None, workers=None, progress: bool = True, adapt=None) -> tuple[Report, list]:
+                 cache_dir=None, workers=None, progress: bool = False, adapt=None) -> tuple[Report, list]:
     """Abstract, segment, embed and deform the shapes of ``paths`` with ``model`` and write the report.
 
     ``settings``: :class:`primkit.data.PrepareSettings`; default the model's. ``up``, ``front``,
     ``align``: the inputs' axes when known, and how orientations are found, as
-    :func:`primkit.model.abstraction.abstract_shapes`, as is ``adapt`` (experimental).
+    :func:`primkit.model.abstraction.abstract_shapes`, as is ``adapt`` (experimental); ``progress``:
+    tqdm bars on stderr (off by default).
     Returns ``(report, errors)``; ``errors`` has one line per unusable input (the rest goes on).
     """
     out = abstract_shapes(paths, model, settings=settings, align=align, up=up, front=front, refine=refine,
@@ -269,7 +270,7 @@ def build_report(paths, model, output, *, refine: int = 0, align=None, up=None, 
     return report, [str(e) for e in out.errors]
 
 
-def write_report(output, shapes, results, part_names, *, overwrite: bool = False, progress: bool = True,
+def write_report(output, shapes, results, part_names, *, overwrite: bool = False, progress: bool = False,
                  meta=None) -> Report:
     """Write ``index.html``, ``report.json`` and ``images/`` into ``output`` for shapes already
     abstracted (:class:`ReportShape`, with the :class:`~primkit.model.abstractor.AbstractionResult` s)."""

@@ -99,7 +99,8 @@ DOCUMENTS = {
     "primkit.report.page_scene_figure": "a plotly figure (plotly's JSON layout)",
     "primkit.segmentation.meshes.parse_label_names": "label value -> name, keyed by the data",
     "primkit.segmentation.labeller.TreeEnsemble.arrays": "the arrays of the model file, by tensor name",
-    "primkit.data.CacheSegment.row_arrays": "the arrays of a cache file, by array name",
+    "primkit.data.cache.CacheSegment.row_arrays": "the arrays of a cache file, by array name",
+    "primkit.data.cache.encode_row": "the arrays of a cache file, by array name",
 }
 
 #: Left for later steps of issue 34, with the reason (the report of this change lists them).

@@ -233,7 +233,7 @@ def abstract_shapes(
     names=None,
     cache=None,
     workers: int | None = None,
-    progress: bool = True,
+    progress: bool = False,
     executor=None,
     shard=None,
     batch_size: int = 128,
@@ -265,7 +265,8 @@ def abstract_shapes(
     settings : data.PrepareSettings, optional
         How to prepare (resolution, samples, axes); default the model's.
     names : one name per in-memory shape (default ``shape<i>``, ``i`` its position in ``inputs``).
-    cache, workers, progress : the preparation cache folder, processes and progress bars.
+    cache, workers, progress : the preparation cache folder, processes and progress bars (tqdm,
+        on stderr; off by default).
     executor, shard : where files are prepared, and which shard of them is abstracted
         (:func:`primkit.data.prepare_collection`'s); shapes given as arrays are never sharded.
     batch_size : shapes read from the cache and abstracted at once.

@@ -1,5 +1,6 @@
 """Losses against brute force and finite differences, REINFORCE, and real (small) training runs."""
 
+import logging
 import signal
 import subprocess
 import sys
@@ -155,7 +156,7 @@ def test_end_to_end_training_reduces_the_loss(prepared_chairs, tmp_path):
     assert all(h["parts"] == 8 for h in result.history if h["stage"] == 1)
 
 
-def test_same_seed_same_model_and_resume_after_interrupt(prepared_chairs, tmp_path, monkeypatch):
+def test_same_seed_same_model_and_resume_after_interrupt(prepared_chairs, tmp_path, monkeypatch, caplog):
     # bit-identical for the same thread count: pinned, as the load of a shared machine would change it
     monkeypatch.setenv("PRIMKIT_THREADS", "1")
     shapes = training.ShapeTensors(prepared_chairs[:4])
@@ -175,10 +176,15 @@ def test_same_seed_same_model_and_resume_after_interrupt(prepared_chairs, tmp_pa
         return original(self, *args, **kwargs)
 
     monkeypatch.setattr(training.ShapeTensors, "batch", flaky)
-    c = training.train(shapes, tmp_path / "c.safetensors", cfg, progress=False)
+    with caplog.at_level(logging.WARNING, logger="primkit.model.training"):
+        c = training.train(shapes, tmp_path / "c.safetensors", cfg, progress=False)
     assert c.interrupted and not (tmp_path / "c.safetensors").exists()
     ckpt = tmp_path / "c.safetensors.checkpoint.safetensors"
     assert ckpt.exists()
+    # said as a log record (the CLI shows it), naming the checkpoint to resume from
+    (said,) = [r for r in caplog.records if r.name == "primkit.model.training"]
+    assert said.levelno == logging.WARNING and "interrupted after iteration 17" in said.getMessage()
+    assert str(ckpt) in said.getMessage()
     monkeypatch.setattr(training.ShapeTensors, "batch", original)
     d = training.train(shapes, tmp_path / "c.safetensors", cfg, progress=False, resume=ckpt)
     for (k, va), vd in zip(a.network.state_dict().items(), d.network.state_dict().values()):
