@@ -93,6 +93,7 @@ SERIALISERS = {"to_dict", "state_dict"}
 #: Public functions whose dict is a document in someone else's format, or a mapping keyed by data.
 DOCUMENTS = {
     "primkit.model.modelfile.read_metadata": "the model file's JSON metadata",
+    "primkit.model.cuboids_file.cuboids_document": "the JSON of a <name>.cuboids.json file",
     "primkit.model.presets.Recipe.description": "the `training.data` JSON entry of a model file",
     "primkit.model.training.check_checkpoint": "the checkpoint's JSON metadata",
     "primkit.viz.web.scene_figure": "a plotly figure (plotly's JSON layout)",

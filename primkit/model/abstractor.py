@@ -30,7 +30,6 @@ and :meth:`AbstractionResult.save` writes a JSON file (schema-versioned, see
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -43,6 +42,7 @@ from .bundled import resolve_model
 from ..primitives.palette import part_colors
 from .fitting import fit_losses
 from .fitting import refine as refine_cuboids
+from .cuboids_file import cuboids_document, write_cuboids_file
 from .orientation import Alignment
 from .network import load_network
 
@@ -141,6 +141,10 @@ class AbstractionResult:
         How ``align`` turned the shape; None when it was not asked.
     refinement : Refinement or None
         What ``refine`` did; None when it was not asked.
+    model : str
+        The model that abstracted it, as given (a bundled name or a model file's path; "" unknown).
+    part_names : tuple of str
+        The model's name of each part slot (empty: ``part<k>``).
     """
 
     name: str
@@ -150,21 +154,24 @@ class AbstractionResult:
     source: str = ""
     alignment: Alignment | None = None
     refinement: Refinement | None = None
+    model: str = ""
+    part_names: tuple = ()
 
-    def to_dict(self) -> dict:
-        d = self.cuboids.to_dict()
-        d["name"] = self.name
-        d["source"] = self.source
-        d["frame"] = "input"
-        d["canonical_frame"] = self.frame.to_dict()
+    def _file_fields(self) -> dict:
+        extra = {}
         if self.alignment is not None:
-            d["alignment"] = self.alignment.to_dict()
+            extra["alignment"] = self.alignment.to_dict()
         else:  # as declared (or the defaults): say which axes were taken as up and front
             axes = orientation.describe_rotation(self.frame.rotation)
-            d["alignment"] = {"mode": "none", "up": axes.up, "front": axes.front}
+            extra["alignment"] = {"mode": "none", "up": axes.up, "front": axes.front}
         if self.refinement is not None:
-            d["refinement"] = self.refinement.to_dict()
-        return d
+            extra["refinement"] = self.refinement.to_dict()
+        return dict(name=self.name, source=self.source, frame="input", canonical_frame=self.frame,
+                    model=self.model or None, part_names=list(self.part_names) or None, **extra)
+
+    def to_dict(self) -> dict:
+        """The JSON of ``<name>.cuboids.json`` (:mod:`primkit.model.cuboids_file`, cuboids in the input's frame)."""
+        return cuboids_document(self.cuboids, **self._file_fields())
 
     def canonical_shape(self, shape):
         """The prepared ``shape`` in the frame of ``canonical`` (turned when ``align`` chose an orientation)."""
@@ -183,9 +190,12 @@ class AbstractionResult:
         v, f, part = self.cuboids.to_mesh()
         colors = part_colors(self.cuboids.count)[part] if len(f) else None  # no part present: an empty mesh
         io.write_mesh(mesh_path, v, f, face_colors=colors, overwrite=overwrite)
-        with io.atomic_output(json_path, overwrite=overwrite) as tmp:
-            Path(tmp).write_text(json.dumps(self.to_dict(), indent=1))
+        self.save_json(json_path, overwrite=overwrite)
         return json_path, mesh_path
+
+    def save_json(self, path, *, overwrite: bool = False) -> Path:
+        """Write ``path``, a ``<name>.cuboids.json`` alone (:func:`primkit.model.cuboids_file.write_cuboids_file`)."""
+        return write_cuboids_file(path, self.cuboids, overwrite=overwrite, **self._file_fields())
 
 
 class Abstractor:
@@ -197,18 +207,20 @@ class Abstractor:
     metadata : dict
     """
 
-    def __init__(self, network, metadata: dict, device: str | None = None):
+    def __init__(self, network, metadata: dict, device: str | None = None, *, model: str = ""):
         import torch
 
         self.device = device or ("cuda" if torch.cuda.is_available() else "cpu")
         self.network = network.to(self.device).eval()
         self.metadata = metadata
+        #: the model as given to :meth:`load` (a bundled name or a path), recorded in the results
+        self.model = str(model)
 
     @classmethod
     def load(cls, path, device: str | None = None) -> "Abstractor":
         """Load a model file written by ``primkit train``, or a bundled model by name (``"chair"``)."""
         net, meta = load_network(resolve_model(path))
-        return cls(net, meta, device)
+        return cls(net, meta, device, model=str(path))
 
     @property
     def parts(self) -> int:
@@ -421,5 +433,6 @@ class Abstractor:
         results = []
         for s, cub, al, rf in zip(shapes, cubs, alignments, refinements):
             back = np.linalg.inv(s.frame.matrix)
-            results.append(AbstractionResult(s.name, cub.transformed(back), cub, s.frame, s.source, al, rf))
+            results.append(AbstractionResult(s.name, cub.transformed(back), cub, s.frame, s.source, al, rf,
+                                             model=self.model, part_names=tuple(self.part_names)))
         return results
