@@ -55,7 +55,8 @@ class CardMismatchWarning(UserWarning):
 
 @dataclass(frozen=True, eq=False)
 class Abstraction:
-    """One shape with its abstraction.
+    """One shape as the user gave it, with its :class:`AbstractionResult` (``result``): the
+    cuboids, and the shape's own geometry on demand.
 
     Attributes
     ----------
@@ -130,8 +131,9 @@ class Abstraction:
 
 @dataclass(frozen=True, eq=False)
 class Abstractions:
-    """What :func:`abstract_shapes` returns: the usable shapes in input order, one line per input
-    that could not be used (the batch goes on), and the model that abstracted them."""
+    """What :func:`abstract_shapes` returns for a batch: the usable shapes (:class:`Abstraction`) in
+    input order, one line per input that could not be used (the batch goes on), and the model that
+    abstracted them with its model-card check."""
 
     shapes: list
     errors: list

@@ -126,7 +126,9 @@ class Refinement:
 
 @dataclass(frozen=True)
 class AbstractionResult:
-    """The abstraction of one shape.
+    """The cuboids a model gives one prepared shape: a value, with no geometry of the shape
+    (:class:`primkit.model.abstraction.Abstraction` pairs it with the shape; :mod:`primkit.model`
+    sets the four names side by side).
 
     Attributes
     ----------
@@ -199,7 +201,8 @@ class AbstractionResult:
 
 
 class Abstractor:
-    """A trained abstractor: the network and its model-file metadata.
+    """A trained model, loaded once: the network, its part names and its model-file metadata;
+    :meth:`predict` turns prepared shapes into :class:`AbstractionResult` values.
 
     Parameters
     ----------
