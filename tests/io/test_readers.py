@@ -301,10 +301,7 @@ def _read_under_address_limit(path: Path, reader: str, headroom_mib: int, env=No
         import resource, sys
         import numpy, trimesh, trimesh.exchange.gltf
         from primkit import io
-        try:  # the compiled parsers (Numba) loaded before the limit is set, as in a running program
-            from primkit.io import _text_kernels
-        except ImportError:
-            pass
+        from primkit.io import _text_kernels  # the compiled parsers loaded before the limit is set, as in a running program
         size = int(open("/proc/self/statm").read().split()[0]) * resource.getpagesize()
         limit = size + {headroom_mib} * 2**20
         resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
