@@ -228,6 +228,7 @@ def test_segment_command_goes_past_a_bad_file(tmp_path, capsys):
     assert "exists" in capsys.readouterr().err
 
 
+@pytest.mark.integration  # name-parts on meshes through the CLI
 def test_name_parts_writes_a_named_copy(tmp_path, capsys):
     from primkit.model.abstractor import Abstractor
     from primkit.model.bundled import resolve_model

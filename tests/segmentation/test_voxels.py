@@ -172,6 +172,7 @@ def test_segment_command_labels_voxel_grids_and_scores_them_against_voxel_labels
     assert main(["segment", str(tmp_path / "grids"), "--model", "chair", "-o", str(out), "--gt", str(tmp_path)]) == 2
 
 
+@pytest.mark.integration  # name-parts on voxel grids through the CLI
 def test_name_parts_learns_names_from_voxel_labels(tmp_path):
     from primkit.cli import main
     from primkit.model.modelfile import read_metadata
