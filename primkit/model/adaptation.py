@@ -125,40 +125,49 @@ class _Stream:
         return len(self.rotations)
 
     def _source(self, a: np.ndarray):
+        """Flat index (R^3,) of the old cell whose value lands in each new cell; None for no turn."""
         key = tuple(np.rint(a).astype(int).ravel())
         if key not in self._cells:
-            self._cells[key] = None if np.allclose(a, np.eye(3)) else orientation._source_cells(self.resolution, a)
+            if np.allclose(a, np.eye(3)):
+                self._cells[key] = None
+            else:
+                i, j, k = orientation._source_cells(self.resolution, a)
+                self._cells[key] = (i * self.resolution + j) * self.resolution + k
         return self._cells[key]
 
     def batch(self, index, points_per_shape: int, generator: torch.Generator):
-        """Occupancy (B, 1, R, R, R), closest points (B, R, R, R, 3) and (B, k, 3) random surface samples."""
+        """Occupancy (B, 1, R, R, R), closest points (B, R, R, R, 3) and (B, k, 3) random surface samples.
+
+        The closest points are built coordinate-planar ((B, 3, R^3), as the cache stores them and
+        :func:`primkit.geometry.decode_closest` returns them with ``planar=True``) and handed over as
+        a channels-last view of that memory: what the losses read, with no transposing copy. A turned
+        shape's cells are gathered by one flat index (an axis rotation moves whole cells)."""
         res = self.resolution
+        cells = res**3
         index = np.asarray(index)
         pick = torch.randint(0, self.samples, (len(index), points_per_shape), generator=generator).numpy()
         if self.collection:
             occ, codes, near, pts = self.shapes.gather(index, pick)
-            closest = (np.asarray(codes, np.float32) if near is None
-                       else geometry.decode_closest(codes, near, res, planar=True))
-            closest = np.moveaxis(closest.reshape(len(index), 3, res, res, res), 1, -1)
+            planar = (np.asarray(codes, np.float32) if near is None
+                      else geometry.decode_closest(codes, near, res, planar=True))  # (B, 3, R^3)
         else:
             block = [self.shapes[i] for i in index]
             occ = np.stack([s.occupancy for s in block])
-            closest = np.stack([np.asarray(s.closest, np.float32) for s in block])
+            planar = np.stack([np.asarray(s.closest, np.float32).reshape(cells, 3).T for s in block])
             pts = np.stack([np.asarray(s.points, np.float32)[p] for s, p in zip(block, pick)])
-        occ_out = np.empty((len(index), 1, res, res, res), np.float32)
-        closest_out = np.empty((len(index), res, res, res, 3), np.float32)
-        pts_out = np.empty((len(index), points_per_shape, 3), np.float32)
+        occ_out = np.asarray(occ, np.float32).reshape(len(index), 1, cells)
+        planar = np.ascontiguousarray(planar, np.float32).reshape(len(index), 3, cells)
+        pts = np.ascontiguousarray(pts, np.float32)
         for b, i in enumerate(index):
-            a = self.rotations[i]
-            src = self._source(a)
-            if src is None:
-                occ_out[b, 0], closest_out[b], pts_out[b] = occ[b], closest[b], pts[b]
-            else:
-                occ_out[b, 0] = occ[b][src].reshape(res, res, res)
-                closest_out[b] = closest[b][src].reshape(res, res, res, 3) @ a.T.astype(np.float32)
-                pts_out[b] = pts[b] @ a.T.astype(np.float32)
-        closest_t = torch.from_numpy(closest_out).permute(0, 4, 1, 2, 3).contiguous().permute(0, 2, 3, 4, 1)
-        return torch.from_numpy(occ_out), closest_t, torch.from_numpy(pts_out)
+            src = self._source(self.rotations[i])
+            if src is not None:
+                a = self.rotations[i].astype(np.float32)
+                occ_out[b, 0] = occ_out[b, 0][src]
+                planar[b] = a @ planar[b][:, src]
+                pts[b] = pts[b] @ a.T
+        occ_t = torch.from_numpy(occ_out.reshape(len(index), 1, res, res, res))
+        closest_t = torch.from_numpy(planar.reshape(len(index), 3, res, res, res)).permute(0, 2, 3, 4, 1)
+        return occ_t, closest_t, torch.from_numpy(pts)
 
 
 def _freeze_batch_norm(net) -> None:
