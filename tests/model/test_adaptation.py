@@ -56,6 +56,18 @@ def test_bad_settings_are_refused(parent, shapes):
         adapt(parent, [], AdaptConfig(steps=1))
 
 
+def test_default_steps_follow_the_collection_and_the_command_line_resolves_them():
+    from primkit.cli._common import _adapt_steps
+    from primkit.model.adaptation import default_steps
+
+    # 40 draws a shape in batches of 16, within [200, 600]
+    assert [default_steps(n) for n in (1, 20, 80, 81, 219, 240, 1000)] == [200, 200, 200, 203, 548, 600, 600]
+    assert default_steps(219, batch_size=32) == 274
+    assert _adapt_steps("auto") is True and _adapt_steps("50") == 50  # --adapt alone, --adapt 50
+    with pytest.raises(ValueError, match="steps"):
+        adapt(Abstractor.load("chair"), [object()], AdaptConfig(steps=0))
+
+
 def test_parent_answers_computed_once_equal_the_per_step_pass(parent, shapes):
     # the pull's target is the parent's answer on an input that is never augmented: computed once per
     # shape before the steps, it equals the parent's network run on each shape alone, turned as found
