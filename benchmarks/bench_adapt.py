@@ -1,6 +1,7 @@
 """Benchmark: adapting the chair model to a collection (``primkit.model.adaptation.adapt``).
 
     python benchmarks/bench_adapt.py [--meshes 20] [--grids 1000] [--small-grids 100] [--steps N] [--repeats 1]
+        [--ways today "first version"]
 
 In one run, each way in a fresh process (``run_isolated``; peak RSS is that process's), alternating:
 
@@ -41,7 +42,7 @@ def _one(way: str, files: list, cache: str, steps, workers: int) -> dict:
 
     from primkit import data
     from primkit.model.abstractor import Abstractor
-    from primkit.model.adaptation import AdaptConfig, adapt
+    from primkit.model.adaptation import AdaptConfig, adapt, default_steps
 
     torch.set_num_threads(1)
     parent = Abstractor.load("chair")
@@ -49,19 +50,20 @@ def _one(way: str, files: list, cache: str, steps, workers: int) -> dict:
     coll = data.prepare_collection(files, data.PrepareSettings(resolution=parent.resolution), cache_dir=cache,
                                    workers=workers, progress=False)
     t1 = time.perf_counter()
-    config = AdaptConfig() if steps is None else AdaptConfig(steps=steps)
+    config = AdaptConfig() if steps is None else AdaptConfig(steps=steps)  # None: default_steps(count)
     if way == "today":
         adapt(parent, coll, config)
     else:
         shapes = [coll[i] for i in range(len(coll))]
         adapt(parent, shapes, AdaptConfig(**{**config.to_dict(), "parent_pass": "every-step"}))
     t2 = time.perf_counter()
+    steps = default_steps(len(coll)) if config.steps is None else config.steps
     anon = 0
     for line in Path("/proc/self/status").read_text().splitlines() if Path("/proc/self/status").exists() else []:
         if line.startswith("RssAnon:"):
             anon = int(line.split()[1])
     return {"anon_mib": anon / 1024, "prepare_s": t1 - t0, "adapt_s": t2 - t1, "total_s": t2 - t0, "rss_mib": maxrss_kib() / 1024,
-            "steps": config.steps, "shapes": len(coll)}
+            "steps": steps, "shapes": len(coll)}
 
 
 def _write_meshes(folder: Path, count: int) -> list:
@@ -86,8 +88,9 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=None, help="adaptation steps (default: AdaptConfig's)")
     ap.add_argument("--repeats", type=int, default=1)
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--ways", nargs="+", default=["today", "first version"], choices=["today", "first version"])
     args = ap.parse_args()
-    ways = ("today", "first version")
+    ways = tuple(args.ways)
     rows = []
     with tempfile.TemporaryDirectory(prefix="bench-adapt-") as tmp:
         tmp = Path(tmp)
