@@ -3,7 +3,7 @@
 Usage (after ``primkit train ... --preset NAME -o RUNS/NAME.safetensors`` for each preset, and
 ``scripts/name_bundled_models.sh RUNS`` to name their parts)::
 
-    python scripts/build_bundled_models.py --runs RUNS [--names chair table airplane animal]
+    python scripts/build_bundled_models.py --runs RUNS [--names chair table airplane]
         [--limit 200] [--refine 200] [--pictures docs/images] [--partnet validation test]
 
 For each model: its held-out shapes (the preset's rule applied to the training folder recorded in
@@ -300,7 +300,7 @@ def _naming(meta: dict) -> str:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", required=True, type=Path, help="folder with NAME.safetensors from primkit train --preset NAME")
-    ap.add_argument("--names", nargs="+", default=["chair", "table", "airplane", "animal"])
+    ap.add_argument("--names", nargs="+", default=["chair", "table", "airplane"])
     ap.add_argument("--limit", type=int, default=200, help="held-out shapes evaluated per model (evenly spaced)")
     ap.add_argument("--refine", type=int, default=200)
     ap.add_argument("--pictures", type=Path, default=None)

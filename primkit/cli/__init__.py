@@ -342,7 +342,7 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="examples:\n  primkit train chairs/ -o chair.safetensors\n  primkit train ../shared/data/shapenetvox32/03001627 --preset chair -o chair.safetensors\n", formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("inputs", nargs="+", help="folders or files of shapes")
     add_output(p, "model file to write (.safetensors)")
-    p.add_argument("--preset", default=None, help="a bundled model's recipe (chair, table, airplane, animal): schedule, "
+    p.add_argument("--preset", default=None, help="a bundled model's recipe (chair, table, airplane): schedule, "
                    "hold-out rule, data terms; other flags override it")
     p.add_argument("--parts", type=int, default=None, help="part slots M (default 20)")
     p.add_argument("--batch-size", type=int, default=None, help="default 32")

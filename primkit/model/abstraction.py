@@ -259,9 +259,10 @@ def abstract_shapes(
         As :meth:`Abstractor.predict` (``refine=N`` runs N gradient steps per shape; parts whose
         longest side is under ``min_extent`` of the shape's size, or that are nearest to none of
         its surface samples, are not present).
-    adapt : None, int or :class:`primkit.model.adaptation.AdaptConfig`
+    adapt : None, True, int or :class:`primkit.model.adaptation.AdaptConfig`
         Adapt the model to these inputs first, without labels (:func:`primkit.model.adaptation.adapt`;
-        an int is the number of steps, with the other settings at their defaults); the shapes are
+        an int is the number of steps, True (or ``"auto"``) the default settings, whose steps follow
+        the inputs' count: :func:`~primkit.model.adaptation.default_steps`); the shapes are
         then abstracted by the adapted model, which ``Abstractions.model`` holds. Experimental; the
         shapes are read from the cache at each batch, so memory does not grow with their number.
     settings : data.PrepareSettings, optional
@@ -330,7 +331,8 @@ def abstract_shapes(
     if adapt:
         from .adaptation import AdaptConfig, ShapeSequence, adapt as adapt_model
 
-        config = adapt if isinstance(adapt, AdaptConfig) else AdaptConfig(steps=int(adapt))
+        config = (adapt if isinstance(adapt, AdaptConfig)
+                  else AdaptConfig() if adapt is True or adapt == "auto" else AdaptConfig(steps=int(adapt)))
         everything = ShapeSequence(len(order), lambda i: coll[order[i][1]] if order[i][0] == "file"
                                    else memory[order[i][1]][1])  # read from the cache at each batch
         named = str(model) if isinstance(model, (str, os.PathLike)) else None

@@ -272,8 +272,10 @@ class Abstractor:
         return {k: np.concatenate(v) for k, v in out.items()}
 
     def _cuboids(self, raw: dict, i: int, existence_threshold: float) -> primitives.Cuboids:
+        # max_half_extent * sigmoid(x) is exactly 0 in float32 below x of about -104 (a part driven to
+        # no size, as adaptation can): floored so that a Cuboids can hold it; drop_unsized_parts drops it
         return primitives.Cuboids(
-            raw["half_extents"][i], raw["quaternions"][i], raw["translations"][i],
+            np.maximum(raw["half_extents"][i], 1e-12), raw["quaternions"][i], raw["translations"][i],
             raw["existence"][i] > existence_threshold, probabilities=raw["existence"][i],
         )
 

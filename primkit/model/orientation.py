@@ -13,6 +13,7 @@ permuted and flipped, the closest points and samples rotated, and the frame comp
 
 from __future__ import annotations
 
+import functools
 import itertools
 from dataclasses import dataclass, replace
 
@@ -177,10 +178,27 @@ def describe_rotation(rotation) -> FrameAxes:
 
 def _source_cells(res: int, rotation: np.ndarray) -> tuple:
     """Flat index arrays of the old cell whose value lands in each new cell: the value at cell centre
-    ``c`` ends at cell centre ``rotation @ c``."""
+    ``c`` ends at cell centre ``rotation @ c``. Cached per resolution and rotation (24 of them): the
+    frame search turns every shape by each, and computing the indices took 3.2 s of a 24.4 s
+    profile of ``Abstractor.orient`` on 64 ShapeNet chairs."""
+    a = np.asarray(rotation, float)
+    if not np.array_equal(a, np.rint(a)):  # not an axis rotation: computed as it is
+        return _cells(int(res), a)
+    return _source_cells_cached(int(res), tuple(a.astype(int).ravel()))
+
+
+def _cells(res: int, a: np.ndarray) -> tuple:
     idx = np.indices((res,) * 3).reshape(3, -1).T  # new cells
-    old = np.rint((idx - (res - 1) / 2.0) @ rotation + (res - 1) / 2.0).astype(np.int64)  # rotation.T @ c per row
+    old = np.rint((idx - (res - 1) / 2.0) @ a + (res - 1) / 2.0).astype(np.int64)  # rotation.T @ c per row
     return old[:, 0], old[:, 1], old[:, 2]
+
+
+@functools.lru_cache(maxsize=64)
+def _source_cells_cached(res: int, rotation: tuple) -> tuple:
+    out = _cells(res, np.array(rotation, float).reshape(3, 3))
+    for o in out:
+        o.flags.writeable = False  # shared by every caller
+    return out
 
 
 def rotate_grid(grid: np.ndarray, rotation) -> np.ndarray:
