@@ -159,7 +159,8 @@ def learn_and_label(chairs, train, evaluate, settings, *, position_only=False, *
         # (their features are rows of the full features: the local shape is read among all voxels)
         classify, around, use = grid_sampling(a["index"].astype(np.int64), near, settings.grid_sample)
         proba = np.zeros((len(X), len(labeller.names)))  # zeros: the unclassified weigh 0 in the fill
-        proba[classify] = labeller.ensemble.predict_proba(X[classify])
+        proba[classify] = (labeller.classify(X[classify]) if isinstance(labeller, Labeller)  # the prior blended in
+                           else labeller.ensemble.predict_proba(X[classify]))
         w = use.astype(float)
         proba[~classify] = np.einsum("nk,nkc->nc", w, proba[around]) / w.sum(axis=1, keepdims=True)
         if settings.smooth:
@@ -276,7 +277,7 @@ def sweep(scratch: Path, sizes, only=None) -> dict:
                                      for c in train_pool[:n]], NAMES, chairs.parts, settings=settings, **{**FIT, **fit})
             t1 = time.perf_counter()
             known = np.array([NAMES.index(k) for k in labeller.names])
-            probas = {c: labeller.ensemble.predict_proba(features[c][:, keep]) for c in held}
+            probas = {c: labeller.classify(features[c][:, keep]) for c in held}
             print(f"{label}, {n} chairs: {t1 - t0:.0f} s fit, {time.perf_counter() - t1:.0f} s label, "
                   f"{len(labeller.ensemble.feature)} nodes", flush=True)
             for k, rounds, share in AFTER:
@@ -340,7 +341,7 @@ def coseg(scratch: Path, settings: LabellerSettings, draws: int = 8) -> dict:
         for i, (name, X, y, points) in enumerate(shapes):
             if i in pick:
                 continue
-            proba = labeller.smooth(labeller.ensemble.predict_proba(X), points)  # as Labeller.predict
+            proba = labeller.smooth(labeller.classify(X), points)  # as Labeller.predict
             codes = np.array([["back", "seat", "legs"].index(k) for k in labeller.names])[decide(proba, settings.min_share)]
             right.append(float(np.mean(codes == y)))
         rows.append({"learned_from": [shapes[i][0] for i in pick], "faces_right": right, "mean": float(np.mean(right))})
