@@ -140,6 +140,19 @@ def index_naming(chairs: Chairs, names) -> dict:
     return {n: codes[chairs.arrays[n]["nearest"].astype(np.int64)] for n in names}
 
 
+def index_naming_from(chairs: Chairs, train, evaluate) -> dict:
+    """Index naming learned from ``train`` as ``name-parts --index-names-only`` learns it (each
+    index takes the label holding most of its voxels over the labelled chairs,
+    :func:`primkit.model.parts.names_from_labels`; indices by the nearest rule), applied to ``evaluate``."""
+    from primkit.model.parts import names_from_labels
+
+    a = [chairs.arrays[n] for n in train]
+    names, _ = names_from_labels([x["nearest"].astype(np.int64) for x in a], [x["truth"].astype(np.int64) for x in a],
+                                 [None] * len(a), NAMES, chairs.parts)
+    codes = np.array([NAMES.index(n) if n in NAMES else -2 for n in names])
+    return {n: codes[chairs.arrays[n]["nearest"].astype(np.int64)] for n in evaluate}
+
+
 def learn_and_label(chairs, train, evaluate, settings, *, position_only=False, **fit) -> dict:
     """Learn from ``train``, label ``evaluate`` as the library does (the classifier, smoothing over
     each voxel's 3 x 3 x 3 neighbourhood, rare labels dropped): name -> label codes."""
@@ -295,12 +308,12 @@ def curve(scratch: Path, part: str, sizes, draws: int, settings: LabellerSetting
     rows = {"index naming (bundled model)": score(chairs, evaluate, index_naming(chairs, evaluate))}
     print(line("index naming (bundled model)", rows["index naming (bundled model)"]))
     for n in sizes:
-        for kind, position_only in (("labeller", False), ("position only", True)):
+        for kind, position_only in (("labeller", False), ("position only", True), ("index naming", None)):
             runs = []
             for d in range(draws if n < 100 else 1):
                 train = order(chairs.validation, d)[:n]
-                runs.append(score(chairs, evaluate, learn_and_label(chairs, train, evaluate, settings,
-                                                                     position_only=position_only)))
+                runs.append(score(chairs, evaluate, index_naming_from(chairs, train, evaluate) if position_only is None
+                                  else learn_and_label(chairs, train, evaluate, settings, position_only=position_only)))
                 print(line(f"{kind}, {n} chairs, draw {d}", runs[-1]), flush=True)
             mean = {k: float(np.mean([r[k] for r in runs])) for k in ("mean", "arm_iou", "arm_f1")}
             mean["iou"] = {k: float(np.mean([r["iou"][k] for r in runs])) for k in runs[0]["iou"]}

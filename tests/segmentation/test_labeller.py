@@ -549,3 +549,27 @@ def test_a_version_1_labeller_still_loads(labelled, tmp_path):
     assert got.settings.prior_weight == 0 and got.prior is None
     np.testing.assert_array_equal(got.ensemble.feature, now.ensemble.feature)
     assert got.ensemble.feature.dtype == np.int64
+
+
+@pytest.mark.shared
+def test_the_bundled_chair_labeller_learned_from_validation_chairs_only(shared_data):
+    """scripts/build_chair_labeller.py: the first 100 validation chairs of scripts/partnet_chairs.py's
+    split (rebuilt here from primkit.data: held-out files with PartNet labels, sorted by id, even
+    positions validation, odd test), never a test chair; the card states the PartNet terms."""
+    from primkit import data
+    from primkit.model.modelfile import read_metadata
+    from primkit.segmentation import VoxelLabelArchive
+
+    path = resolve_model("chair")
+    got = lab.read_labeller(path)
+    assert got is not None and got.names == ["back", "seat", "legs", "arms"] and got.parts == 20
+    _, held = data.split_files(data.find_shape_files(shared_data / "shapenetvox32" / "03001627"), 10)
+    archive = VoxelLabelArchive(shared_data / "partnet_chair_boxes")
+    labelled = sorted((p for p in held if data.shape_name(p) in archive), key=data.shape_name)
+    validation = [data.shape_name(p) for p in labelled[0::2]]
+    test = {data.shape_name(p) for p in labelled[1::2]}
+    ids = got.info["shape_ids"]
+    assert ids == validation[:100] and not set(ids) & test
+    card = read_metadata(path)["card"]
+    assert card["labeller"]["shapes"] == got.info["shapes"] == 100
+    assert "non-commercial research" in card["labeller"]["terms"] and "PartNet" in card["text"]
