@@ -12,7 +12,8 @@ The split (``scripts/partnet_chairs.py``): the chair preset's held-out files wit
 positions **validation**, odd positions **test**. Labellers learn from the first N chairs of the
 validation part in a fixed shuffled order (seed 0; other draws with ``--draws``); ``sweep`` chooses
 settings by learning from validation chairs 0-99 of that order and scoring validation chairs
-100-218; ``curve --part test`` learns from validation chairs and scores every test chair.
+100-218, as ``curve --part validation`` does (its draws shuffle validation chairs 0-99);
+``curve --part test`` learns from validation chairs and scores every test chair.
 
 Scores (as ``scripts/partnet_chairs.py`` and ``primkit segment --gt``,
 :func:`primkit.segmentation.evaluate_voxels`): per-label IoU per chair over its occupied voxels, 1
@@ -118,7 +119,7 @@ def score(chairs: Chairs, names, predictions) -> dict:
         idx = tuple(a["index"].astype(np.int64).T)
         grid_p = np.full((32, 32, 32), -1, np.int64)
         grid_t = np.full((32, 32, 32), -1, np.int64)
-        grid_p[idx] = predictions[name]
+        grid_p[idx] = np.where(predictions[name] < 0, len(NAMES), predictions[name])  # unnamed: a name no label has
         grid_t[idx] = a["truth"]
         assigned.append(grid_p)
         truths.append(VoxelGroundTruth(grid_t, ["back", "seat", "legs/leg/base", "arms/arm"]))
@@ -126,7 +127,8 @@ def score(chairs: Chairs, names, predictions) -> dict:
         has_t.append(np.count_nonzero(a["truth"] == 3) >= 0.02 * n)
         has_p.append(np.count_nonzero(predictions[name] == 3) >= 0.01 * n)
     # each label code is its own "part", named after it: the model-names protocol is the identity
-    report = evaluate_voxels(assigned, truths, len(NAMES), part_names=NAMES, names=list(names), mean_over=MEAN_OVER)
+    report = evaluate_voxels(assigned, truths, len(NAMES) + 1, part_names=NAMES + ["unnamed"], names=list(names),
+                             mean_over=MEAN_OVER)
     e = report["protocols"]["model-names"]
     has_t, has_p = np.array(has_t), np.array(has_p)
     tp, fp, fn = np.sum(has_t & has_p), np.sum(~has_t & has_p), np.sum(has_t & ~has_p)
@@ -301,6 +303,13 @@ def sweep(scratch: Path, sizes, only=None) -> dict:
     return out
 
 
+def _validation_train(chairs, draw):
+    """The labelled chairs of a validation draw: validation chairs 0-99 of the shuffle (seed 0), in
+    shuffle ``draw`` (0: as they are), so that no draw learns from a scored chair (100-218)."""
+    pool = order(chairs.validation, 0)[:100]
+    return pool if draw == 0 else order(pool, draw)
+
+
 def curve(scratch: Path, part: str, sizes, draws: int, settings: LabellerSettings) -> dict:
     chairs = Chairs(scratch)
     evaluate = chairs.test if part == "test" else order(chairs.validation, 0)[100:]
@@ -311,7 +320,7 @@ def curve(scratch: Path, part: str, sizes, draws: int, settings: LabellerSetting
         for kind, position_only in (("labeller", False), ("position only", True), ("index naming", None)):
             runs = []
             for d in range(draws if n < 100 else 1):
-                train = order(chairs.validation, d)[:n]
+                train = order(chairs.validation, d)[:n] if part == "test" else _validation_train(chairs, d)[:n]
                 runs.append(score(chairs, evaluate, index_naming_from(chairs, train, evaluate) if position_only is None
                                   else learn_and_label(chairs, train, evaluate, settings, position_only=position_only)))
                 print(line(f"{kind}, {n} chairs, draw {d}", runs[-1]), flush=True)
