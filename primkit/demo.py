@@ -58,9 +58,9 @@ def _bundled_step(out: Path, folder: Path, cache: Path, quick: bool, progress: b
     for key, (results, inputs) in runs.items():
         scores = [score(r.canonical, r.canonical_shape(s), conv) for r, s in zip(results, inputs)]
         summ = summarize(scores)
-        report[key] = {"parts": summ["parts"]["mean"], "iou": summ["iou"]["mean"], "chamfer": summ["chamfer"]["mean"]}
-        _logger.info("  %-20s: parts %.1f, IoU %.3f, Chamfer %.4f", key, summ["parts"]["mean"], summ["iou"]["mean"],
-                    summ["chamfer"]["mean"])
+        report[key] = {"parts": summ.parts.mean, "iou": summ.iou.mean, "chamfer": summ.chamfer.mean}
+        _logger.info("  %-20s: parts %.1f, IoU %.3f, Chamfer %.4f", key, summ.parts.mean, summ.iou.mean,
+                     summ.chamfer.mean)
     undone = [bool(np.allclose(r.frame.rotation, s.frame.rotation)) for r, s in zip(runs["turned, align auto"][0], shapes)]
     report["turned, align auto"]["orientation_recovered"] = f"{sum(undone)}/{len(undone)}"
     _logger.info("  turned chairs whose orientation align auto recovered: %d/%d", sum(undone), len(undone))
@@ -124,18 +124,18 @@ def run_demo(output="primkit-demo", *, quick: bool = False, force: bool = False,
     _, meta = synthetic.read_collection_labels(test_set[0].source)
     agreement = part_label_agreement([r.canonical for r in results], [s.points for s in shapes],
                                      [s.point_labels for s in shapes], names=meta["part_names"])
-    report = {"convention": conv.describe(), "summary": summarize(scores), "part_index_agreement": agreement}
+    summ = summarize(scores)
+    report = {"convention": conv.describe(), "summary": summ.to_dict(), "part_index_agreement": agreement.to_dict()}
     with io.atomic_output(out / "report.json", overwrite=True) as tmp:
         Path(tmp).write_text(json.dumps(report, indent=1))
     render_abstractions(results, [(a.vertices, a.faces) for a in test_set], out / "abstractions.png")
-    summ = report["summary"]
-    _logger.info("held-out chairs: %d; parts %.1f; IoU %.3f; Chamfer %.4f (%s)", len(scores), summ["parts"]["mean"],
-                summ["iou"]["mean"], summ["chamfer"]["mean"], conv.describe())
+    _logger.info("held-out chairs: %d; parts %.1f; IoU %.3f; Chamfer %.4f (%s)", len(scores), summ.parts.mean,
+                 summ.iou.mean, summ.chamfer.mean, conv.describe())
     _logger.info("part -> primitive index agreement across held-out chairs: %s",
-                ", ".join(f"{k} {v['agreement']:.0%} (#{v['index']})" for k, v in agreement["per_label"].items()))
+                 ", ".join(f"{k} {v.agreement:.0%} (#{v.index})" for k, v in agreement.per_label.items()))
     report_dir = _chain_step(out, test_dir, cache, progress)
     _logger.info("wrote %s/bundled.png, %s/abstractions.png, %s/report.json, %s/abstractions/, %s%s", out, out, out, out,
-                model_path, f"; open {report_dir}/index.html" if report_dir else "")
+                 model_path, f"; open {report_dir}/index.html" if report_dir else "")
     return 0
 
 

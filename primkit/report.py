@@ -91,7 +91,7 @@ def _canonical_mesh(a):
     except (io.ShapeFileError, ValueError, OSError):
         v, f = voxel_boundary_mesh(np.asarray(a.prepared.occupancy, bool))
         if result.alignment is not None:  # the grid was read turned; turn it back
-            v = v @ np.asarray(result.alignment["rotation"], float)
+            v = v @ np.asarray(result.alignment.rotation, float)
         return v, f, cub
 
 

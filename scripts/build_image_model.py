@@ -210,8 +210,8 @@ def _summary(scores, seconds_per_item) -> dict:
     from primkit.metrics import summarize
 
     s = summarize(scores)
-    return {"chamfer_l1": round(s["chamfer"]["mean"], 5), "iou": round(s["iou"]["mean"], 4),
-            "parts": round(s["parts"]["mean"], 2), "shapes": len(scores), "seconds_per_item": round(seconds_per_item, 4)}
+    return {"chamfer_l1": round(s.chamfer.mean, 5), "iou": round(s.iou.mean, 4),
+            "parts": round(s.parts.mean, 2), "shapes": len(scores), "seconds_per_item": round(seconds_per_item, 4)}
 
 
 def evaluate(teacher, held_coll, work: Path, settings, args) -> dict:

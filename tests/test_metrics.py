@@ -390,11 +390,12 @@ def test_score_and_summarize_box():
     assert set(d) == {"chamfer", "iou", "coverage", "consistency", "parts", "convention"}
 
     summary = M.summarize([s, t])
-    assert summary["count"] == 2 and summary["empty"] == 0 and summary["convention"] == conv.describe()
-    assert summary["iou"]["mean"] == pytest.approx((s.iou + t.iou) / 2)
-    assert summary["chamfer"]["median"] == pytest.approx((s.chamfer + t.chamfer) / 2)
-    assert summary["coverage"]["std"] == pytest.approx(abs(s.coverage - t.coverage) / 2)
-    assert summary["parts"] == {"mean": 1.0, "median": 1.0, "std": 0.0}
+    assert summary.count == 2 and summary.empty == 0 and summary.convention == conv.describe()
+    assert summary.iou.mean == pytest.approx((s.iou + t.iou) / 2)
+    assert summary.chamfer.median == pytest.approx((s.chamfer + t.chamfer) / 2)
+    assert summary.coverage.std == pytest.approx(abs(s.coverage - t.coverage) / 2)
+    assert summary.parts == M.Statistics(mean=1.0, median=1.0, std=0.0)
+    assert summary.to_dict()["parts"] == {"mean": 1.0, "median": 1.0, "std": 0.0}  # the JSON layout
 
 
 def test_summarize_rejects_mixed_conventions_and_empty():
@@ -406,8 +407,8 @@ def test_summarize_rejects_mixed_conventions_and_empty():
         M.summarize([])
     empty = M.AbstractionScores(float("inf"), 0.0, float("inf"), float("nan"), 0, "x")
     out = M.summarize([a, empty, a])
-    assert out["empty"] == 1 and out["chamfer"]["mean"] == float("inf")
-    assert out["chamfer"]["median"] == pytest.approx(0.1)
+    assert out.empty == 1 and out.chamfer.mean == float("inf")
+    assert out.chamfer.median == pytest.approx(0.1)
 
 
 @pytest.mark.parametrize("power", [1, 2])

@@ -79,3 +79,19 @@ def test_resuming_with_other_settings_is_a_warning_and_the_interrupt_a_log_recor
         training.train(shapes, out, replace(TINY, log_every=3), resume=ckpt)
     assert capfd.readouterr() == ("", "")
     assert out.is_file()
+
+
+def test_the_demo_says_a_refusal_as_an_error_record(tmp_path, caplog, capfd):
+    """``run_demo`` into a folder holding one of its outputs, without ``force``: nothing is done, the
+    reason is an ERROR record of ``primkit.demo`` naming the file, and nothing is printed."""
+    from primkit.demo import run_demo
+
+    out = tmp_path / "demo"
+    out.mkdir()
+    (out / "bundled.json").write_text("{}")
+    capfd.readouterr()
+    with caplog.at_level(logging.INFO, logger="primkit"):
+        assert run_demo(out, quick=True) == 2
+    (said,) = [r for r in caplog.records if r.name == "primkit.demo"]
+    assert said.levelno == logging.ERROR and "bundled.json" in said.getMessage()
+    assert capfd.readouterr() == ("", "") and not (out / "shapes").exists()

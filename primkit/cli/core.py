@@ -164,9 +164,9 @@ def _abstraction_line(a, path) -> str:
     r = a.result
     extra = ""
     if r.alignment is not None:
-        extra += f"; oriented with up {r.alignment['up']}, front {r.alignment['front']}"
+        extra += f"; oriented with up {r.alignment.up}, front {r.alignment.front}"
     if r.refinement is not None:
-        extra += f"; refined: loss {r.refinement['loss_before']:.2e} -> {r.refinement['loss_after']:.2e}"
+        extra += f"; refined: loss {r.refinement.loss_before:.2e} -> {r.refinement.loss_after:.2e}"
     return f"{r.name}: {int(r.cuboids.existence.sum())} parts{extra} -> {path}"
 
 
@@ -215,7 +215,7 @@ def _cmd_eval(args) -> int:
     out = abstract_shapes(files, abstractor, **abstraction_options(args))
     conv = ChamferConvention(power=args.chamfer_power)
     scores = [score(a.canonical, a.canonical_shape(), conv) for a in out]
-    summary = summarize(scores) if scores else {}
+    summary = summarize(scores).to_dict() if scores else {}
     print(f"metric convention: {conv.describe()}")
     for key in ("chamfer", "iou", "coverage", "consistency", "parts"):
         if key in summary:
@@ -317,7 +317,7 @@ def register(sub) -> None:
         epilog="examples:\n  primkit train chairs/ -o chair.safetensors\n  primkit train ../shared/data/shapenetvox32/03001627 --preset chair -o chair.safetensors\n", formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("inputs", nargs="+", help="folders or files of shapes")
     add_output(p, "model file to write (.safetensors)")
-    p.add_argument("--preset", default=None, help="a bundled model's recipe (chair, table, airplane, animal): schedule, "
+    p.add_argument("--preset", default=None, help="a bundled model's recipe (chair, table, airplane): schedule, "
                    "hold-out rule, data terms; other flags override it")
     p.add_argument("--parts", type=int, default=None, help="part slots M (default 20)")
     p.add_argument("--batch-size", type=int, default=None, help="default 32")

@@ -55,7 +55,7 @@ colour of each part index). ``primkit.primitives`` imports only
 from .cuboids import CORNER_SIGNS, SCHEMA_VERSION, Cuboids
 from .differentiable import (cuboid_distance_sq_torch, quaternion_to_matrix_torch, sample_cuboid_surfaces_torch,
                              surface_coefficients_torch, surface_samples_from_coefficients_torch, world_to_local_torch)
-from .distances import assign_points, contains, local_to_world, point_cuboid_distance, union_distance, world_to_local
+from .distances import Assignment, assign_points, assign_points_with_distance, contains, local_to_world, point_cuboid_distance, union_distance, world_to_local
 from .rotations import matrix_to_quaternion, quaternion_to_matrix
 from .sampling import CuboidSurfaceSamples, fraction_inside_others, prune_covered, prune_covered_many, sample_cuboid_surfaces, sample_volume, union_surface_samples
 
@@ -78,6 +78,8 @@ __all__ = [
     "prune_covered_many",
     "union_surface_samples",
     "assign_points",
+    "assign_points_with_distance",
+    "Assignment",
     "quaternion_to_matrix_torch",
     "world_to_local_torch",
     "cuboid_distance_sq_torch",

@@ -217,8 +217,12 @@ class Segmenter:
             if not outputs.written_before(labels, codes, plan.shard is not None, overwrite):  # meanwhile
                 with io.atomic_output(labels, overwrite=overwrite) as tmp:
                     Path(tmp).write_text(codes)
-        for s in segs:
-            s.cuboids.save_json(folder / f"{s.name}.cuboids.json", overwrite=overwrite)
+        from ..model.cuboids_file import write_cuboids_file
+
+        for s in segs:  # the schema of every <name>.cuboids.json (its canonical_frame not known here)
+            write_cuboids_file(folder / f"{s.name}.cuboids.json", s.cuboids, name=s.name, source=s.source,
+                               model=self.abstractor.model or None, part_names=s.part_names or None,
+                               overwrite=overwrite)
         if picture:
             run.picture = outputs.write_picture(segs, picture)
         if ground_truth and kinds["mesh"]:

@@ -166,7 +166,9 @@ def test_distillation_loss_does_not_see_the_quaternion_sign():
     assert float(same["rotation"]) == pytest.approx(0, abs=1e-12) and float(same["translations"]) == 0
 
 
-@pytest.mark.parametrize("swap, geometric", [(0.0, 0.0), (0.75, 0.0), (0.0, 5.0)])
+@pytest.mark.parametrize("swap, geometric", [(0.0, 0.0),  # the fast loop keeps the plain run; the others cost
+                                             pytest.param(0.75, 0.0, marks=pytest.mark.integration),  # 25 s CPU
+                                             pytest.param(0.0, 5.0, marks=pytest.mark.integration)])  # 20 s
 def test_short_training_run_lowers_the_loss(chairs, swap, geometric):
     settings = views.ViewSettings(size=32, supersample=1)
     v = views.render_views([c.occupancy for c in chairs], 4, settings=settings, seed=0, keep_foreground=swap > 0)

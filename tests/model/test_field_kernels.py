@@ -7,7 +7,7 @@ import torch
 from primkit import geometry, synthetic
 from primkit.model import distance_field
 
-kernel = pytest.importorskip("primkit.model._field_kernels", reason="Numba is not installed")
+from primkit.model import _field_kernels as kernel  # Numba is a dependency: a kernel that fails to load fails here
 
 
 @pytest.fixture(scope="module")

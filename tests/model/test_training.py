@@ -146,6 +146,16 @@ def test_end_to_end_training_reduces_the_loss(prepared_chairs, tmp_path):
     first, last = result.history[0]["total"], result.history[-1]["total"]
     assert last < 0.5 * first
     assert out.exists() and (tmp_path / "m.training.png").exists() and (tmp_path / "m.history.json").exists()
+    from pictures import read_picture
+
+    # the plot: total, coverage and consistency drawn in matplotlib's first three colours in the
+    # upper panel (losses; measured 700-800 pixels each), nothing coloured in the lower one (the
+    # parts in use, in black)
+    plot = read_picture(tmp_path / "m.training.png")
+    upper = type(plot)(plot.rgb[:300], plot.background, plot.foreground[:300])
+    lower = type(plot)(plot.rgb[300:], plot.background, plot.foreground[300:])
+    for colour in ((31, 119, 180), (255, 127, 14), (44, 160, 44)):
+        assert upper.colour_pixels(colour) > 200 and lower.colour_pixels(colour) < 20, colour
     net, meta = network.load_network(out)
     assert meta["training"]["iterations"] == 180 and meta["network"]["parts"] == 8
     x = torch.from_numpy(prepared_chairs[0].occupancy[None].astype(np.float32))
