@@ -29,9 +29,6 @@ SHARED = {
     "AXES": ({"primkit.plugins.paraview_plugin", "primkit.plugins.vtk_filter"},
              "the same filter property's choices, for the same reason as PrimkitSegmentation"),
     # left for other steps of issue 34 (see the report of this change)
-    "check_outputs": ({"primkit.cli._common", "primkit.io.files"},
-                      "cli._common's wrapper taking the command's args; the command line is being "
-                      "rewritten (issue 34 step 1), which removes or renames it"),
     "segment": ({"primkit.plugins.open3d_geometry", "primkit.segmentation.segmenter"},
                 "the Open3D plugin's `segment` is named in the README (the coordinator's file)"),
     "read_points": ({"primkit.io.formats", "primkit.plugins.pyvista_readers"},

@@ -245,6 +245,7 @@ def abstract_shapes(
     Parameters
     ----------
     inputs : one input or a list of them (see the module notes); folders expand to their files.
+        A :class:`primkit.data.RunPlan` gives its files and what it does of them (``shard`` then unused).
     model : a bundled model's name, a model file's path, or an :class:`Abstractor`.
     up, front : the inputs' up and front axes (``"+y"``, ``"-z"``, ...), when known. Undeclared
         (None or ``"auto"``), the shapes are taken as +Y up and their front is searched.
@@ -282,6 +283,8 @@ def abstract_shapes(
     """
     from tqdm.auto import tqdm  # tqdm: imported when the progress bar is drawn
 
+    if isinstance(inputs, data.RunPlan):  # a planned run: its files, named by it, what it does of them
+        inputs, shard = list(inputs.files), inputs.selection
     abstractor = load_model(model)
     mode = orientation.resolve_align(align, up, front)
     axes = {k: v for k, v in (("up", up), ("front", front)) if v not in (None, "auto")}
