@@ -110,11 +110,10 @@ PENDING = {
     "primkit.cli.deform.parse_edit": "the command line is being rewritten (step 1)",
     "primkit.deformation.folds.edge_distortion": "its JSON is written by cli/deform, being rewritten",
     "primkit.deformation.mesh.Deformed.quality": "its JSON is written by cli/deform, being rewritten",
-    "primkit.model.abstractor.Abstractor.predict_canonical": "one network-output dataclass for the volume and "
-                                                             "image networks and the distillation (with the three below)",
-    "primkit.image.inference.ImageAbstractor.predict_raw": "as predict_canonical",
-    "primkit.image.network.ImageNet.forward": "as predict_canonical",
-    "primkit.image.distill.distillation_loss": "as predict_canonical",
+    "primkit.image.inference.ImageAbstractor.predict_raw": "the image network's outputs by name (with the viewpoint); "
+                                                           "one dataclass with ImageNet.forward's, as RawCuboids",
+    "primkit.image.network.ImageNet.forward": "as predict_raw; the distillation reads it by name",
+    "primkit.image.distill.distillation_loss": "loss terms by name, some optional; the training history logs them",
     "primkit.segmentation.meshes.Segmentation.save": "paths by role; segmentation is being reworked",
     "primkit.segmentation.points.PointSegmentation.save": "paths by role; segmentation is being reworked",
     "primkit.segmentation.voxels.VoxelSegmentation.save": "paths by role; segmentation is being reworked",

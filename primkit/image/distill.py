@@ -144,7 +144,7 @@ class ImageTrainResult:
 
 
 @isolated_torch_state
-def train_image_model(images: np.ndarray, shape_index: np.ndarray, cameras: np.ndarray, teacher: dict,
+def train_image_model(images: np.ndarray, shape_index: np.ndarray, cameras: np.ndarray, teacher,
                       net_config: ImageNetConfig = ImageNetConfig(), config: ImageTrainConfig = ImageTrainConfig(),
                       *, progress: bool = False, network: ImageNet | None = None,
                       foreground: np.ndarray | None = None, alpha: np.ndarray | None = None,
@@ -156,7 +156,8 @@ def train_image_model(images: np.ndarray, shape_index: np.ndarray, cameras: np.n
     images : (k, S, S, 3) uint8
     shape_index : (k,) int, which teacher row each image shows
     cameras : (k, 4) float, camera arrays (:class:`primkit.image.camera.OrbitCamera`)
-    teacher : dict of (s, m, ...) arrays, :meth:`primkit.model.abstractor.Abstractor.predict_canonical`
+    teacher : primkit.model.abstractor.RawCuboids
+        The teacher's answer for each shape, :meth:`primkit.model.abstractor.Abstractor.predict_canonical`
     progress : a tqdm bar over the iterations, on stderr (off by default)
     network : continue training this network instead of a new one
     foreground : (k, S, S, 3) uint8, alpha : (k, S, S) uint8, optional
@@ -186,8 +187,7 @@ def train_image_model(images: np.ndarray, shape_index: np.ndarray, cameras: np.n
             raise ValueError(f"foreground {tuple(fgs.shape)} and alpha {tuple(alphas.shape)} do not match the images "
                              f"{tuple(imgs.shape)}")
     idx = torch.from_numpy(np.asarray(shape_index, np.int64))
-    teach = {k: torch.from_numpy(np.asarray(teacher[k], np.float32)) for k in
-             ("half_extents", "quaternions", "translations", "existence")}
+    teach = {k: torch.from_numpy(np.asarray(v, np.float32)) for k, v in teacher.arrays().items()}
     if config.geometric > 0:
         if surface_points is None or closest is None:
             raise ValueError("`geometric` > 0 needs the shapes' surface_points and closest grids")

@@ -234,8 +234,10 @@ def test_geometric_loss_against_brute_force_on_a_box():
 
 def test_geometric_training_needs_the_shapes(grids):
     v = views.render_views(grids[:1], 2, settings=SMALL, seed=0)
-    teacher = {"half_extents": np.full((1, 2, 3), 0.1), "quaternions": np.tile([1.0, 0, 0, 0], (1, 2, 1)),
-               "translations": np.zeros((1, 2, 3)), "existence": np.ones((1, 2))}
+    from primkit.model.abstractor import RawCuboids
+
+    teacher = RawCuboids(half_extents=np.full((1, 2, 3), 0.1), quaternions=np.tile([1.0, 0, 0, 0], (1, 2, 1)),
+                         translations=np.zeros((1, 2, 3)), existence=np.ones((1, 2)))
     config = im.ImageTrainConfig(iterations=1, batch_size=2, geometric=1.0)
     with pytest.raises(ValueError, match="surface_points"):
         im.train_image_model(v.images, v.shape_index, v.cameras, teacher, im.ImageNetConfig(size=32, parts=2), config,
