@@ -108,8 +108,6 @@ DOCUMENTS = {
 PENDING = {
     "primkit.cli._common.abstraction_options": "the command line is being rewritten (step 1)",
     "primkit.cli.deform.parse_edit": "the command line is being rewritten (step 1)",
-    "primkit.deformation.folds.edge_distortion": "its JSON is written by cli/deform, being rewritten",
-    "primkit.deformation.mesh.Deformed.quality": "its JSON is written by cli/deform, being rewritten",
     "primkit.image.inference.ImageAbstractor.predict_raw": "the image network's outputs by name (with the viewpoint); "
                                                            "one dataclass with ImageNet.forward's, as RawCuboids",
     "primkit.image.network.ImageNet.forward": "as predict_raw; the distillation reads it by name",
