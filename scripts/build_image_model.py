@@ -240,7 +240,7 @@ def evaluate(teacher, held_coll, work: Path, settings, args) -> dict:
         results = model.predict(v.images, names=[v.names[i] for i in v.shape_index])
         seconds = (time.time() - t) / len(v)
         scores = [score(r.cuboids, shapes[i]) for r, i in zip(results, v.shape_index)]
-        errors = _param_errors(raw, targets.rows(v.shape_index).arrays())
+        errors = _param_errors(raw.arrays(), targets.rows(v.shape_index).arrays())
         az_err = np.abs((np.array([r.azimuth_deg for r in results]) - v.cameras[:, 0] + 180) % 360 - 180)
         report[tag] = {**_summary(scores, seconds), "against_teacher": errors,
                        "azimuth_error_deg_median": round(float(np.median(az_err)), 1)}

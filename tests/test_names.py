@@ -108,10 +108,6 @@ DOCUMENTS = {
 PENDING = {
     "primkit.cli._common.abstraction_options": "the command line is being rewritten (step 1)",
     "primkit.cli.deform.parse_edit": "the command line is being rewritten (step 1)",
-    "primkit.image.inference.ImageAbstractor.predict_raw": "the image network's outputs by name (with the viewpoint); "
-                                                           "one dataclass with ImageNet.forward's, as RawCuboids",
-    "primkit.image.network.ImageNet.forward": "as predict_raw; the distillation reads it by name",
-    "primkit.image.distill.distillation_loss": "loss terms by name, some optional; the training history logs them",
     "primkit.segmentation.meshes.Segmentation.save": "paths by role; segmentation is being reworked",
     "primkit.segmentation.points.PointSegmentation.save": "paths by role; segmentation is being reworked",
     "primkit.segmentation.voxels.VoxelSegmentation.save": "paths by role; segmentation is being reworked",
