@@ -45,7 +45,7 @@ def test_adapting_is_deterministic_keeps_the_parent_and_records_itself(parent, s
     loaded = Abstractor.load(path)
     assert loaded.metadata["adaptation"]["digest"] == info["digest"]
     x = np.stack([s.occupancy for s in shapes])
-    np.testing.assert_allclose(loaded.predict_canonical(x)["translations"], a.predict_canonical(x)["translations"],
+    np.testing.assert_allclose(loaded.predict_canonical(x).translations, a.predict_canonical(x).translations,
                                atol=1e-6)
 
 
