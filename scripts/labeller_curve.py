@@ -12,7 +12,8 @@ The split (``scripts/partnet_chairs.py``): the chair preset's held-out files wit
 positions **validation**, odd positions **test**. Labellers learn from the first N chairs of the
 validation part in a fixed shuffled order (seed 0; other draws with ``--draws``); ``sweep`` chooses
 settings by learning from validation chairs 0-99 of that order and scoring validation chairs
-100-218; ``curve --part test`` learns from validation chairs and scores every test chair.
+100-218, as ``curve --part validation`` does (its draws shuffle validation chairs 0-99);
+``curve --part test`` learns from validation chairs and scores every test chair.
 
 Scores (as ``scripts/partnet_chairs.py`` and ``primkit segment --gt``,
 :func:`primkit.segmentation.evaluate_voxels`): per-label IoU per chair over its occupied voxels, 1
@@ -118,7 +119,7 @@ def score(chairs: Chairs, names, predictions) -> dict:
         idx = tuple(a["index"].astype(np.int64).T)
         grid_p = np.full((32, 32, 32), -1, np.int64)
         grid_t = np.full((32, 32, 32), -1, np.int64)
-        grid_p[idx] = predictions[name]
+        grid_p[idx] = np.where(predictions[name] < 0, len(NAMES), predictions[name])  # unnamed: a name no label has
         grid_t[idx] = a["truth"]
         assigned.append(grid_p)
         truths.append(VoxelGroundTruth(grid_t, ["back", "seat", "legs/leg/base", "arms/arm"]))
@@ -126,7 +127,8 @@ def score(chairs: Chairs, names, predictions) -> dict:
         has_t.append(np.count_nonzero(a["truth"] == 3) >= 0.02 * n)
         has_p.append(np.count_nonzero(predictions[name] == 3) >= 0.01 * n)
     # each label code is its own "part", named after it: the model-names protocol is the identity
-    report = evaluate_voxels(assigned, truths, len(NAMES), part_names=NAMES, names=list(names), mean_over=MEAN_OVER)
+    report = evaluate_voxels(assigned, truths, len(NAMES) + 1, part_names=NAMES + ["unnamed"], names=list(names),
+                             mean_over=MEAN_OVER)
     e = report["protocols"]["model-names"]
     has_t, has_p = np.array(has_t), np.array(has_p)
     tp, fp, fn = np.sum(has_t & has_p), np.sum(~has_t & has_p), np.sum(has_t & ~has_p)
@@ -138,6 +140,19 @@ def index_naming(chairs: Chairs, names) -> dict:
     """Today's naming: each voxel takes its nearest cuboid's name in the model (one per index)."""
     codes = np.array([NAMES.index(n) if n in NAMES else -2 for n in chairs.index_names])
     return {n: codes[chairs.arrays[n]["nearest"].astype(np.int64)] for n in names}
+
+
+def index_naming_from(chairs: Chairs, train, evaluate) -> dict:
+    """Index naming learned from ``train`` as ``name-parts --index-names-only`` learns it (each
+    index takes the label holding most of its voxels over the labelled chairs,
+    :func:`primkit.model.parts.names_from_labels`; indices by the nearest rule), applied to ``evaluate``."""
+    from primkit.model.parts import names_from_labels
+
+    a = [chairs.arrays[n] for n in train]
+    names, _ = names_from_labels([x["nearest"].astype(np.int64) for x in a], [x["truth"].astype(np.int64) for x in a],
+                                 [None] * len(a), NAMES, chairs.parts)
+    codes = np.array([NAMES.index(n) if n in NAMES else -2 for n in names])
+    return {n: codes[chairs.arrays[n]["nearest"].astype(np.int64)] for n in evaluate}
 
 
 def learn_and_label(chairs, train, evaluate, settings, *, position_only=False, **fit) -> dict:
@@ -159,7 +174,8 @@ def learn_and_label(chairs, train, evaluate, settings, *, position_only=False, *
         # (their features are rows of the full features: the local shape is read among all voxels)
         classify, around, use = grid_sampling(a["index"].astype(np.int64), near, settings.grid_sample)
         proba = np.zeros((len(X), len(labeller.names)))  # zeros: the unclassified weigh 0 in the fill
-        proba[classify] = labeller.ensemble.predict_proba(X[classify])
+        proba[classify] = (labeller.classify(X[classify]) if isinstance(labeller, Labeller)  # the prior blended in
+                           else labeller.ensemble.predict_proba(X[classify]))
         w = use.astype(float)
         proba[~classify] = np.einsum("nk,nkc->nc", w, proba[around]) / w.sum(axis=1, keepdims=True)
         if settings.smooth:
@@ -276,7 +292,7 @@ def sweep(scratch: Path, sizes, only=None) -> dict:
                                      for c in train_pool[:n]], NAMES, chairs.parts, settings=settings, **{**FIT, **fit})
             t1 = time.perf_counter()
             known = np.array([NAMES.index(k) for k in labeller.names])
-            probas = {c: labeller.ensemble.predict_proba(features[c][:, keep]) for c in held}
+            probas = {c: labeller.classify(features[c][:, keep]) for c in held}
             print(f"{label}, {n} chairs: {t1 - t0:.0f} s fit, {time.perf_counter() - t1:.0f} s label, "
                   f"{len(labeller.ensemble.feature)} nodes", flush=True)
             for k, rounds, share in AFTER:
@@ -287,6 +303,13 @@ def sweep(scratch: Path, sizes, only=None) -> dict:
     return out
 
 
+def _validation_train(chairs, draw):
+    """The labelled chairs of a validation draw: validation chairs 0-99 of the shuffle (seed 0), in
+    shuffle ``draw`` (0: as they are), so that no draw learns from a scored chair (100-218)."""
+    pool = order(chairs.validation, 0)[:100]
+    return pool if draw == 0 else order(pool, draw)
+
+
 def curve(scratch: Path, part: str, sizes, draws: int, settings: LabellerSettings) -> dict:
     chairs = Chairs(scratch)
     evaluate = chairs.test if part == "test" else order(chairs.validation, 0)[100:]
@@ -294,12 +317,12 @@ def curve(scratch: Path, part: str, sizes, draws: int, settings: LabellerSetting
     rows = {"index naming (bundled model)": score(chairs, evaluate, index_naming(chairs, evaluate))}
     print(line("index naming (bundled model)", rows["index naming (bundled model)"]))
     for n in sizes:
-        for kind, position_only in (("labeller", False), ("position only", True)):
+        for kind, position_only in (("labeller", False), ("position only", True), ("index naming", None)):
             runs = []
             for d in range(draws if n < 100 else 1):
-                train = order(chairs.validation, d)[:n]
-                runs.append(score(chairs, evaluate, learn_and_label(chairs, train, evaluate, settings,
-                                                                     position_only=position_only)))
+                train = order(chairs.validation, d)[:n] if part == "test" else _validation_train(chairs, d)[:n]
+                runs.append(score(chairs, evaluate, index_naming_from(chairs, train, evaluate) if position_only is None
+                                  else learn_and_label(chairs, train, evaluate, settings, position_only=position_only)))
                 print(line(f"{kind}, {n} chairs, draw {d}", runs[-1]), flush=True)
             mean = {k: float(np.mean([r[k] for r in runs])) for k in ("mean", "arm_iou", "arm_f1")}
             mean["iou"] = {k: float(np.mean([r["iou"][k] for r in runs])) for k in runs[0]["iou"]}
@@ -340,7 +363,7 @@ def coseg(scratch: Path, settings: LabellerSettings, draws: int = 8) -> dict:
         for i, (name, X, y, points) in enumerate(shapes):
             if i in pick:
                 continue
-            proba = labeller.smooth(labeller.ensemble.predict_proba(X), points)  # as Labeller.predict
+            proba = labeller.smooth(labeller.classify(X), points)  # as Labeller.predict
             codes = np.array([["back", "seat", "legs"].index(k) for k in labeller.names])[decide(proba, settings.min_share)]
             right.append(float(np.mean(codes == y)))
         rows.append({"learned_from": [shapes[i][0] for i in pick], "faces_right": right, "mean": float(np.mean(right))})

@@ -87,9 +87,9 @@ def category_figures(category: str, modes, workers=None) -> dict:
         for s, r in zip(segs, results):
             per_mesh[s.name] = {
                 "one_minus_rand": float(np.mean([rand_distance(s.face_labels, h, areas[s.name]) for h in humans[s.name]])),
-                "up": r.alignment.get("up") if r.alignment else None,
-                "front": r.alignment.get("front") if r.alignment else None,
-                "decided_by": r.alignment.get("up_decided_by") if r.alignment else None,
+                "up": r.alignment.up if r.alignment else None,
+                "front": r.alignment.front if r.alignment else None,
+                "decided_by": r.alignment.up_decided_by if r.alignment else None,
             }
         out[mode] = {
             "mean": float(np.mean([v["one_minus_rand"] for v in per_mesh.values()])),

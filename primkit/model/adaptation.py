@@ -269,7 +269,7 @@ def _frames_and_answers(model, shapes, align, chunk: int, want_answers: bool):
                 turned = block
             else:
                 turned, reports = model.orient(block, align)
-                rotations[lo:lo + len(block)] = [np.asarray(r["rotation"], float) for r in reports]
+                rotations[lo:lo + len(block)] = [np.asarray(r.rotation, float) for r in reports]
             if want_answers:
                 occ = torch.from_numpy(np.stack([s.occupancy for s in turned]).astype(np.float32)).unsqueeze(1)
                 device = next(net.parameters()).device

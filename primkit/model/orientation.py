@@ -15,14 +15,15 @@ from __future__ import annotations
 
 import functools
 import itertools
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from .. import geometry
 
 __all__ = ["AXIS_ROTATIONS", "UPRIGHT", "ALIGN_MODES", "UP_MARGIN", "candidate_rotations", "choose_orientation",
-           "default_front", "resolve_align", "rotate_grid", "rotate_prepared", "axis_name", "describe_rotation"]
+           "default_front", "resolve_align", "rotate_grid", "rotate_prepared", "axis_name", "describe_rotation",
+           "FrameAxes", "Alignment"]
 
 
 def _axis_rotations() -> np.ndarray:
@@ -127,10 +128,52 @@ def axis_name(vector) -> str:
     return ("+" if v[i] > 0 else "-") + "xyz"[i]
 
 
-def describe_rotation(rotation) -> dict:
+@dataclass(frozen=True)
+class FrameAxes:
+    """The input axes a frame takes as up (canonical +Y) and front (canonical +X): ``"+x"``, ``"-z"``, ..."""
+
+    up: str
+    front: str
+
+
+@dataclass(frozen=True, eq=False)
+class Alignment:
+    """How ``align`` turned one shape (:meth:`primkit.model.abstractor.Abstractor.orient`).
+
+    Attributes
+    ----------
+    mode : str
+        The mode asked for (:data:`ALIGN_MODES`).
+    rotation : (3, 3) float
+        The chosen axis rotation of the canonical frame (acts on column vectors).
+    up, front : str
+        The input axes then taken as up and front (:class:`FrameAxes`).
+    up_decided_by : str
+        ``"given"``, ``"shape"``, or how the collection's vote decided it.
+    loss, loss_as_given : float
+        Fit loss (:func:`primkit.model.fitting.fit_losses`) of the chosen orientation and of the
+        shape as given.
+    """
+
+    mode: str
+    rotation: np.ndarray
+    up: str
+    front: str
+    up_decided_by: str
+    loss: float
+    loss_as_given: float
+
+    def to_dict(self) -> dict:
+        """JSON-ready (the ``alignment`` entry of ``<name>.cuboids.json``)."""
+        return {"mode": self.mode, "rotation": np.asarray(self.rotation, float).tolist(), "up": self.up,
+                "front": self.front, "up_decided_by": self.up_decided_by, "loss": self.loss,
+                "loss_as_given": self.loss_as_given}
+
+
+def describe_rotation(rotation) -> FrameAxes:
     """The input axes that a frame rotation (``canonical = rotation @ x``) makes up (+Y) and front (+X)."""
     r = np.asarray(rotation, float)
-    return {"up": axis_name(r[1]), "front": axis_name(r[0])}
+    return FrameAxes(up=axis_name(r[1]), front=axis_name(r[0]))
 
 
 def _source_cells(res: int, rotation: np.ndarray) -> tuple:

@@ -168,7 +168,7 @@ def _back_edge(a):
 
 
 def _bad_feature(a):
-    a["labeller.feature"][np.flatnonzero(a["labeller.is_leaf"] == 0)[0]] = 10**6
+    a["labeller.feature"][np.flatnonzero(a["labeller.is_leaf"] == 0)[0]] = 30000
 
 
 def _float_children(a):
@@ -199,6 +199,18 @@ def _class_past_end(a):
     a["labeller.tree_class"][0] = 7
 
 
+def _wide_children(a):
+    a["labeller.left"] = a["labeller.left"].astype(np.int64)  # version 1's type in a version 2 file
+
+
+def _bad_prior(a):
+    a["labeller.prior"] = a["labeller.prior"][:, :2].copy()
+
+
+def _lost_prior(a):
+    del a["labeller.prior"]
+
+
 @pytest.mark.parametrize("arrays,description,needle", [
     (_back_edge, None, "child index"),
     (_bad_feature, None, "feature past"),
@@ -209,6 +221,9 @@ def _class_past_end(a):
     (None, _more_features, "features"),
     (_nan_leaf, None, "non-finite"),
     (_class_past_end, None, "raw score"),
+    (_wide_children, None, "labeller tensor labeller.left is I64"),
+    (_bad_prior, None, "prior must be"),
+    (_lost_prior, None, "but no prior"),
 ])
 def test_a_hostile_labeller_is_refused_in_one_line(labelled, tmp_path, arrays, description, needle):
     bad = _rewrite(labelled, tmp_path / "bad.safetensors", arrays, description)
@@ -328,6 +343,7 @@ def test_decide_drops_labels_below_their_share():
     assert np.array_equal(lab.decide(proba, 0.02), [0] * 99 + [1])  # label 2 on 1% of the elements: dropped
 
 
+@pytest.mark.integration  # fits a labeller on whole chairs through name-parts
 def test_a_learned_labeller_names_the_faces_the_segmenter_writes(chairs, tmp_path):
     """fit_labeller on abstracted labelled meshes; the segmenter's ``named`` is the labeller's
     prediction on the shape's elements, and --semantic codes are those names' 1-based codes."""
@@ -415,6 +431,7 @@ def test_the_vtk_filter_carries_a_label_array(chairs, tmp_path):
     assert "label" not in pv.wrap(f.GetOutputDataObject(0)).cell_data  # the bundled chair has no labeller
 
 
+@pytest.mark.integration  # two name-parts runs; scikit-learn bins weighted samples slowly
 def test_name_parts_learns_from_labelled_point_clouds(chairs, tmp_path):
     """Point clouds with <stem>.labels.npy beside them: name-parts learns a labeller from three,
     and segment --semantic names the fourth's points with it (codes of labels.csv)."""
@@ -494,3 +511,67 @@ def test_edit_scales_the_cuboids_a_label_names(chairs, tmp_path, capsys):
     rc = main(["edit", str(path), "--model", str(model), "--scale", "seat=1.2", "-o", str(tmp_path / "x.off"),
                "--cache", str(tmp_path / "cache"), "--workers", "1"])
     assert rc != 0 and "unknown part 'seat'" in capsys.readouterr().err  # index names give way to labels
+
+
+def test_the_prior_is_each_index_share_of_the_labels_and_is_blended_in(tmp_path):
+    rng = np.random.default_rng(8)
+    labeller, shapes = _toy_labeller(rng)
+    m = labeller.parts
+    # brute force: per shape, each index's label shares over all its labelled elements, summed
+    counts = np.zeros((m, 3))
+    for X, y in shapes:
+        for k, label in zip(np.argmax(X[:, 3 : 3 + m], axis=1), y):
+            counts[k, label] += 1.0 / len(y)
+    rows = counts.sum(axis=1, keepdims=True)
+    want = np.where(rows > 0, counts / np.maximum(rows, 1e-300), counts.sum(axis=0) / counts.sum())
+    np.testing.assert_allclose(labeller.prior, want, atol=1e-12)
+    X = shapes[1][0]
+    w = labeller.settings.prior_weight
+    assert w > 0
+    blend = (1 - w) * labeller.ensemble.predict_proba(X) + w * want[np.argmax(X[:, 3 : 3 + m], axis=1)]
+    np.testing.assert_allclose(labeller.classify(X), blend, atol=1e-12)
+    back = lab.read_labeller(lab.write_labeller(resolve_model("chair"), tmp_path / "p.safetensors", labeller))
+    np.testing.assert_array_equal(back.prior, labeller.prior)
+    np.testing.assert_array_equal(back.classify(X), labeller.classify(X))
+
+
+def test_a_version_1_labeller_still_loads(labelled, tmp_path):
+    """Version 1 stored indices as int64 and had no prior (prior_weight reads 0)."""
+    def widen(a):
+        for k in ("feature", "left", "right"):
+            a["labeller." + k] = a["labeller." + k].astype(np.int64)
+        del a["labeller.prior"]
+
+    def old(d):
+        d["format_version"] = 1
+        del d["settings"]["prior_weight"]
+
+    got = lab.read_labeller(_rewrite(labelled, tmp_path / "v1.safetensors", widen, old))
+    now = lab.read_labeller(labelled)
+    assert got.settings.prior_weight == 0 and got.prior is None
+    np.testing.assert_array_equal(got.ensemble.feature, now.ensemble.feature)
+    assert got.ensemble.feature.dtype == np.int64
+
+
+@pytest.mark.shared
+def test_the_bundled_chair_labeller_learned_from_validation_chairs_only(shared_data):
+    """scripts/build_chair_labeller.py: the first 100 validation chairs of scripts/partnet_chairs.py's
+    split (rebuilt here from primkit.data: held-out files with PartNet labels, sorted by id, even
+    positions validation, odd test), never a test chair; the card states the PartNet terms."""
+    from primkit import data
+    from primkit.model.modelfile import read_metadata
+    from primkit.segmentation import VoxelLabelArchive
+
+    path = resolve_model("chair")
+    got = lab.read_labeller(path)
+    assert got is not None and got.names == ["back", "seat", "legs", "arms"] and got.parts == 20
+    _, held = data.split_files(data.find_shape_files(shared_data / "shapenetvox32" / "03001627"), 10)
+    archive = VoxelLabelArchive(shared_data / "partnet_chair_boxes")
+    labelled = sorted((p for p in held if data.shape_name(p) in archive), key=data.shape_name)
+    validation = [data.shape_name(p) for p in labelled[0::2]]
+    test = {data.shape_name(p) for p in labelled[1::2]}
+    ids = got.info["shape_ids"]
+    assert ids == validation[:100] and not set(ids) & test
+    card = read_metadata(path)["card"]
+    assert card["labeller"]["shapes"] == got.info["shapes"] == 100
+    assert "non-commercial research" in card["labeller"]["terms"] and "PartNet" in card["text"]

@@ -1,0 +1,95 @@
+"""Put a part labeller into the bundled chair model (``primkit/model/bundled/chair.safetensors``).
+
+The labeller (:mod:`primkit.segmentation.labeller`) is learned from the first ``--chairs`` PartNet
+**validation** chairs of ``scripts/partnet_chairs.py``'s split (the chairs the model's index names
+were learned from; never the test part), abstracted and segmented as ``primkit segment`` does
+with default flags, exactly as ``primkit name-parts CHAIRS --model chair --labels
+../shared/data/partnet_chair_boxes`` learns one. Only the labeller and the card change: the
+network's weights, the part names and every other metadata key are copied unchanged (checked).
+
+Usage (from the repository root)::
+
+    python -m scripts.build_chair_labeller -o chair-labelled.safetensors [--chairs 100] [--cache DIR]
+    python -m scripts.labeller_curve model --model chair-labelled.safetensors --part test   # its figures
+    cp chair-labelled.safetensors primkit/model/bundled/chair.safetensors
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from primkit.model.bundled import bundled_models
+from primkit.model.modelfile import load_model, read_metadata
+from primkit.segmentation import Segmenter
+from primkit.segmentation.labeller import LABELLER_KEY, read_labeller, write_labeller
+from primkit.segmentation.segmenter import fit_labeller
+
+from scripts.partnet_chairs import split
+
+NAMES = ["back", "seat", "legs", "arms"]  # PartNet's values 0-3 (partnet_chair_boxes README)
+
+TERMS = ("the labeller was learned from PartNet's part annotations (Mo et al., CVPR 2019) of ShapeNet chairs, "
+         "as voxel labels in ../shared/data/partnet_chair_boxes: non-commercial research and educational use "
+         "only, as ShapeNet's; cite PartNet, ShapeNet and 3D-R2N2")
+
+
+def build(output: Path, chairs: int = 100, cache=None, *, overwrite: bool = False) -> Path:
+    source = bundled_models()["chair"]
+    meta = read_metadata(source)
+    if LABELLER_KEY in meta:
+        raise SystemExit(f"{source} already carries a labeller")
+    validation, _, archive = split()
+    files = validation[:chairs]
+    segmenter = Segmenter(source, labeller=None)
+    results, errors = segmenter.abstract_files(files, cache_dir=cache, progress=False)
+    segs, errors = segmenter.segment_results(results, errors=errors, progress=False)
+    if errors or len(segs) != chairs:
+        raise SystemExit(f"{len(errors)} chairs failed: {errors[:3]}")
+    by_name = {r.name: r for r in results}
+    learned = []
+    for s in segs:
+        occupied = np.argwhere(s.grid.occupancy)  # np.argwhere order, as the labeller reads a grid
+        truth = archive.get(s.name, s.grid.occupancy.shape).labels[tuple(occupied.T)]
+        learned.append((s, by_name[s.name], truth))
+    labeller = fit_labeller(learned, NAMES, segmenter.abstractor.parts,
+                            info={"learned_from": f"the first {chairs} PartNet validation chairs of "
+                                                  "scripts/partnet_chairs.py's split",
+                                  "shape_ids": [s.name for s in segs]})
+    card = dict(meta["card"])
+    card["labeller"] = {"shapes": chairs, "labels": NAMES, "data": "partnet_chair_boxes voxel labels, validation part",
+                        "terms": TERMS, "command": "python -m scripts.build_chair_labeller",
+                        "settings": labeller.settings.to_dict()}
+    card["text"] = card["text"].rstrip("\n") + (
+        f"\n\nPart labeller (`segment --semantic` names each voxel, face or point with it): learned from the first "
+        f"{chairs} PartNet validation chairs (scripts/partnet_chairs.py's split; never the test part) with "
+        f"`python -m scripts.build_chair_labeller`; docs/labeller.md gives its figures. Terms: {TERMS}.\n")
+    out = write_labeller(source, output, labeller, {"card": card}, overwrite=overwrite)
+    # the network and every other key unchanged
+    before, after = load_model(source)[0], load_model(out)[0]
+    assert all(np.array_equal(before[k].numpy(), after[k].numpy()) for k in before)
+    assert set(after) - set(before) == {k for k in after if k.startswith("labeller.")}
+    new = read_metadata(out)
+    assert {k: v for k, v in new.items() if k not in ("card", LABELLER_KEY, "created")} == \
+        {k: v for k, v in meta.items() if k not in ("card", "created")}
+    back = read_labeller(out)
+    print(f"wrote {out}: {out.stat().st_size} bytes ({source.stat().st_size} without the labeller), "
+          f"{len(back.ensemble.feature)} tree nodes, prior weight {back.settings.prior_weight}")
+    return out
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("-o", "--output", type=Path, required=True)
+    ap.add_argument("--chairs", type=int, default=100, help="the first N validation chairs (default 100)")
+    ap.add_argument("--cache", type=Path, default=None, help="the abstractions' cache folder")
+    ap.add_argument("--force", action="store_true")
+    args = ap.parse_args(argv)
+    build(args.output, args.chairs, args.cache, overwrite=args.force)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
