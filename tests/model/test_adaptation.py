@@ -38,6 +38,7 @@ def test_adapting_is_deterministic_keeps_the_parent_and_records_itself(parent, s
     info = a.metadata["adaptation"]
     assert info["shapes"] == 3 and info["digest"] == collection_digest(shapes) and info["labels_used"] is False
     assert info["config"]["steps"] == 4 and "adaptation" not in parent.metadata
+    assert 0.9 < info["index_agreement"] <= 1 and info["agreement_shapes"] == 3
     # a few small steps keep the part indices: nearly every surface sample keeps its part
     agreement = index_agreement(parent.predict(shapes, align="auto"), a.predict(shapes, align="auto"), shapes)
     assert agreement > 0.9
@@ -107,6 +108,34 @@ def test_a_turned_batch_equals_the_turned_shapes(shapes):
         np.testing.assert_array_equal(occ[b, 0].numpy(), turned.occupancy.astype(np.float32))
         np.testing.assert_allclose(closest[b].numpy(), turned.closest, rtol=0, atol=1e-6)
         np.testing.assert_allclose(pts[b].numpy(), np.asarray(turned.points)[pick[b]], rtol=0, atol=1e-6)
+
+
+def test_the_recorded_agreement_is_one_for_the_parent_itself_and_drops_when_parts_move(parent, shapes):
+    import copy
+
+    from primkit import primitives
+    from primkit.model.adaptation import _Stream, _stream_agreement
+
+    stream = _Stream(shapes, np.stack([np.eye(3)] * len(shapes)))
+    net = parent.network.eval()
+    assert _stream_agreement(net, net, stream) == (1.0, 3)
+    moved = copy.deepcopy(net)
+    with torch.no_grad():  # every part's translation shifted: the nearest parts of some samples change
+        moved.translation_head.bias += 0.2
+    agreement, _ = _stream_agreement(net, moved, stream)
+    assert agreement < 0.99
+    # the same figure by hand on one shape: nearest present part (p > 0.5) of the same samples
+    occ, _, pts = stream.batch([1], 1000, torch.Generator().manual_seed(0))
+    with torch.no_grad():
+        a, b = net(occ), moved(occ)
+
+    def labels(pred):
+        c = primitives.Cuboids(pred.half_extents[0].double().numpy(), pred.quaternions[0].double().numpy(),
+                               pred.translations[0].double().numpy(), pred.existence[0].numpy() > 0.5)
+        return primitives.assign_points(pts[0].double().numpy(), c)
+
+    one, _ = _stream_agreement(net, moved, _Stream([shapes[1]], np.eye(3)[None]))
+    assert one == pytest.approx(float(np.mean(labels(a) == labels(b))))
 
 
 def test_a_cached_collection_streams_the_same_batches_as_its_decoded_list(parent, tmp_path):
