@@ -69,6 +69,22 @@ def test_default_steps_follow_the_collection_and_the_command_line_resolves_them(
         adapt(Abstractor.load("chair"), [object()], AdaptConfig(steps=0))
 
 
+def test_adapt_true_takes_the_default_steps_of_the_inputs(parent, tmp_path, monkeypatch):
+    # abstract_shapes(..., adapt=True) (what --adapt without a number passes) resolves the steps by
+    # default_steps on the run's own inputs; replaced here by a spy so that the test stays short
+    from primkit.model import adaptation
+    from primkit.model.abstraction import abstract_shapes
+
+    seen = []
+    monkeypatch.setattr(adaptation, "default_steps", lambda count, batch_size=16: seen.append(count) or 2)
+    paths = []
+    for i, s in enumerate(synthetic.generate("chair", 2, seed=13)):
+        paths.append(tmp_path / f"c{i}.obj")
+        trimesh.Trimesh(s.vertices, s.faces, process=False).export(paths[-1])
+    out = abstract_shapes(paths, parent, adapt=True, cache=tmp_path / "cache", workers=1)
+    assert seen == [2] and out.model.metadata["adaptation"]["config"]["steps"] == 2
+
+
 def test_parent_answers_computed_once_equal_the_per_step_pass(parent, shapes):
     # the pull's target is the parent's answer on an input that is never augmented: computed once per
     # shape before the steps, it equals the parent's network run on each shape alone, turned as found
