@@ -35,16 +35,16 @@ def _first_way() -> None:
     from primkit import data, geometry, primitives
 
     def prepare_voxels(grid, settings, name, source):
-        occ, frame = data._canonical_voxels(grid, settings)
+        occ, frame = data.preparation._canonical_voxels(grid, settings)
         v, f = geometry.voxel_boundary_mesh(occ)
         solid = geometry.occupancy_grid(v, f, settings.resolution)
         surface = geometry.surface_voxels(v, f, settings.resolution) & solid
-        return data._from_surface(v, f, solid, surface, settings, frame, name=name, source=source, kind="voxels")
+        return data.preparation._from_surface(v, f, solid, surface, settings, frame, name=name, source=source, kind="voxels")
 
     def prune_many(boxes_list, *args, **kwargs):
         return [primitives.prune_covered(b, *args, **kwargs) for b in boxes_list]
 
-    data._prepare_voxels = prepare_voxels
+    data.preparation._prepare_voxels = prepare_voxels
     primitives.prune_covered_many = prune_many  # the abstractor calls it through the module
 
 

@@ -94,12 +94,12 @@ def loop_losses(prediction, present, points, closest, samples_per_cuboid: int = 
 
     Coverage keeps a running minimum over cuboids of each point's squared distance; consistency
     adds one area-weighted mean per cuboid. The surface coefficients are drawn in one call with
-    the same shape as ``sample_surface_torch`` draws them, so with equally seeded generators the
+    the same shape as ``sample_cuboid_surfaces_torch`` draws them, so with equally seeded generators the
     two give the same numbers.
     """
     import torch
 
-    from primkit.model.distance_field import lookup_distance_sq
+    from primkit.model.distance_field import lookup_distance_sq_torch
     from primkit.model.losses import _ABSENT, ShapeLosses
     from primkit.primitives.differentiable import surface_samples_from_coefficients_torch, cuboid_distance_sq_torch
 
@@ -115,7 +115,7 @@ def loop_losses(prediction, present, points, closest, samples_per_cuboid: int = 
         d2 = cuboid_distance_sq_torch(points, zj, qj, tj)[..., 0] + (1.0 - present[:, j, None]) * _ABSENT  # (B, n)
         best = d2 if best is None else torch.minimum(best, d2)
         samples, w = surface_samples_from_coefficients_torch(zj, qj, tj, uv[:, j : j + 1])  # (B, 1, k, 3), (B, 1, k)
-        ds = lookup_distance_sq(closest, samples[:, 0])  # (B, k)
+        ds = lookup_distance_sq_torch(closest, samples[:, 0])  # (B, k)
         part = (ds * w[:, 0]).sum(-1) / w[:, 0].sum(-1).clamp_min(1e-12)
         consistency = consistency + part * present[:, j]
     coverage = best.mean(dim=1)
@@ -364,7 +364,7 @@ def bench_loss_terms(shapes, device: str, iterations: int, warmup: int) -> None:
     import torch
 
     from primkit.model import distance_field, losses
-    from primkit.primitives import sample_surface_torch
+    from primkit.primitives import sample_cuboid_surfaces_torch
 
     if device != "cpu":
         return
@@ -373,7 +373,7 @@ def bench_loss_terms(shapes, device: str, iterations: int, warmup: int) -> None:
     occ, closest, _ = tr.tensors.batch(index, POINTS, tr.generator, device)
     with torch.no_grad():
         pred = tr.net(occ)
-        samples, _ = sample_surface_torch(pred.half_extents, pred.quaternions, pred.translations, SAMPLES_PER_CUBOID,
+        samples, _ = sample_cuboid_surfaces_torch(pred.half_extents, pred.quaternions, pred.translations, SAMPLES_PER_CUBOID,
                                           generator=tr.generator)
     leaves = [x.detach() for x in (pred.half_extents, pred.quaternions, pred.translations)]
     compiled_lookup = distance_field._winners_compiled
@@ -382,7 +382,7 @@ def bench_loss_terms(shapes, device: str, iterations: int, warmup: int) -> None:
         distance_field._winners_compiled = way
         try:
             points = samples.reshape(BATCH, -1, 3).clone().requires_grad_(True)
-            d2 = distance_field.lookup_distance_sq(closest, points)
+            d2 = distance_field.lookup_distance_sq_torch(closest, points)
             d2.sum().backward()
             return d2.detach(), points.grad
         finally:
@@ -394,7 +394,7 @@ def bench_loss_terms(shapes, device: str, iterations: int, warmup: int) -> None:
         if way == "compiled":
             out = losses.surface_consistency(closest, z, q, t, SAMPLES_PER_CUBOID, generator)
         else:
-            out = losses.consistency_per_part(closest, *sample_surface_torch(z, q, t, SAMPLES_PER_CUBOID, generator=generator))
+            out = losses.consistency_per_part(closest, *sample_cuboid_surfaces_torch(z, q, t, SAMPLES_PER_CUBOID, generator=generator))
         out.sum().backward()
         return out.detach(), z.grad, q.grad, t.grad
 

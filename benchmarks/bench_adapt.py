@@ -1,6 +1,7 @@
 """Benchmark: adapting the chair model to a collection (``primkit.model.adaptation.adapt``).
 
     python benchmarks/bench_adapt.py [--meshes 20] [--grids 1000] [--small-grids 100] [--steps N] [--repeats 1]
+        [--ways today "first version"]
 
 In one run, each way in a fresh process (``run_isolated``; peak RSS is that process's), alternating:
 
@@ -41,7 +42,7 @@ def _one(way: str, files: list, cache: str, steps, workers: int) -> dict:
 
     from primkit import data
     from primkit.model.abstractor import Abstractor
-    from primkit.model.adaptation import AdaptConfig, adapt
+    from primkit.model.adaptation import AdaptConfig, adapt, default_steps
 
     torch.set_num_threads(1)
     parent = Abstractor.load("chair")
@@ -49,19 +50,39 @@ def _one(way: str, files: list, cache: str, steps, workers: int) -> dict:
     coll = data.prepare_collection(files, data.PrepareSettings(resolution=parent.resolution), cache_dir=cache,
                                    workers=workers, progress=False)
     t1 = time.perf_counter()
-    config = AdaptConfig() if steps is None else AdaptConfig(steps=steps)
+    config = AdaptConfig() if steps is None else AdaptConfig(steps=steps)  # None: default_steps(count)
     if way == "today":
         adapt(parent, coll, config)
     else:
         shapes = [coll[i] for i in range(len(coll))]
         adapt(parent, shapes, AdaptConfig(**{**config.to_dict(), "parent_pass": "every-step"}))
     t2 = time.perf_counter()
-    anon = 0
-    for line in Path("/proc/self/status").read_text().splitlines() if Path("/proc/self/status").exists() else []:
+    steps = default_steps(len(coll)) if config.steps is None else config.steps
+    anon = _rss_anon_kib()
+    trimmed = _rss_anon_kib(trim=True)
+    return {"anon_mib": anon / 1024, "trimmed_mib": trimmed / 1024, "prepare_s": t1 - t0, "adapt_s": t2 - t1, "total_s": t2 - t0, "rss_mib": maxrss_kib() / 1024,
+            "steps": steps, "shapes": len(coll)}
+
+
+def _rss_anon_kib(trim: bool = False) -> int:
+    """The process's own resident memory (``RssAnon``, KiB; 0 off Linux). ``trim``: after glibc's
+    ``malloc_trim(0)`` hands freed heap pages back, so that what the process still holds is told
+    apart from what the allocator kept after the frame search (measured: that retention is what grew
+    with the collection, not live data)."""
+    status = Path("/proc/self/status")
+    if not status.exists():
+        return 0
+    if trim:
+        import ctypes
+
+        try:
+            ctypes.CDLL("libc.so.6").malloc_trim(0)
+        except (OSError, AttributeError):
+            return 0
+    for line in status.read_text().splitlines():
         if line.startswith("RssAnon:"):
-            anon = int(line.split()[1])
-    return {"anon_mib": anon / 1024, "prepare_s": t1 - t0, "adapt_s": t2 - t1, "total_s": t2 - t0, "rss_mib": maxrss_kib() / 1024,
-            "steps": config.steps, "shapes": len(coll)}
+            return int(line.split()[1])
+    return 0
 
 
 def _write_meshes(folder: Path, count: int) -> list:
@@ -86,8 +107,9 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=None, help="adaptation steps (default: AdaptConfig's)")
     ap.add_argument("--repeats", type=int, default=1)
     ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--ways", nargs="+", default=["today", "first version"], choices=["today", "first version"])
     args = ap.parse_args()
-    ways = ("today", "first version")
+    ways = tuple(args.ways)
     rows = []
     with tempfile.TemporaryDirectory(prefix="bench-adapt-") as tmp:
         tmp = Path(tmp)
@@ -99,7 +121,7 @@ def main() -> None:
                     res = run_isolated(_one, way, files, str(tmp / f"cache-{way}-{r}"), args.steps, args.workers)
                     rows.append([f"{args.meshes} meshes, cold", way, res["steps"], f"{res['prepare_s']:.1f}",
                                  f"{res['adapt_s']:.1f}", f"{res['total_s']:.1f}", f"{res['rss_mib']:.0f}",
-                                 f"{res['anon_mib']:.0f}"])
+                                 f"{res['anon_mib']:.0f}", f"{res['trimmed_mib']:.0f}"])
                     print(rows[-1], load_line(), flush=True)
         grids = sorted(str(p) for p in DATA.glob("*/model.binvox"))
         sizes = [n for n in (args.small_grids, args.grids) if n]
@@ -117,12 +139,12 @@ def main() -> None:
                         res = run_isolated(_one, way, grids[:n], str(tmp / "grids"), args.steps, args.workers)
                         rows.append([f"{n} grids, warm", way, res["steps"], f"{res['prepare_s']:.1f}",
                                      f"{res['adapt_s']:.1f}", f"{res['total_s']:.1f}", f"{res['rss_mib']:.0f}",
-                                 f"{res['anon_mib']:.0f}"])
+                                 f"{res['anon_mib']:.0f}", f"{res['trimmed_mib']:.0f}"])
                         print(rows[-1], load_line(), flush=True)
         elif sizes:
             print(f"{DATA}: fewer than {max(sizes)} grids, grid cases skipped")
     table("adapting the chair model (one torch thread)",
-          ["collection", "way", "steps", "prepare s", "adapt s", "total s", "peak RSS MiB", "anon RSS MiB at end"], rows, note=load_line())
+          ["collection", "way", "steps", "prepare s", "adapt s", "total s", "peak RSS MiB", "anon RSS MiB at end", "anon after trim"], rows, note=load_line())
 
 
 if __name__ == "__main__":

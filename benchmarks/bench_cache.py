@@ -118,7 +118,7 @@ def main(argv=None) -> int:
     settings = coll.settings
     for folder in float_segments:  # the same shapes in compact codes (what preparing with compact=True writes)
         seg = data.CacheSegment.open(folder)
-        rows = [(key, data._encode_row(seg.shape(j), True)) for j, key in enumerate(seg.keys())]
+        rows = [(key, data.cache.encode_row(seg.shape(j), True)) for j, key in enumerate(seg.keys())]
         data.CacheSegment.from_rows(settings, rows, True).save(root)
     compact_segments = sorted(set(p for p in root.iterdir() if not p.name.startswith(".")) - set(float_segments))
     old = tmp / "first-format"

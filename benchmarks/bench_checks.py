@@ -46,7 +46,7 @@ def main(argv=None) -> int:
 
     from primkit import data, io
     from primkit.model.bundled import resolve_model
-    from primkit.model.modelfile import load_model
+    from primkit.model.modelfile import load_model_file
     from primkit.model.network import AbstractionNet, NetworkConfig, read_network
 
     torch.set_num_threads(1)
@@ -80,13 +80,13 @@ def main(argv=None) -> int:
     path = resolve_model("chair")
 
     def unchecked():
-        weights, meta = load_model(path)
+        weights, meta = load_model_file(path)
         net = AbstractionNet(NetworkConfig.from_dict(meta["network"]))
         net.load_state_dict(weights)
 
     def checked():
         config, _ = read_network(path)
-        weights, _ = load_model(path)
+        weights, _ = load_model_file(path)
         AbstractionNet(config).load_state_dict(weights)
 
     rows.append(["load the bundled chair model, checked", ms(best(checked, 10)), ms(best(unchecked, 10)), "unchecked load"])

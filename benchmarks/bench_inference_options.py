@@ -42,7 +42,7 @@ def align_one_call_per_orientation(model, shape):
     for a in orientation.AXIS_ROTATIONS:
         turned = orientation.rotate_prepared(shape, a)
         (r,) = model.predict([turned], prune_threshold=None)
-        loss = fit_losses([r.canonical], [turned])["total"][0]
+        loss = fit_losses([r.canonical], [turned]).total[0]
         if loss < best_loss:
             best, best_loss = turned, loss
     return best
@@ -65,7 +65,7 @@ def main(argv=None) -> int:
 
     def summary(results, on):
         s = summarize([score(r.canonical, r.canonical_shape(x), conv) for r, x in zip(results, on)])
-        return s["chamfer"]["mean"], s["iou"]["mean"], s["parts"]["mean"]
+        return s.chamfer.mean, s.iou.mean, s.parts.mean
 
     plain, t_plain = _timed(lambda: model.predict(shapes))
     rows = [["network + pruning", f"{1000 * t_plain / n:.1f}", *(f"{v:.4f}" for v in summary(plain, shapes)), "-"]]

@@ -220,14 +220,14 @@ def report_meshes(records: list[dict]) -> None:
 
 def _binvox_mesh_path(grid, settings):
     """The voxel path before the grid-only preparation: the same turn, recentring and cavity filling
-    (``data._canonical_voxels``), then the voxel boundary mesh through the mesh machinery (Open3D
+    (``data.preparation._canonical_voxels``), then the voxel boundary mesh through the mesh machinery (Open3D
     BVH closest points with the float64 recompute, Open3D voxeliser, trimesh samples)."""
     from primkit import data, geometry
 
-    occ, frame = data._canonical_voxels(grid, settings)
+    occ, frame = data.preparation._canonical_voxels(grid, settings)
     v, f = geometry.voxel_boundary_mesh(occ)
     surface = geometry.surface_voxels(v, f, settings.resolution) & occ
-    return data._from_surface(v, f, occ, surface, settings, frame, name="shape", source="", kind="voxels")
+    return data.preparation._from_surface(v, f, occ, surface, settings, frame, name="shape", source="", kind="voxels")
 
 
 _AT_REVISION = """

@@ -16,7 +16,8 @@
 from __future__ import annotations
 
 import json
-import sys
+import logging
+import warnings
 from pathlib import Path
 from . import data, io, synthetic
 from .model import orientation
@@ -30,17 +31,19 @@ from .report import build_report
 
 __all__ = ["run_demo"]
 
+_logger = logging.getLogger(__name__)
 
-def _bundled_step(out: Path, folder: Path, cache: Path, quick: bool) -> None:
+
+def _bundled_step(out: Path, folder: Path, cache: Path, quick: bool, progress: bool) -> None:
     """Abstract ``folder``'s chairs with the bundled chair model: as given, turned + align auto, refined."""
     import numpy as np
 
     if "chair" not in bundled_models():
-        print("[bundled] no bundled chair model installed; skipped", file=sys.stderr)
+        _logger.info("[bundled] no bundled chair model installed; skipped")
         return
-    print("[bundled] the bundled chair model on the held-out chairs: as given, turned (align auto), refined", file=sys.stderr)
+    _logger.info("[bundled] the bundled chair model on the held-out chairs: as given, turned (align auto), refined")
     model = load_model("chair")
-    given = abstract_shapes(folder, model, cache=cache, progress=False)
+    given = abstract_shapes(folder, model, cache=cache, progress=progress)
     shapes = [a.prepared for a in given]
     turns = [orientation.AXIS_ROTATIONS[(7 * i + 5) % 23 + 1] for i in range(len(shapes))]
     turned = [orientation.rotate_prepared(s, a) for s, a in zip(shapes, turns)]
@@ -48,19 +51,19 @@ def _bundled_step(out: Path, folder: Path, cache: Path, quick: bool) -> None:
     runs = {  # name: (results, the shapes they were computed from)
         "as given": (given.results, shapes),
         "turned, align auto": (model.predict(turned, align="auto"), turned),  # prepared shapes turned: predict them
-        "refined": (abstract_shapes(folder, model, refine=steps, cache=cache, progress=False).results, shapes),
+        "refined": (abstract_shapes(folder, model, refine=steps, cache=cache, progress=progress).results, shapes),
     }
     conv = ChamferConvention()
     report = {"convention": conv.describe(), "refine_steps": steps}
     for key, (results, inputs) in runs.items():
         scores = [score(r.canonical, r.canonical_shape(s), conv) for r, s in zip(results, inputs)]
         summ = summarize(scores)
-        report[key] = {"parts": summ["parts"]["mean"], "iou": summ["iou"]["mean"], "chamfer": summ["chamfer"]["mean"]}
-        print(f"  {key:20s}: parts {summ['parts']['mean']:.1f}, IoU {summ['iou']['mean']:.3f}, Chamfer {summ['chamfer']['mean']:.4f}",
-              file=sys.stderr)
+        report[key] = {"parts": summ.parts.mean, "iou": summ.iou.mean, "chamfer": summ.chamfer.mean}
+        _logger.info("  %-20s: parts %.1f, IoU %.3f, Chamfer %.4f", key, summ.parts.mean, summ.iou.mean,
+                     summ.chamfer.mean)
     undone = [bool(np.allclose(r.frame.rotation, s.frame.rotation)) for r, s in zip(runs["turned, align auto"][0], shapes)]
     report["turned, align auto"]["orientation_recovered"] = f"{sum(undone)}/{len(undone)}"
-    print(f"  turned chairs whose orientation align auto recovered: {sum(undone)}/{len(undone)}", file=sys.stderr)
+    _logger.info("  turned chairs whose orientation align auto recovered: %d/%d", sum(undone), len(undone))
     with io.atomic_output(out / "bundled.json", overwrite=True) as tmp:
         Path(tmp).write_text(json.dumps(report, indent=1))
     meshes = [(a.vertices, a.faces) for a in given]
@@ -80,7 +83,10 @@ def _demo_outputs(out: Path, train_count: int, test_count: int) -> list:
 
 
 def run_demo(output="primkit-demo", *, quick: bool = False, force: bool = False, train_count: int = 96,
-             test_count: int = 8, iterations: int = 2400) -> int:
+             test_count: int = 8, iterations: int = 2400, progress: bool = False) -> int:
+    """Run the demo into ``output`` (the steps in the module notes); 0 when done, 2 when an output
+    cannot be written or exists (without ``force``). The steps and the scores are logged (the module logger
+    ``primkit.demo``, level INFO); ``progress`` draws tqdm bars on stderr."""
     out = Path(output)
     model_path = out / "chair-demo.safetensors"
     if quick:
@@ -88,61 +94,61 @@ def run_demo(output="primkit-demo", *, quick: bool = False, force: bool = False,
     try:  # before any work: everything the demo writes can be written, and replaces nothing without --force
         io.check_outputs(_demo_outputs(out, train_count, test_count), overwrite=force)
     except (OSError, ValueError) as exc:
-        print(f"primkit: error: {exc}", file=sys.stderr)
+        _logger.error("primkit: error: %s", exc)
         return 2
-    print(f"[1/4] generating {train_count} training and {test_count} held-out procedural chairs", file=sys.stderr)
+    _logger.info("[1/4] generating %d training and %d held-out procedural chairs", train_count, test_count)
     train_dir, test_dir = out / "shapes" / "train", out / "shapes" / "heldout"
     synthetic.write_collection(train_dir, "chair", train_count, seed=0, overwrite=force)
     synthetic.write_collection(test_dir, "chair", test_count, seed=10_000, overwrite=force)
 
     cache = out / "cache"
-    _bundled_step(out, test_dir, cache, quick)
+    _bundled_step(out, test_dir, cache, quick, progress)
 
-    print("[2/4] preparing and training", file=sys.stderr)
-    train_set = data.prepare_collection(train_dir, cache_dir=cache)
+    _logger.info("[2/4] preparing and training")
+    train_set = data.prepare_collection(train_dir, cache_dir=cache, progress=progress)
     s1 = int(iterations * 0.4)
     config = TrainConfig(stage1_iterations=s1, stage2_iterations=iterations - s1, batch_size=16 if quick else 32)
-    train(ShapeTensors(train_set), model_path, config, overwrite=True,
+    train(ShapeTensors(train_set), model_path, config, overwrite=True, progress=progress,
           description={"inputs": "procedural chairs made by primkit.synthetic (seed 0)", "terms": "generated by primkit; no restrictions"})
 
-    print("[3/4] abstracting held-out chairs", file=sys.stderr)
-    test_set = abstract_shapes(test_dir, model_path, cache=cache)
+    _logger.info("[3/4] abstracting held-out chairs")
+    test_set = abstract_shapes(test_dir, model_path, cache=cache, progress=progress)
     shapes = [a.prepared for a in test_set]
     results = test_set.results
     for r in results:
         r.save(out / "abstractions", overwrite=True)
 
-    print("[4/4] scoring and drawing", file=sys.stderr)
+    _logger.info("[4/4] scoring and drawing")
     conv = ChamferConvention()
     scores = [score(r.canonical, s, conv) for r, s in zip(results, shapes)]
     _, meta = synthetic.read_collection_labels(test_set[0].source)
     agreement = part_label_agreement([r.canonical for r in results], [s.points for s in shapes],
                                      [s.point_labels for s in shapes], names=meta["part_names"])
-    report = {"convention": conv.describe(), "summary": summarize(scores), "part_index_agreement": agreement}
+    summ = summarize(scores)
+    report = {"convention": conv.describe(), "summary": summ.to_dict(), "part_index_agreement": agreement.to_dict()}
     with io.atomic_output(out / "report.json", overwrite=True) as tmp:
         Path(tmp).write_text(json.dumps(report, indent=1))
     render_abstractions(results, [(a.vertices, a.faces) for a in test_set], out / "abstractions.png")
-    summ = report["summary"]
-    print(f"held-out chairs: {len(scores)}; parts {summ['parts']['mean']:.1f}; IoU {summ['iou']['mean']:.3f}; "
-          f"Chamfer {summ['chamfer']['mean']:.4f} ({conv.describe()})")
-    print("part -> primitive index agreement across held-out chairs: "
-          + ", ".join(f"{k} {v['agreement']:.0%} (#{v['index']})" for k, v in agreement["per_label"].items()))
-    report_dir = _chain_step(out, test_dir, cache, force)
-    print(f"wrote {out}/bundled.png, {out}/abstractions.png, {out}/report.json, {out}/abstractions/, {model_path}"
-          + (f"; open {report_dir}/index.html" if report_dir else ""))
+    _logger.info("held-out chairs: %d; parts %.1f; IoU %.3f; Chamfer %.4f (%s)", len(scores), summ.parts.mean,
+                 summ.iou.mean, summ.chamfer.mean, conv.describe())
+    _logger.info("part -> primitive index agreement across held-out chairs: %s",
+                 ", ".join(f"{k} {v.agreement:.0%} (#{v.index})" for k, v in agreement.per_label.items()))
+    report_dir = _chain_step(out, test_dir, cache, progress)
+    _logger.info("wrote %s/bundled.png, %s/abstractions.png, %s/report.json, %s/abstractions/, %s%s", out, out, out, out,
+                 model_path, f"; open {report_dir}/index.html" if report_dir else "")
     return 0
 
 
-def _chain_step(out: Path, folder: Path, cache: Path, force: bool):
+def _chain_step(out: Path, folder: Path, cache: Path, progress: bool):
     """The applications on the held-out chairs with the bundled chair model, into one HTML page:
     abstraction, co-segmentation, similarity map and a deformation transfer (:mod:`primkit.report`)."""
     if "chair" not in bundled_models():
-        print("[report] no bundled chair model installed; skipped", file=sys.stderr)
+        _logger.info("[report] no bundled chair model installed; skipped")
         return None
-    print("[report] abstract, segment, embed and deform the held-out chairs with the bundled chair model", file=sys.stderr)
+    _logger.info("[report] abstract, segment, embed and deform the held-out chairs with the bundled chair model")
     target = out / "report"
     _, errors = build_report(folder, "chair", target, refine=50, overwrite=True, model_label="chair (bundled)",
-                             cache_dir=cache, progress=False)
+                             cache_dir=cache, progress=progress)
     for e in errors:
-        print(f"primkit: skipped {e}", file=sys.stderr)
+        warnings.warn(f"skipped {e}", stacklevel=2)
     return target

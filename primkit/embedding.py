@@ -231,7 +231,7 @@ class CuboidTable:
         m = cubs[0].count
         if part_names is None:
             model = getattr(shapes, "model", None)
-            part_names = model.part_names if model is not None else _parts.default_names(m)
+            part_names = model.part_names if model is not None else _parts.default_part_names(m)
         if names is None:
             names = [getattr(s, "name", f"shape{i}") for i, s in enumerate(shapes)]
         rows = [np.concatenate([c.half_extents, c.quaternions, c.translations, c.existence[:, None].astype(float)],
@@ -340,7 +340,7 @@ class PartDescriptor(TransformerMixin, BaseEstimator):
         """Learn the part selection and the absent-part fill values from ``X`` (see *Input*)."""
         A, carried = self._table(X, reset=True)
         m = A.shape[1]
-        names = [str(n) for n in (self.part_names if self.part_names is not None else carried or _parts.default_names(m))]
+        names = [str(n) for n in (self.part_names if self.part_names is not None else carried or _parts.default_part_names(m))]
         if len(names) != m:
             raise ValueError(f"part_names has {len(names)} names but the cuboids have {m} slots")
         self.n_slots_ = m

@@ -44,7 +44,7 @@ import numpy as np
 from . import io
 from .model import parts as _parts
 from .segmentation import face_labels
-from .viz.palette import part_colors
+from .primitives.palette import part_colors
 
 __all__ = ["GLB_FORMAT_VERSION", "CUBOID_OPACITY", "part_node_name", "linear_rgb", "glb_scene", "write_glb", "save_glb"]
 
@@ -107,7 +107,7 @@ def glb_scene(cuboids, part_names=None, vertices=None, faces=None, *, labels=Non
     import trimesh
 
     m = cuboids.count
-    names = [str(n) for n in (part_names if part_names is not None else _parts.default_names(m))]
+    names = [str(n) for n in (part_names if part_names is not None else _parts.default_part_names(m))]
     if len(names) != m:
         raise ValueError(f"part_names has {len(names)} names but the cuboids have {m} slots")
     palette = part_colors(max(m, 1))

@@ -39,7 +39,7 @@ from typing import TYPE_CHECKING, Any, Sequence
 import numpy as np
 
 from .geometry import grid_centres, lookup_distance_sq
-from .primitives import assign_points, contains, Cuboids, sample_surface, union_distance, union_surface_samples
+from .primitives import assign_points, contains, Cuboids, sample_cuboid_surfaces, union_distance, union_surface_samples
 from .primitives.cuboids import check_cuboids
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -55,6 +55,11 @@ __all__ = [
     "AbstractionScores",
     "score",
     "summarize",
+    "Statistics",
+    "ScoreSummary",
+    "part_label_agreement",
+    "LabelAgreement",
+    "PartLabelAgreement",
 ]
 
 #: points processed at once against all cuboids (bounds the (m, n, 3) temporaries)
@@ -310,7 +315,7 @@ def consistency_error(cuboids: Cuboids, closest: Any, samples_per_cuboid: int = 
 
     Each present cuboid gets ``samples_per_cuboid`` surface samples, split equally over its six
     faces, each weighted by ``area(face) / (samples_per_cuboid / 6)``
-    (:func:`primkit.primitives.sample_surface`); the squared distances come from
+    (:func:`primkit.primitives.sample_cuboid_surfaces`); the squared distances come from
     :func:`lookup_distance_sq` and are averaged with these weights (sum of weight * d^2 over the sum
     of weights, the total surface area). This is the consistency loss of the method, normalised by
     area. Overlapping parts are not cut: every part's whole surface counts. ``nan`` when no part
@@ -329,7 +334,7 @@ def consistency_error(cuboids: Cuboids, closest: Any, samples_per_cuboid: int = 
     if not c.existence.any():
         return float("nan")
     present = c.subset(c.present)
-    s = sample_surface(present, samples_per_cuboid, seed)
+    s = sample_cuboid_surfaces(present, samples_per_cuboid, seed)
     d2 = lookup_distance_sq(closest, s.points.reshape(-1, 3))
     w = s.weights.ravel()
     return float(np.sum(w * d2) / np.sum(w))
@@ -396,7 +401,38 @@ def score(
     )
 
 
-def summarize(scores: Sequence[AbstractionScores]) -> dict:
+@dataclass(frozen=True)
+class Statistics:
+    """Mean, median and standard deviation (population, ``ddof=0``) of one score over shapes."""
+
+    mean: float
+    median: float
+    std: float
+
+
+@dataclass(frozen=True)
+class ScoreSummary:
+    """What :func:`summarize` returns: each score's :class:`Statistics` over ``count`` shapes.
+
+    ``empty`` counts the shapes with no present part; ``convention`` is the Chamfer convention
+    every score was taken under (:meth:`ChamferConvention.describe`).
+    """
+
+    count: int
+    empty: int
+    convention: str
+    chamfer: Statistics
+    iou: Statistics
+    coverage: Statistics
+    consistency: Statistics
+    parts: Statistics
+
+    def to_dict(self) -> dict:
+        """A JSON-ready dict: ``{"count", "empty", "convention", "chamfer": {"mean", "median", "std"}, ...}``."""
+        return asdict(self)
+
+
+def summarize(scores: Sequence[AbstractionScores]) -> ScoreSummary:
     """Mean, median and standard deviation (population, ``ddof=0``) of each score over shapes.
 
     Non-finite values are kept, so one empty abstraction (``chamfer = inf``) makes the mean
@@ -404,9 +440,7 @@ def summarize(scores: Sequence[AbstractionScores]) -> dict:
 
     Returns
     -------
-    dict
-        ``{"count": s, "empty": int, "convention": str, "chamfer": {"mean", "median", "std"},
-        "iou": {...}, "coverage": {...}, "consistency": {...}, "parts": {...}}``.
+    ScoreSummary
         Raises ValueError for an empty list or for scores taken under different conventions.
     """
     scores = list(scores)
@@ -415,23 +449,40 @@ def summarize(scores: Sequence[AbstractionScores]) -> dict:
     conventions = {s.convention for s in scores}
     if len(conventions) != 1:
         raise ValueError(f"scores were taken under different conventions: {sorted(conventions)}")
-    out: dict = {
-        "count": len(scores),
-        "empty": sum(1 for s in scores if s.parts == 0),
-        "convention": conventions.pop(),
-    }
+    stats = {}
     for name in _SCORE_FIELDS:
         values = np.array([getattr(s, name) for s in scores], dtype=np.float64)
         with np.errstate(invalid="ignore"):
-            out[name] = {
-                "mean": float(np.mean(values)),
-                "median": float(np.median(values)),
-                "std": float(np.std(values)),
-            }
-    return out
+            stats[name] = Statistics(float(np.mean(values)), float(np.median(values)), float(np.std(values)))
+    return ScoreSummary(count=len(scores), empty=sum(1 for s in scores if s.parts == 0), convention=conventions.pop(),
+                        **stats)
 
 
-def part_label_agreement(cuboids_list, point_sets, label_sets, names=None) -> dict:
+@dataclass(frozen=True)
+class LabelAgreement:
+    """One ground-truth label in :func:`part_label_agreement`: its most common primitive ``index``,
+    the fraction of shapes whose index it is (``agreement``), and the shapes having the label."""
+
+    index: int
+    agreement: float
+    shapes: int
+
+
+@dataclass(frozen=True)
+class PartLabelAgreement:
+    """What :func:`part_label_agreement` returns: ``per_label`` (label name -> :class:`LabelAgreement`,
+    in label order) and the ``mean`` and ``min`` agreement over labels (NaN when there is none)."""
+
+    per_label: dict[str, LabelAgreement]
+    mean: float
+    min: float
+
+    def to_dict(self) -> dict:
+        """A JSON-ready dict: ``{"per_label": {label: {"index", "agreement", "shapes"}}, "mean", "min"}``."""
+        return asdict(self)
+
+
+def part_label_agreement(cuboids_list, point_sets, label_sets, names=None) -> PartLabelAgreement:
     """How consistently each ground-truth part is explained by the same primitive index across shapes.
 
     Each labelled surface point goes to its primitive (:func:`primkit.primitives.assign_points`:
@@ -451,8 +502,7 @@ def part_label_agreement(cuboids_list, point_sets, label_sets, names=None) -> di
 
     Returns
     -------
-    dict
-        ``{"per_label": {label: {"index": k, "agreement": a, "shapes": s}}, "mean": ..., "min": ...}``
+    PartLabelAgreement
     """
     from collections import Counter, defaultdict
 
@@ -469,7 +519,7 @@ def part_label_agreement(cuboids_list, point_sets, label_sets, names=None) -> di
     for lab, picks in sorted(chosen.items()):
         mode, hits = Counter(picks).most_common(1)[0]
         key = names[lab] if names is not None and lab < len(names) else str(lab)
-        per_label[key] = {"index": mode, "agreement": hits / len(picks), "shapes": len(picks)}
-    values = [v["agreement"] for v in per_label.values()]
-    return {"per_label": per_label, "mean": float(np.mean(values)) if values else float("nan"),
-            "min": float(np.min(values)) if values else float("nan")}
+        per_label[key] = LabelAgreement(mode, hits / len(picks), len(picks))
+    values = [v.agreement for v in per_label.values()]
+    return PartLabelAgreement(per_label, float(np.mean(values)) if values else float("nan"),
+                              float(np.min(values)) if values else float("nan"))

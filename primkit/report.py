@@ -42,9 +42,10 @@ from .viz.camera import CANONICAL_RADIUS
 from .viz.render import cuboid_layer, mesh_layer, segmentation_layer, ThumbnailRenderer, Tile, write_png
 from .model.abstractor import Abstractor
 from .model.abstraction import abstract_shapes
+from .model.parts import default_part_names
 from .metrics import score
 
-__all__ = ["ReportShape", "Report", "build_report", "write_report", "scene_figure", "partners"]
+__all__ = ["ReportShape", "Report", "build_report", "write_report", "page_scene_figure", "partners"]
 
 THUMB = 160  # thumbnail size in pixels
 SCENE_FACES = 3000  # triangles per shape in the interactive scene
@@ -90,7 +91,7 @@ def _canonical_mesh(a):
     except (io.ShapeFileError, ValueError, OSError):
         v, f = voxel_boundary_mesh(np.asarray(a.prepared.occupancy, bool))
         if result.alignment is not None:  # the grid was read turned; turn it back
-            v = v @ np.asarray(result.alignment["rotation"], float)
+            v = v @ np.asarray(result.alignment.rotation, float)
         return v, f, cub
 
 
@@ -115,14 +116,14 @@ def _decimate(vertices, faces, labels, target: int):
     return small.vertices, small.faces, labels[nearest]
 
 
-def scene_figure(shapes, part_names, part_count: int, faces_per_shape: int = SCENE_FACES) -> dict:
+def page_scene_figure(shapes, part_names, part_count: int, faces_per_shape: int = SCENE_FACES) -> dict:
     """The plotly figure of the page's 3D scene (:func:`primkit.viz.web.scene_figure`): each
     :class:`ReportShape` decimated to about ``faces_per_shape`` triangles, with its labels and cuboids."""
     items = []
     for s in shapes:
         v, f, lab = _decimate(s.vertices, s.faces, s.labels, faces_per_shape)
         items.append((s.name, v, f, lab, s.cuboids))
-    names = list(part_names) + [f"part{k}" for k in range(len(part_names), part_count)]
+    names = list(part_names) + default_part_names(part_count)[len(part_names):]
     figure = web.scene_figure(items, names, count=part_count)
     _frame_scene(figure)
     return figure
@@ -244,12 +245,13 @@ def _deformation(shapes, similarity, folder: Path, overwrite: bool) -> dict:
 
 def build_report(paths, model, output, *, refine: int = 0, align=None, up=None, front=None, overwrite: bool = False,
                  settings=None, model_label: str | None = None,
-                 cache_dir=None, workers=None, progress: bool = True, adapt=None) -> tuple[Report, list]:
+                 cache_dir=None, workers=None, progress: bool = False, adapt=None) -> tuple[Report, list]:
     """Abstract, segment, embed and deform the shapes of ``paths`` with ``model`` and write the report.
 
     ``settings``: :class:`primkit.data.PrepareSettings`; default the model's. ``up``, ``front``,
     ``align``: the inputs' axes when known, and how orientations are found, as
-    :func:`primkit.model.abstraction.abstract_shapes`, as is ``adapt`` (experimental).
+    :func:`primkit.model.abstraction.abstract_shapes`, as is ``adapt`` (experimental); ``progress``:
+    tqdm bars on stderr (off by default).
     Returns ``(report, errors)``; ``errors`` has one line per unusable input (the rest goes on).
     """
     out = abstract_shapes(paths, model, settings=settings, align=align, up=up, front=front, refine=refine,
@@ -268,7 +270,7 @@ def build_report(paths, model, output, *, refine: int = 0, align=None, up=None, 
     return report, [str(e) for e in out.errors]
 
 
-def write_report(output, shapes, results, part_names, *, overwrite: bool = False, progress: bool = True,
+def write_report(output, shapes, results, part_names, *, overwrite: bool = False, progress: bool = False,
                  meta=None) -> Report:
     """Write ``index.html``, ``report.json`` and ``images/`` into ``output`` for shapes already
     abstracted (:class:`ReportShape`, with the :class:`~primkit.model.abstractor.AbstractionResult` s)."""
@@ -293,7 +295,7 @@ def write_report(output, shapes, results, part_names, *, overwrite: bool = False
     except Exception as exc:  # noqa: BLE001
         notes["deformation"] = f"deformation not drawn: {type(exc).__name__}: {exc}"
     count = results[0].canonical.count if results else 20
-    scene = scene_figure(shapes, part_names, count)
+    scene = page_scene_figure(shapes, part_names, count)
     summary = _summary_json(shapes, part_names, similarity, deform, notes, meta or {})
     with io.atomic_output(out / "report.json", overwrite=overwrite) as tmp:
         Path(tmp).write_text(json.dumps(summary, indent=1))

@@ -3,7 +3,7 @@
 Usage (after ``primkit train ... --preset NAME -o RUNS/NAME.safetensors`` for each preset, and
 ``scripts/name_bundled_models.sh RUNS`` to name their parts)::
 
-    python scripts/build_bundled_models.py --runs RUNS [--names chair table airplane animal]
+    python scripts/build_bundled_models.py --runs RUNS [--names chair table airplane]
         [--limit 200] [--refine 200] [--pictures docs/images] [--partnet validation test]
 
 For each model: its held-out shapes (the preset's rule applied to the training folder recorded in
@@ -45,12 +45,12 @@ CONV = ChamferConvention()
 CONV_DIAGONAL = ChamferConvention(unit="diagonal")
 
 
-def _brief(summary: dict) -> dict:
+def _brief(summary) -> dict:
     return {
-        "shapes": summary["count"],
-        "chamfer_l1": round(summary["chamfer"]["mean"], 5),
-        "iou": round(summary["iou"]["mean"], 4),
-        "parts": round(summary["parts"]["mean"], 2),
+        "shapes": summary.count,
+        "chamfer_l1": round(summary.chamfer.mean, 5),
+        "iou": round(summary.iou.mean, 4),
+        "parts": round(summary.parts.mean, 2),
     }
 
 
@@ -61,7 +61,7 @@ def evaluate(abstractor, shapes, **kwargs):
     scores = [score(r.canonical, r.canonical_shape(s), CONV) for r, s in zip(results, shapes)]
     out = _brief(summarize(scores))
     diagonal = [score(r.canonical, r.canonical_shape(s), CONV_DIAGONAL) for r, s in zip(results, shapes)]
-    out["chamfer_l1_diagonal"] = round(summarize(diagonal)["chamfer"]["mean"], 5)
+    out["chamfer_l1_diagonal"] = round(summarize(diagonal).chamfer.mean, 5)
     out["seconds_per_shape"] = round(seconds, 4)
     return out, results
 
@@ -105,7 +105,7 @@ def coseg_chairs(abstractor, refine: int, pictures: Path | None, cache) -> dict:
         report = segmentation.evaluate(segs, _coseg_truths(segs, names), part_names=abstractor.part_names)
         r = _brief(summarize([score(x.canonical, x.canonical_shape(s), CONV) for x, s in zip(results, shapes)]))
         r["chamfer_l1_diagonal"] = round(summarize([score(x.canonical, x.canonical_shape(s), CONV_DIAGONAL)
-                                                    for x, s in zip(results, shapes)])["chamfer"]["mean"], 5)
+                                                    for x, s in zip(results, shapes)]).chamfer.mean, 5)
         r["steps"] = steps
         for protocol, e in report["protocols"].items():
             r[f"faces_right_{protocol}"] = round(e["mean_faces"], 4)
@@ -114,7 +114,7 @@ def coseg_chairs(abstractor, refine: int, pictures: Path | None, cache) -> dict:
                                       report["protocols"]["collection-majority"]["shapes"].items()}
         r["part_index_agreement"] = dict(part_label_agreement(
             [x.canonical for x in results], [s.points for s in shapes],
-            [_point_labels(s, p) for s, p in zip(shapes, files)], ["back", "seat", "legs"])["per_label"])
+            [_point_labels(s, p) for s, p in zip(shapes, files)], ["back", "seat", "legs"]).to_dict()["per_label"])
         out[key] = r
         if pictures:
             picture(results, shapes, pictures / ("chair-coseg.png" if steps == 0 else "chair-coseg-refined.png"),
@@ -300,7 +300,7 @@ def _naming(meta: dict) -> str:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", required=True, type=Path, help="folder with NAME.safetensors from primkit train --preset NAME")
-    ap.add_argument("--names", nargs="+", default=["chair", "table", "airplane", "animal"])
+    ap.add_argument("--names", nargs="+", default=["chair", "table", "airplane"])
     ap.add_argument("--limit", type=int, default=200, help="held-out shapes evaluated per model (evenly spaced)")
     ap.add_argument("--refine", type=int, default=200)
     ap.add_argument("--pictures", type=Path, default=None)
@@ -319,7 +319,7 @@ def main(argv=None) -> int:
             continue
         print(f"== {name}", file=sys.stderr)
         preset = get_preset(name)
-        weights, meta = modelfile.load_model(src)
+        weights, meta = modelfile.load_model_file(src)
         abstractor = Abstractor.load(src)
         metrics = {"convention": CONV.describe(), "held_out": held_out(abstractor, meta, args.limit, args.refine, args.pictures, name, args.cache)}
         if name == "chair" and (SHARED / "partnet_chair_boxes").is_dir() and args.partnet:

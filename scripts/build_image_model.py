@@ -175,7 +175,7 @@ def train(teacher, train_coll, work: Path, settings, args) -> None:
     start = im.ImageAbstractor.load(args.resume).network if args.resume else None
     net_config = im.ImageNetConfig(size=settings.size)
     print(f"distilling on {len(views_train)} views of {len(views_train.names)} chairs", flush=True)
-    result = im.train_image_model(views_train.images, views_train.shape_index, views_train.cameras, targets,
+    result = im.train_image_model(views_train.images, views_train.shape_index, views_train.cameras, targets, progress=True,
                                   net_config, config, network=start, foreground=views_train.foreground,
                                   alpha=views_train.alpha, **geometry)
     model = im.ImageAbstractor(result.network, {})
@@ -210,8 +210,8 @@ def _summary(scores, seconds_per_item) -> dict:
     from primkit.metrics import summarize
 
     s = summarize(scores)
-    return {"chamfer_l1": round(s["chamfer"]["mean"], 5), "iou": round(s["iou"]["mean"], 4),
-            "parts": round(s["parts"]["mean"], 2), "shapes": len(scores), "seconds_per_item": round(seconds_per_item, 4)}
+    return {"chamfer_l1": round(s.chamfer.mean, 5), "iou": round(s.iou.mean, 4),
+            "parts": round(s.parts.mean, 2), "shapes": len(scores), "seconds_per_item": round(seconds_per_item, 4)}
 
 
 def evaluate(teacher, held_coll, work: Path, settings, args) -> dict:

@@ -3,7 +3,7 @@
 # (scripts/build_bundled_models.py --runs RUNS/named):
 # - chair: from real labels, the first 100 PartNet validation chairs (scripts/partnet_chairs.py's
 #   split; PartNet's part boxes as voxel labels), never the test part;
-# - table, airplane, animal: from 40 procedural part-labelled shapes that primkit generates itself
+# - table, airplane: from 40 procedural part-labelled shapes that primkit generates itself
 #   (seed 7, never used in training or tests); no labelled real tables or airplanes are in ../shared.
 # Usage: scripts/name_bundled_models.sh RUNS   (reads RUNS/NAME.safetensors, writes RUNS/named/NAME.safetensors)
 set -euo pipefail
@@ -11,7 +11,7 @@ cd "$(dirname "$0")/.."
 runs="${1:?usage: $0 RUNS}"
 work="$(mktemp -d)"
 mkdir -p "$runs/named"
-for category in chair table airplane animal; do
+for category in chair table airplane; do
   model="$runs/$category.safetensors"
   [ -f "$model" ] || { echo "$model: missing, skipped" >&2; continue; }
   if [ "$category" = chair ]; then

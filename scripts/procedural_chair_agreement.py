@@ -35,11 +35,11 @@ def evaluate(model: Abstractor, shapes) -> dict:
     agreement = part_label_agreement([r.canonical for r in results], [s.points for s in shapes],
                                      [s.point_labels for s in shapes], names=synthetic.PART_NAMES["chair"])
     summary = summarize([score(r.canonical, s, ChamferConvention()) for r, s in zip(results, shapes)])
-    return {"agreement_min": agreement["min"],
-            "per_part": {k: {"index": v["index"], "agreement": round(v["agreement"], 3), "shapes": v["shapes"]}
-                         for k, v in agreement["per_label"].items()},
-            "chamfer_l1": round(summary["chamfer"]["mean"], 5), "iou": round(summary["iou"]["mean"], 4),
-            "parts": round(summary["parts"]["mean"], 2)}
+    return {"agreement_min": agreement.min,
+            "per_part": {k: {"index": v.index, "agreement": round(v.agreement, 3), "shapes": v.shapes}
+                         for k, v in agreement.per_label.items()},
+            "chamfer_l1": round(summary.chamfer.mean, 5), "iou": round(summary.iou.mean, 4),
+            "parts": round(summary.parts.mean, 2)}
 
 
 def main(argv=None) -> int:

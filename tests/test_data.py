@@ -153,10 +153,10 @@ def test_a_cached_shape_takes_a_quarter_of_the_first_format(tmp_path):
     shape = data.prepare(grid, settings)
     shape.save(tmp_path / "first.npz")
     first = (tmp_path / "first.npz").stat().st_size
-    segment = data.CacheSegment.from_rows(settings, [("k", data._encode_row(shape, True))], True).save(tmp_path / "cache")
+    segment = data.CacheSegment.from_rows(settings, [("k", data.cache.encode_row(shape, True))], True).save(tmp_path / "cache")
     now = sum(f.stat().st_size for f in segment.folder.iterdir())
     assert now <= first / 4, (now, first)
-    exact = data.CacheSegment.from_rows(settings, [("k", data._encode_row(shape, False))]).save(tmp_path / "cache")
+    exact = data.CacheSegment.from_rows(settings, [("k", data.cache.encode_row(shape, False))]).save(tmp_path / "cache")
     assert sum(f.stat().st_size for f in exact.folder.iterdir()) < first  # float32: no face ids, no labels of -1
     assert np.array_equal(exact.shape(0).closest, shape.closest) and np.array_equal(exact.shape(0).points, shape.points)
     assert np.array_equal(segment.shape(0).occupancy, shape.occupancy)
@@ -165,7 +165,7 @@ def test_a_cached_shape_takes_a_quarter_of_the_first_format(tmp_path):
 @pytest.mark.parametrize("compact", [False, True])
 def test_damaged_cache_entries_are_prepared_again_and_said_once(tmp_path, capsys, monkeypatch, compact):
     monkeypatch.setenv("PRIMKIT_CACHE_CODES", "compact" if compact else "exact")
-    monkeypatch.setattr(data, "SEGMENT_SHAPES", 2)  # 5 shapes: segments of 2, 2 and 1
+    monkeypatch.setattr(data.cache, "SEGMENT_SHAPES", 2)  # 5 shapes: segments of 2, 2 and 1
     folder = tmp_path / "shapes"
     synthetic.write_collection(folder, "chair", 5, seed=3)
     cache = tmp_path / "cache"
@@ -266,7 +266,7 @@ def test_shapenet_voxels_prepare(shared_data):
         prep = data.prepare_file(folder / "model.binvox")
         vox = io.read_voxels(folder / "model.binvox")
         assert prep.solid.sum() >= vox.occupancy.sum()
-        assert prep.solid.sum() == data.geometry.fill_voxels(vox.occupancy).sum()
+        assert prep.solid.sum() == geometry.fill_voxels(vox.occupancy).sum()
 
 
 @pytest.mark.parametrize("compact", [False, True], ids=["float32", "compact"])
@@ -279,7 +279,7 @@ def test_a_segment_streamed_to_disk_is_the_stacked_one(tmp_path, compact):
     for i in range(5):
         occ = rng.random((32, 32, 32)) < 0.02
         occ[10:20, 10:22, 8:14] = True
-        entries.append((f"k{i}", data._encode_row(data.prepare(io.VoxelGrid(occ, np.zeros(3), 1.0), settings), compact)))
+        entries.append((f"k{i}", data.cache.encode_row(data.prepare(io.VoxelGrid(occ, np.zeros(3), 1.0), settings), compact)))
     streamed = data.CacheSegment.write(tmp_path / "a", settings, entries, compact)
     in_memory = data.CacheSegment.from_rows(settings, entries, compact)
     for name, values in in_memory.arrays.items():

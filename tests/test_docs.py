@@ -2,7 +2,8 @@
 with warnings as errors, and a reference to a primkit name that does not exist fails the build.
 
 The full build imports every module and takes about a minute, so it is marked ``integration``; the
-check that a broken reference fails builds one small page."""
+check that a broken reference fails builds one small page, in a Sphinx process of its own (also
+``integration``: the fast loop leaves subprocesses out)."""
 
 from __future__ import annotations
 
@@ -46,6 +47,7 @@ def _small_site(tmp_path, body: str) -> Path:
     return source
 
 
+@pytest.mark.integration  # a Sphinx build in a subprocess
 def test_a_reference_to_a_name_that_does_not_exist_fails_the_build(tmp_path):
     # through a re-export, relative to the module, and a private module: these names exist
     good = _small_site(tmp_path / "good", ".. py:currentmodule:: primkit.segmentation\n\n"

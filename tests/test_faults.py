@@ -117,7 +117,7 @@ def test_train_creates_missing_folders(shapes, tmp_path, cache):
     assert out.is_file() and out.with_name("m.training.png").is_file() and out.with_name("m.history.json").is_file()
 
 
-def test_a_checkpoint_that_cannot_be_written_does_not_stop_training(prepared_chairs, tmp_path, monkeypatch, capsys):
+def test_a_checkpoint_that_cannot_be_written_does_not_stop_training(prepared_chairs, tmp_path, monkeypatch):
     """The disk fills during training (simulated: the checkpoint's write raises ENOSPC): the run goes on;
     when the model itself cannot be written at the end, it is saved in the temporary folder instead."""
     import errno
@@ -135,9 +135,8 @@ def test_a_checkpoint_that_cannot_be_written_does_not_stop_training(prepared_cha
     shapes = training.ShapeTensors(prepared_chairs[:2])
     config = training.TrainConfig(stage1_iterations=3, stage2_iterations=3, batch_size=2, parts=4, checkpoint_every=2,
                                   points_per_shape=100, samples_per_cuboid=24)
-    with pytest.raises(OSError, match="saved to") as info:
+    with pytest.raises(OSError, match="saved to") as info, pytest.warns(RuntimeWarning, match="could not write the checkpoint"):
         training.train(shapes, tmp_path / "m.safetensors", config, progress=False)
-    assert "could not write the checkpoint" in capsys.readouterr().err
     rescued = Path(str(info.value).rsplit("saved to ", 1)[1].split(" instead")[0])
     from primkit.model.network import load_network
 

@@ -155,11 +155,11 @@ KERNEL_CALLS = {
     # geometry: _voxel_kernels through voxel_closest_points
     "voxel_closest_points, empty": ("primkit.geometry.voxel_closest_points", (np.zeros((8, 8, 8), bool),)),
     "voxel_closest_points, 2-D": ("primkit.geometry.voxel_closest_points", (np.ones((8, 8), bool),)),
-    # model: _field_kernels through lookup_distance_sq and surface_consistency, _union_kernels through coverage_loss
-    "lookup_distance_sq, more points than grids": (
-        "primkit.model.distance_field.lookup_distance_sq", (torch.rand(2, 8, 8, 8, 3), torch.rand(5, 7, 3))),
-    "lookup_distance_sq, a grid not cubic": (
-        "primkit.model.distance_field.lookup_distance_sq", (torch.rand(2, 8, 4, 8, 3), torch.rand(2, 7, 3))),
+    # model: _field_kernels through lookup_distance_sq_torch and surface_consistency, _union_kernels through coverage_loss
+    "lookup_distance_sq_torch, more points than grids": (
+        "primkit.model.distance_field.lookup_distance_sq_torch", (torch.rand(2, 8, 8, 8, 3), torch.rand(5, 7, 3))),
+    "lookup_distance_sq_torch, a grid not cubic": (
+        "primkit.model.distance_field.lookup_distance_sq_torch", (torch.rand(2, 8, 4, 8, 3), torch.rand(2, 7, 3))),
     "surface_consistency, more cuboids than grids": (
         "primkit.model.losses.surface_consistency",
         (torch.rand(2, 8, 8, 8, 3), torch.rand(5, 4, 3), torch.rand(5, 4, 4), torch.rand(5, 4, 3))),

@@ -298,7 +298,7 @@ def test_coverage_matches_brute_force():
 
 def test_lookup_matches_the_torch_distance_field():
     torch = pytest.importorskip("torch")
-    from primkit.model.distance_field import lookup_distance_sq as torch_lookup_distance_sq
+    from primkit.model.distance_field import lookup_distance_sq_torch as torch_lookup_distance_sq
 
     rng = np.random.default_rng(8)
     closest = rng.uniform(-0.5, 0.5, size=(6, 6, 6, 3)).astype(np.float32)
@@ -347,9 +347,9 @@ def test_consistency_is_area_weighted_mean():
     res = 8
     closest = rng.uniform(-0.5, 0.5, size=(res, res, res, 3))
     c = random_cuboids(rng, 3, present=[1, 1, 0])
-    from primkit.primitives import sample_surface
+    from primkit.primitives import sample_cuboid_surfaces
 
-    s = sample_surface(c.subset(c.present), 60, seed=4)
+    s = sample_cuboid_surfaces(c.subset(c.present), 60, seed=4)
     d2 = lookup_distance_sq(closest, s.points.reshape(-1, 3)).reshape(s.weights.shape)
     expected = (s.weights * d2).sum() / s.weights.sum()
     assert M.consistency_error(c, closest, samples_per_cuboid=60, seed=4) == pytest.approx(expected, rel=1e-12)
@@ -390,11 +390,12 @@ def test_score_and_summarize_box():
     assert set(d) == {"chamfer", "iou", "coverage", "consistency", "parts", "convention"}
 
     summary = M.summarize([s, t])
-    assert summary["count"] == 2 and summary["empty"] == 0 and summary["convention"] == conv.describe()
-    assert summary["iou"]["mean"] == pytest.approx((s.iou + t.iou) / 2)
-    assert summary["chamfer"]["median"] == pytest.approx((s.chamfer + t.chamfer) / 2)
-    assert summary["coverage"]["std"] == pytest.approx(abs(s.coverage - t.coverage) / 2)
-    assert summary["parts"] == {"mean": 1.0, "median": 1.0, "std": 0.0}
+    assert summary.count == 2 and summary.empty == 0 and summary.convention == conv.describe()
+    assert summary.iou.mean == pytest.approx((s.iou + t.iou) / 2)
+    assert summary.chamfer.median == pytest.approx((s.chamfer + t.chamfer) / 2)
+    assert summary.coverage.std == pytest.approx(abs(s.coverage - t.coverage) / 2)
+    assert summary.parts == M.Statistics(mean=1.0, median=1.0, std=0.0)
+    assert summary.to_dict()["parts"] == {"mean": 1.0, "median": 1.0, "std": 0.0}  # the JSON layout
 
 
 def test_summarize_rejects_mixed_conventions_and_empty():
@@ -406,8 +407,8 @@ def test_summarize_rejects_mixed_conventions_and_empty():
         M.summarize([])
     empty = M.AbstractionScores(float("inf"), 0.0, float("inf"), float("nan"), 0, "x")
     out = M.summarize([a, empty, a])
-    assert out["empty"] == 1 and out["chamfer"]["mean"] == float("inf")
-    assert out["chamfer"]["median"] == pytest.approx(0.1)
+    assert out.empty == 1 and out.chamfer.mean == float("inf")
+    assert out.chamfer.median == pytest.approx(0.1)
 
 
 @pytest.mark.parametrize("power", [1, 2])

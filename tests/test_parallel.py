@@ -16,7 +16,7 @@ def clean_env(monkeypatch):
     for var in ("PRIMKIT_THREADS", "OMP_NUM_THREADS", "PRIMKIT_THREADS_AUTO"):
         monkeypatch.delenv(var, raising=False)
     before = torch.get_num_threads()
-    torch.set_num_threads(len(parallel._affinity()))  # torch's default: no explicit setting
+    torch.set_num_threads(len(parallel.threads._affinity()))  # torch's default: no explicit setting
     yield monkeypatch
     torch.set_num_threads(before)
 
@@ -30,11 +30,11 @@ class FakeMonitor:
 
 
 def test_available_cores_is_the_affinity_capped_by_the_quota(monkeypatch):
-    assert 1 <= parallel.available_cores() <= len(parallel._affinity())
-    monkeypatch.setattr(parallel, "_affinity", lambda: {0, 1, 2, 3})
-    monkeypatch.setattr(parallel, "_cgroup_quota", lambda: 1.5)
+    assert 1 <= parallel.available_cores() <= len(parallel.threads._affinity())
+    monkeypatch.setattr(parallel.threads, "_affinity", lambda: {0, 1, 2, 3})
+    monkeypatch.setattr(parallel.threads, "_cgroup_quota", lambda: 1.5)
     assert parallel.available_cores() == 2  # 1.5 CPUs of quota: 2 threads, rounded
-    monkeypatch.setattr(parallel, "_cgroup_quota", lambda: None)
+    monkeypatch.setattr(parallel.threads, "_cgroup_quota", lambda: None)
     assert parallel.available_cores() == 4
 
 
@@ -58,7 +58,7 @@ def test_explicit_settings_win(clean_env):
 
 
 def test_threads_follow_the_cores_free(clean_env):
-    clean_env.setattr(parallel, "available_cores", lambda: 2)
+    clean_env.setattr(parallel.threads, "available_cores", lambda: 2)
     assert parallel.choose_threads(monitor=FakeMonitor([0.0])) == 2
     assert parallel.choose_threads(monitor=FakeMonitor([0.3])) == 2  # a core 30% busy elsewhere still counts
     assert parallel.choose_threads(monitor=FakeMonitor([0.9])) == 1
@@ -139,9 +139,9 @@ def test_cpu_monitor_sees_a_real_busy_process_and_not_itself():
 
 
 def test_governor_steps_down_and_up_and_gives_the_count_back(clean_env):
-    clean_env.setattr(parallel, "available_cores", lambda: 2)
+    clean_env.setattr(parallel.threads, "available_cores", lambda: 2)
     torch.set_num_threads(2)
-    clean_env.setattr(parallel, "CpuMonitor", lambda: FakeMonitor([0.0, 1.0, 0.1]))
+    clean_env.setattr(parallel.threads, "CpuMonitor", lambda: FakeMonitor([0.0, 1.0, 0.1]))
     gov = parallel.ThreadGovernor(interval=0.0)
     assert gov.threads == 2 and torch.get_num_threads() == 2
     assert gov.update() == 1 and torch.get_num_threads() == 1  # another process took a core

@@ -40,7 +40,10 @@ def test_deforming_a_cloud_moves_its_points_as_the_library_does(clouds, tmp_path
     np.testing.assert_allclose(moved, want, atol=1e-9)
     report = json.loads((tmp_path / "moved.json").read_text())
     assert report["kind"] == "points" and report["quality"]["chamfer_result_target"] < report["quality"]["chamfer_source_target"]
-    assert (tmp_path / "d.png").is_file()
+    from pictures import read_picture
+
+    picture = read_picture(tmp_path / "d.png")  # source, target and result, each with its cuboids
+    assert picture.blobs() >= 3 and 0.03 < picture.foreground_fraction < 0.8, (picture.blobs(), picture.foreground_fraction)
     # onto itself: every part keeps its place, the points stay
     same = tmp_path / "same.npy"
     assert main(["deform", str(paths[0]), str(paths[0]), "--model", "chair", "-o", str(same), "--workers", "1"]) == 0

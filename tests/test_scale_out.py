@@ -197,14 +197,14 @@ def test_executor_on_a_local_ray_instance(shapes, segmented, tmp_path, monkeypat
     ray = pytest.importorskip("ray")
     root, reference = shapes
     sent = []
-    pool_map = parallel._PoolExecutor.map
+    pool_map = parallel.distribute._PoolExecutor.map
 
     def map_(self, func, jobs):
         jobs = list(jobs)
         sent.append((func.__name__, len(jobs)))
         return pool_map(self, func, jobs)
 
-    monkeypatch.setattr(parallel._PoolExecutor, "map", map_)
+    monkeypatch.setattr(parallel.distribute._PoolExecutor, "map", map_)
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
     try:
         assert main(["abstract", str(root / "in"), "--model", "chair", "-o", str(tmp_path / "abstract"),
@@ -220,12 +220,12 @@ def test_executor_on_a_local_ray_instance(shapes, segmented, tmp_path, monkeypat
 
 
 def test_ray_addresses():
-    assert parallel._ray_address("ray") is None
-    assert parallel._ray_address("ray:auto") == "auto"
-    assert parallel._ray_address("ray:10.0.0.1:6379") == "10.0.0.1:6379"
-    assert parallel._ray_address("ray://head:10001") == "ray://head:10001"
+    assert parallel.distribute._ray_address("ray") is None
+    assert parallel.distribute._ray_address("ray:auto") == "auto"
+    assert parallel.distribute._ray_address("ray:10.0.0.1:6379") == "10.0.0.1:6379"
+    assert parallel.distribute._ray_address("ray://head:10001") == "ray://head:10001"
     with pytest.raises(ValueError, match="ray:auto"):
-        parallel._ray_address("ray:")
+        parallel.distribute._ray_address("ray:")
 
 
 def test_a_missing_engine_is_one_line(shapes, tmp_path, monkeypatch, capsys):

@@ -267,7 +267,12 @@ def add_abstraction_options(p) -> None:
     add_adapt(p)
 
 
+def _adapt_steps(text: str):
+    """``--adapt``'s value: a number of steps, or True (no number: the steps follow the inputs' count)."""
+    return True if text == "auto" else int(text)
+
+
 def add_adapt(p) -> None:
-    p.add_argument("--adapt", type=int, nargs="?", const=600, default=None, metavar="STEPS",
-                   help="adapt the model to these inputs first, without labels (experimental; 600 steps when "
-                        "given without a number; primkit adapt writes the adapted model to a file)")
+    p.add_argument("--adapt", type=_adapt_steps, nargs="?", const="auto", default=None, metavar="STEPS",
+                   help="adapt the model to these inputs first, without labels (experimental; without a number "
+                        "the steps follow the inputs' count, 200 to 600; primkit adapt writes the adapted model to a file)")

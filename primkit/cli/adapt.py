@@ -22,7 +22,7 @@ def register(sub) -> None:
     p.add_argument("inputs", nargs="+", help="shape files or folders (meshes, point clouds, voxel grids)")
     add_model(p)
     add_output(p, "the adapted model file (.safetensors)")
-    p.add_argument("--steps", type=int, default=600, help="stage-2 steps (default 600)")
+    p.add_argument("--steps", type=int, default=None, help="stage-2 steps (default: 40 draws a shape, 200 to 600)")
     p.add_argument("--seed", type=int, default=0, help="random seed of the batches and samples (default 0): "
                    "the same seed gives the same model")
     add_axes(p)
@@ -48,7 +48,7 @@ def run(args) -> int:
         if output.suffix != ".safetensors":
             raise ValueError(f"{output}: the adapted model is written as '.safetensors'")
         check_outputs(args, [output], input_paths(files, model_file(args.model)))
-        if args.steps < 1:
+        if args.steps is not None and args.steps < 1:
             raise ValueError(f"--steps must be at least 1, got {args.steps}")
         if args.refine:
             raise ValueError("--refine does not apply to adapt (it refines one shape's cuboids, not a model)")
@@ -67,6 +67,6 @@ def run(args) -> int:
                   progress=True)
     save_adapted(child, output, overwrite=args.force)
     a = child.metadata["adaptation"]
-    print(f"{output}: {a['parent']} adapted to {a['shapes']} shapes (digest {a['digest']}), {args.steps} steps, "
+    print(f"{output}: {a['parent']} adapted to {a['shapes']} shapes (digest {a['digest']}), {a['config']['steps']} steps, "
           f"{a['seconds']:.0f} s")
     return status

@@ -316,8 +316,11 @@ def _cmd_segment(args) -> int:
     if codes is not None and not _written_before(out / "labels.csv", codes, shard is not None, args.force):  # meanwhile
         with atomic_output(out / "labels.csv", overwrite=args.force) as tmp:
             Path(tmp).write_text(codes)
-    for s in written:
-        s.cuboids.save_json(out / f"{s.name}.cuboids.json", overwrite=args.force)
+    from ..model.cuboids_file import write_cuboids_file
+
+    for s in written:  # the schema of every <name>.cuboids.json (its canonical_frame not known here)
+        write_cuboids_file(out / f"{s.name}.cuboids.json", s.cuboids, name=s.name, source=s.source,
+                           model=segmenter.abstractor.model or None, part_names=s.part_names or None, overwrite=args.force)
     if args.png:
         _picture(segs, args.png)
     print(("summary" if shard is None else f"summary of shard {shard[0]}/{shard[1]}") + ": "

@@ -84,7 +84,7 @@ repaired) and :mod:`~primkit.deformation.mesh` (the one-call :func:`deform` and 
 from .binding import DEFAULT_FALLOFF, Binding, apply_transforms, bind, blend_weights, signed_distances
 from .edits import Edit, Lengthening, edit_cuboids
 from .mesh import SEAM_GAIN, Deformed, deform, edit, seam_falloff
-from .transfer import MAX_RATIO, MIN_EXTENT, Transfer, cuboid_map, transfer_transforms
+from .transfer import MAX_RATIO, MIN_HALF_EXTENT, Transfer, cuboid_map, transfer_transforms
 from .folds import UNFOLD_ROUNDS, edge_distortion, flipped_fraction, unfold
 
 __all__ = [
@@ -105,7 +105,7 @@ __all__ = [
     "flipped_fraction",
     "edge_distortion",
     "DEFAULT_FALLOFF",
-    "MIN_EXTENT",
+    "MIN_HALF_EXTENT",
     "MAX_RATIO",
     "SEAM_GAIN",
     "seam_falloff",

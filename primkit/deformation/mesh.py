@@ -12,7 +12,7 @@ from ..metrics import chamfer_distance
 from ..primitives import Cuboids, assign_points
 from .binding import DEFAULT_FALLOFF, Binding, as_vertices, bind, signed_distances
 from .edits import Edit, Lengthening, edit_cuboids
-from .transfer import MIN_EXTENT, Transfer, transfer_transforms
+from .transfer import MIN_HALF_EXTENT, Transfer, transfer_transforms
 from .folds import edge_distortion, face_normals, flipped_fraction, unfold
 
 __all__ = ["SEAM_GAIN", "Deformed", "deform", "edit", "seam_falloff"]
@@ -105,7 +105,7 @@ def _finish(binding: Binding, transforms, faces, do_unfold: bool, stretch: Lengt
 
 
 def deform(vertices, source: Cuboids, target: Cuboids, *, falloff: float | None = None, faces=None,
-           method: str = "distance", min_extent: float = MIN_EXTENT, unfold: bool = False) -> Deformed:
+           method: str = "distance", min_extent: float = MIN_HALF_EXTENT, unfold: bool = False) -> Deformed:
     """Move a mesh bound to ``source`` so its parts take the configuration of ``target``.
 
     vertices : (n, 3) float, in the frame of both cuboid sets (use the canonical frames of two

@@ -10,11 +10,11 @@ import numpy as np
 
 from ..primitives import Cuboids, point_cuboid_distance
 
-__all__ = ["MIN_EXTENT", "MAX_RATIO", "cuboid_map", "cuboid_gap", "Transfer", "transfer_transforms"]
+__all__ = ["MIN_HALF_EXTENT", "MAX_RATIO", "cuboid_map", "cuboid_gap", "Transfer", "transfer_transforms"]
 
 
 #: floor on half-extents in scale ratios (canonical units: one cell of the 32^3 grid)
-MIN_EXTENT = 1.0 / 32.0
+MIN_HALF_EXTENT = 1.0 / 32.0
 
 
 #: a paired part whose size changes by more than this factor along an axis is treated as unpaired
@@ -33,7 +33,7 @@ _AXIS_TURNS = np.array(
 )
 
 
-def cuboid_map(source: Cuboids, target: Cuboids, k: int, *, min_extent: float = MIN_EXTENT,
+def cuboid_map(source: Cuboids, target: Cuboids, k: int, *, min_extent: float = MIN_HALF_EXTENT,
                match_axes: bool = True) -> np.ndarray:
     """(4, 4) float affine map taking source cuboid ``k`` onto target cuboid ``k``.
 
@@ -104,7 +104,7 @@ class Transfer:
                 "mismatched": list(map(int, self.mismatched))}
 
 
-def transfer_transforms(source: Cuboids, target: Cuboids, *, min_extent: float = MIN_EXTENT,
+def transfer_transforms(source: Cuboids, target: Cuboids, *, min_extent: float = MIN_HALF_EXTENT,
                         match_axes: bool = True, max_ratio: float = MAX_RATIO) -> Transfer:
     """Pair cuboids by index and map each source cuboid onto its target (see :func:`cuboid_map`).
 

@@ -14,8 +14,8 @@ Which library does what, and why:
   edges to a nearer one (never nearer than the truth; measured within 5e-3 of the unit cube, see
   :func:`~primkit.geometry.distance_grid`). libigl's AABB (``point_mesh_squared_distance``) and
   Open3D's ``RaycastingScene`` (Embree BVH) answer each point from the root and took about twice the
-  exact search's time; Open3D stays as ``engine="open3d"`` and the fallback without Numba
-  (``benchmarks/bench_prepare.py``).
+  exact search's time; Open3D stays as ``engine="open3d"`` (``benchmarks/bench_prepare.py``);
+  Numba is a dependency, and a kernel that fails to load raises rather than falling back.
 * **Occupancy** is the generalised winding number, robust on open and self-intersecting meshes
   where ray parity (Open3D's ``compute_occupancy``) is not: primkit's (the same tree, a first-order
   dipole far field) at the surface cells and a few cells per free region, which gave libigl's

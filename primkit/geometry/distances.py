@@ -124,17 +124,15 @@ def distance_grid(vertices: np.ndarray, faces: np.ndarray, resolution: int = 32,
     centres = grid_centres(resolution).reshape(-1, 3)
     closest = None
     if engine == "auto":
-        try:
-            from ._mesh_kernels import grid_closest_points, kernel_threads
-        except ImportError:  # no Numba: Open3D, the same distances
-            pass
-        else:
-            if exact_within is not None and surface is None:
-                from .grids import surface_voxels
+        # Numba is a dependency: a kernel that fails to import or compile fails loudly, never slowly
+        from ._mesh_kernels import grid_closest_points, kernel_threads
 
-                surface = surface_voxels(vertices, faces, resolution)
-            closest = grid_closest_points(vertices, faces, resolution, threads=kernel_threads(), surface=surface,
-                                          exact_within=exact_within)[0].reshape(-1, 3)
+        if exact_within is not None and surface is None:
+            from .grids import surface_voxels
+
+            surface = surface_voxels(vertices, faces, resolution)
+        closest = grid_closest_points(vertices, faces, resolution, threads=kernel_threads(), surface=surface,
+                                      exact_within=exact_within)[0].reshape(-1, 3)
     if closest is None:
         import open3d as o3d
 
@@ -148,7 +146,7 @@ def distance_grid(vertices: np.ndarray, faces: np.ndarray, resolution: int = 32,
 
 def lookup_distance_sq(closest: Any, points: Any) -> np.ndarray:
     """Squared distance to the surface from a closest-point grid (NumPy twin of
-    :func:`primkit.model.distance_field.lookup_distance_sq`).
+    :func:`primkit.model.distance_field.lookup_distance_sq_torch`).
 
     ``d(x)^2 = min over the 8 cell centres around x of |x - closest[cell]|^2``, the cells being
     ``floor(u)`` and ``floor(u) + 1`` per axis with ``u = (x + 0.5) R - 0.5``, clamped to the

@@ -1,6 +1,6 @@
 """Compact fixed-width codes for a prepared shape's arrays (what the preparation cache stores).
 
-Training reads a shape's closest points through :func:`primkit.model.distance_field.lookup_distance_sq`,
+Training reads a shape's closest points through :func:`primkit.model.distance_field.lookup_distance_sq_torch`,
 which already stands a fraction of a cell away from the exact distance between cell centres; the
 samples are drawn at random from a few thousand. Neither needs float32, and at a quarter of the
 bytes a collection of tens of thousands of shapes fits a page cache. The codes, and the accuracy
@@ -77,7 +77,7 @@ def encode_closest(closest: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     -------
     codes : (3, R^3) uint8
         Coordinate-planar (x of every cell, then y, then z; cells in C order), the layout
-        :func:`primkit.model.distance_field.lookup_distance_sq` reads.
+        :func:`primkit.model.distance_field.lookup_distance_sq_torch` reads.
     near : (R^3 / 8,) uint8
         ``np.packbits`` of the near cells.
     """

@@ -99,7 +99,7 @@ def voxel_closest_points(occupancy: np.ndarray, engine: str = "auto") -> np.ndar
 
 def _nearest_nodes_scipy(nodes: np.ndarray) -> np.ndarray:
     """(R, R, R, 3) index of the nearest surface node of each voxel centre, by SciPy's feature
-    transform of the whole lattice (the reference, and the fallback without Numba)."""
+    transform of the whole lattice (the reference the compiled kernel is tested against)."""
     from scipy import ndimage
 
     index = ndimage.distance_transform_edt(~nodes, return_distances=False, return_indices=True)
@@ -107,10 +107,8 @@ def _nearest_nodes_scipy(nodes: np.ndarray) -> np.ndarray:
 
 
 def _nearest_nodes_at_centres(nodes: np.ndarray) -> np.ndarray:
-    try:
-        from ._voxel_kernels import odd_feature_transform
-    except ImportError:  # no Numba: the same indices, about 5x slower
-        return _nearest_nodes_scipy(nodes)
+    from ._voxel_kernels import odd_feature_transform  # Numba is a dependency: no silent fallback
+
     return odd_feature_transform(np.ascontiguousarray(nodes))
 
 

@@ -8,7 +8,7 @@ keep their meaning (seat, back, ...) across the two models.
 
 Frames: the student predicts in the shape's canonical frame (object-centred: +Y up, front toward
 +X, longest side 1), whatever the viewpoint of the picture; it also predicts the viewpoint
-(azimuth and elevation of :class:`primkit.image.camera.Camera`), which is what lets
+(azimuth and elevation of :class:`primkit.image.camera.OrbitCamera`), which is what lets
 :func:`draw_over_image` project the cuboids back onto the picture.
 
 Network (:class:`ImageNet`; torchvision has no CPU build here and is not needed)::
@@ -48,14 +48,14 @@ backend and palette, and the layers below.
 """
 
 from .backgrounds import PALETTE_HUES, PALETTES, composite, random_background, training_backgrounds
-from .camera import Camera, ViewSettings, project, random_camera, viewpoint_targets
+from .camera import OrbitCamera, ViewSettings, project, random_camera, viewpoint_targets
 from .distill import DistillWeights, ImageTrainConfig, ImageTrainResult, distillation_loss, rotation_distance, train_image_model
 from .inference import KIND, ImageAbstraction, ImageAbstractor, draw_over_image, read_image
 from .network import ImageNet, ImageNetConfig, images_to_float
 from .views import RenderedViews, ViewRenderer, load_views, render_views, render_views_cached, shape_surface
 
 __all__ = [
-    "ViewSettings", "Camera", "project", "random_camera", "viewpoint_targets",
+    "ViewSettings", "OrbitCamera", "project", "random_camera", "viewpoint_targets",
     "PALETTES", "PALETTE_HUES", "random_background", "training_backgrounds", "composite",
     "RenderedViews", "ViewRenderer", "shape_surface", "render_views", "render_views_cached", "load_views",
     "ImageNetConfig", "ImageNet", "images_to_float",

@@ -1,6 +1,6 @@
 """The training views' camera and how views are drawn.
 
-Camera convention (written once, here)::
+OrbitCamera convention (written once, here)::
 
     position = distance * (cos(el) cos(az), sin(el), -cos(el) sin(az))    looking at the origin, +Y up
     az = 0: seen from the front (+X); az = 90 deg: from the shape's right (-Z); el > 0: from above
@@ -16,7 +16,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-__all__ = ["ViewSettings", "Camera", "project", "random_camera", "viewpoint_targets"]
+__all__ = ["ViewSettings", "OrbitCamera", "project", "random_camera", "viewpoint_targets"]
 
 
 @dataclass(frozen=True)
@@ -39,8 +39,10 @@ class ViewSettings:
 
 
 @dataclass(frozen=True)
-class Camera:
-    """A camera looking at the origin of the canonical frame with +Y up (see the module docstring)."""
+class OrbitCamera:
+    """A perspective camera on an orbit around the origin of the canonical frame, looking at it with
+    +Y up (see the module docstring). Not :class:`primkit.viz.camera.Camera`, the drawing kit's view
+    direction shared by every tile."""
 
     azimuth_deg: float
     elevation_deg: float
@@ -58,12 +60,12 @@ class Camera:
         return np.array([self.azimuth_deg, self.elevation_deg, self.distance, self.view_angle_deg], float)
 
     @classmethod
-    def from_array(cls, a) -> "Camera":
+    def from_array(cls, a) -> "OrbitCamera":
         a = np.asarray(a, float)
         return cls(float(a[0]), float(a[1]), float(a[2]), float(a[3]))
 
 
-def project(points: np.ndarray, camera: Camera, size: int) -> np.ndarray:
+def project(points: np.ndarray, camera: OrbitCamera, size: int) -> np.ndarray:
     """Pixel coordinates of canonical points seen by ``camera`` in a ``size`` x ``size`` image.
 
     points : (n, 3) float. Returns ``(n, 2) float`` as (column, row), (0, 0) the top-left corner of
@@ -84,9 +86,9 @@ def project(points: np.ndarray, camera: Camera, size: int) -> np.ndarray:
     return uv
 
 
-def random_camera(rng: np.random.Generator, settings: ViewSettings) -> Camera:
+def random_camera(rng: np.random.Generator, settings: ViewSettings) -> OrbitCamera:
     """Azimuth uniform all around, elevation and distance uniform in the settings' ranges."""
-    return Camera(float(rng.uniform(0, 360)), float(rng.uniform(*settings.elevation_deg)),
+    return OrbitCamera(float(rng.uniform(0, 360)), float(rng.uniform(*settings.elevation_deg)),
                   float(rng.uniform(*settings.distance)), float(settings.view_angle_deg))
 
 

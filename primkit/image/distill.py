@@ -146,7 +146,7 @@ class ImageTrainResult:
 @isolated_torch_state
 def train_image_model(images: np.ndarray, shape_index: np.ndarray, cameras: np.ndarray, teacher: dict,
                       net_config: ImageNetConfig = ImageNetConfig(), config: ImageTrainConfig = ImageTrainConfig(),
-                      *, progress: bool = True, network: ImageNet | None = None,
+                      *, progress: bool = False, network: ImageNet | None = None,
                       foreground: np.ndarray | None = None, alpha: np.ndarray | None = None,
                       surface_points: np.ndarray | None = None, closest: np.ndarray | None = None) -> ImageTrainResult:
     """Train an :class:`ImageNet` to reproduce the teacher on rendered views.
@@ -155,8 +155,9 @@ def train_image_model(images: np.ndarray, shape_index: np.ndarray, cameras: np.n
     ----------
     images : (k, S, S, 3) uint8
     shape_index : (k,) int, which teacher row each image shows
-    cameras : (k, 4) float, camera arrays (:class:`primkit.image.camera.Camera`)
+    cameras : (k, 4) float, camera arrays (:class:`primkit.image.camera.OrbitCamera`)
     teacher : dict of (s, m, ...) arrays, :meth:`primkit.model.abstractor.Abstractor.predict_canonical`
+    progress : a tqdm bar over the iterations, on stderr (off by default)
     network : continue training this network instead of a new one
     foreground : (k, S, S, 3) uint8, alpha : (k, S, S) uint8, optional
         The views' shapes alone (:class:`primkit.image.views.RenderedViews` rendered with

@@ -12,10 +12,12 @@ import torch
 from .. import primitives
 from ..io import atomic_output
 from ..model.bundled import resolve_model
-from ..model.modelfile import ModelFileError, check_tensors, load_model, read_header, save_model
-from ..viz.palette import part_colors
-from .camera import Camera, project, ViewSettings
-from .network import ImageNet, ImageNetConfig, images_to_float, state_shapes
+from ..model.modelfile import ModelFileError, check_tensors, load_model_file, read_header, save_model
+from ..model.cuboids_file import cuboids_document
+from ..model.parts import default_part_names
+from ..primitives.palette import part_colors
+from .camera import OrbitCamera, project, ViewSettings
+from .network import ImageNet, ImageNetConfig, images_to_float, image_net_state_shapes
 
 __all__ = ["KIND", "read_image", "read_image_network", "ImageAbstraction", "ImageAbstractor", "draw_over_image"]
 
@@ -37,7 +39,7 @@ def read_image_network(path) -> tuple[ImageNetConfig, dict]:
     if names is not None and not (isinstance(names, list) and len(names) == config.parts
                                   and all(isinstance(n, str) for n in names)):
         raise ModelFileError(path, f"part_names must be a list of {config.parts} strings (one per part slot)")
-    check_tensors(path, state_shapes(config), tensors, what="image network")
+    check_tensors(path, image_net_state_shapes(config), tensors, what="image network")
     return config, meta
 
 
@@ -69,6 +71,8 @@ class ImageAbstraction:
     cuboids : primitives.Cuboids in the canonical frame of the shape (+Y up, front +X, longest side 1)
     azimuth_deg, elevation_deg : float, the viewpoint the network reads off the picture
     image : (S, S, 3) uint8, what the network saw
+    model : str, the image model as given (a bundled name or a path; "" unknown)
+    part_names : tuple of str, the model's name of each part slot (empty: ``part<k>``)
     """
 
     name: str
@@ -77,15 +81,18 @@ class ImageAbstraction:
     elevation_deg: float
     image: np.ndarray
     source: str = ""
+    model: str = ""
+    part_names: tuple = ()
 
     def camera(self, distance: float, view_angle_deg: float):
-        return Camera(self.azimuth_deg, self.elevation_deg, distance, view_angle_deg)
+        return OrbitCamera(self.azimuth_deg, self.elevation_deg, distance, view_angle_deg)
 
     def to_dict(self) -> dict:
-        d = self.cuboids.to_dict()
-        d.update(name=self.name, source=self.source, frame="canonical (+Y up, front +X, longest side 1)",
-                 viewpoint={"azimuth_deg": self.azimuth_deg, "elevation_deg": self.elevation_deg})
-        return d
+        """The JSON of ``<name>.cuboids.json`` (:mod:`primkit.model.cuboids_file`; the canonical frame,
+        whose place in the picture's scene is unknown, and the ``viewpoint`` read off the picture)."""
+        return cuboids_document(self.cuboids, name=self.name, source=self.source, frame="canonical",
+                                model=self.model or None, part_names=list(self.part_names) or None,
+                                viewpoint={"azimuth_deg": self.azimuth_deg, "elevation_deg": self.elevation_deg})
 
 
 class ImageAbstractor:
@@ -95,19 +102,21 @@ class ImageAbstractor:
     ``(s, S, S, 3) uint8`` arrays; ``predict_files(paths)`` for image files.
     """
 
-    def __init__(self, network: ImageNet, metadata: dict):
+    def __init__(self, network: ImageNet, metadata: dict, *, model: str = ""):
         self.network = network.eval()
         self.metadata = metadata
+        #: the model as given to :meth:`load` (a bundled name or a path), recorded in the results
+        self.model = str(model)
 
     @classmethod
     def load(cls, path) -> "ImageAbstractor":
         """A bundled image model's name or a model file, validated (:func:`read_image_network`) before allocation."""
-        path = resolve_model(path)
+        given, path = path, resolve_model(path)
         config, _ = read_image_network(path)
-        weights, meta = load_model(path)
+        weights, meta = load_model_file(path)
         net = ImageNet(config)
         net.load_state_dict(weights)
-        return cls(net, meta)
+        return cls(net, meta, model=str(given))
 
     def save(self, path, metadata: dict, *, overwrite: bool = False) -> Path:
         meta = {"kind": KIND, "network": self.network.config.to_dict(), **metadata}
@@ -120,7 +129,7 @@ class ImageAbstractor:
     @property
     def part_names(self) -> list:
         names = self.metadata.get("part_names")
-        return list(names) if names else [f"part{k}" for k in range(self.network.config.parts)]
+        return list(names) if names else default_part_names(self.network.config.parts)
 
     @property
     def view_settings(self):
@@ -154,7 +163,8 @@ class ImageAbstractor:
             c, s_, el = raw["viewpoint"][i]
             results.append(ImageAbstraction(
                 names[i] if names is not None else f"image{i}", cub, float(np.degrees(np.arctan2(s_, c)) % 360),
-                float(np.degrees(el)), np.asarray(images[i]), sources[i] if sources is not None else ""))
+                float(np.degrees(el)), np.asarray(images[i]), sources[i] if sources is not None else "",
+                model=self.model, part_names=tuple(self.part_names)))
         return results
 
     def predict_files(self, paths, **kwargs):

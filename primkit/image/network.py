@@ -10,7 +10,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-__all__ = ["ImageNetConfig", "ImageNet", "images_to_float", "state_shapes"]
+__all__ = ["ImageNetConfig", "ImageNet", "images_to_float", "image_net_state_shapes"]
 
 
 @dataclass(frozen=True)
@@ -104,7 +104,7 @@ class ImageNet(nn.Module):
         }
 
 
-def state_shapes(config: ImageNetConfig) -> dict:
+def image_net_state_shapes(config: ImageNetConfig) -> dict[str, tuple[tuple[int, ...], torch.dtype]]:
     """``name -> (shape, dtype)`` of ``ImageNet(config)``'s state dict, built on the ``meta`` device (nothing allocated)."""
     with torch.device("meta"):
         net = ImageNet(config)

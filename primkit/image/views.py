@@ -5,7 +5,7 @@ volume model already knows. This module makes those pictures: a shape's surface 
 frame (+Y up, front toward +X, longest side 1), seen from a random viewpoint around the upright
 shape, under random lighting and a random object colour, composited over a random background.
 
-The camera is :class:`primkit.image.camera.Camera` (its convention is written there).
+The camera is :class:`primkit.image.camera.OrbitCamera` (its convention is written there).
 
 Decisions:
 
@@ -44,7 +44,7 @@ from ..geometry import voxel_boundary_mesh
 from ..io import atomic_output
 from ..viz.backend import pyvista_module
 from .backgrounds import PALETTES, random_background, random_colour
-from .camera import Camera, ViewSettings, random_camera
+from .camera import OrbitCamera, ViewSettings, random_camera
 
 __all__ = ["RenderedViews", "ViewRenderer", "shape_surface", "render_views", "render_views_cached", "load_views"]
 
@@ -76,7 +76,7 @@ class RenderedViews:
 
     images : (k, S, S, 3) uint8
     shape_index : (k,) int, which shape each view shows (index into the shapes given)
-    cameras : (k, 4) float, :meth:`Camera.as_array` of each view
+    cameras : (k, 4) float, :meth:`OrbitCamera.as_array` of each view
     names : list of str, the shapes' names (``len(shapes)``)
     settings : ViewSettings
     palette : str
@@ -101,8 +101,8 @@ class RenderedViews:
     def __len__(self) -> int:
         return len(self.images)
 
-    def camera(self, i: int) -> Camera:
-        return Camera.from_array(self.cameras[i])
+    def camera(self, i: int) -> OrbitCamera:
+        return OrbitCamera.from_array(self.cameras[i])
 
     def composite(self, backgrounds: np.ndarray) -> np.ndarray:
         """The views laid over other backgrounds.
@@ -168,7 +168,7 @@ class ViewRenderer:
             self._plotter.close()
             self._plotter = None
 
-    def render(self, vertices, faces, camera: Camera, rng: np.random.Generator):
+    def render(self, vertices, faces, camera: OrbitCamera, rng: np.random.Generator):
         pv, pl, s = self._pv, self._plotter, self.settings
         faces = np.asarray(faces, np.int64)
         mesh = pv.PolyData(np.asarray(vertices, float), np.hstack([np.full((len(faces), 1), 3), faces]).ravel())

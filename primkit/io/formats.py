@@ -502,7 +502,7 @@ def _fill_slow(kernels, buf: np.ndarray, flat: np.ndarray, slow: np.ndarray) -> 
 
 def _parse_mesh_text(path, data: bytes):
     """(vertices, faces) of a plain OFF or OBJ file by the compiled parser, or None (not plain,
-    another format, or no Numba): the caller then reads it with trimesh."""
+    another format): the caller then reads it with trimesh."""
     kind = Path(path).suffix.lower()
     kernels = _kernels() if kind in (".off", ".obj") else None
     if kernels is None:

@@ -1,7 +1,7 @@
 """Compiled kernels of the distance-field lookup and the consistency loss (Numba; imported on
 first use, CPU tensors only).
 
-``nearest_cells``: the winner search of :func:`primkit.model.distance_field.lookup_distance_sq`.
+``nearest_cells``: the winner search of :func:`primkit.model.distance_field.lookup_distance_sq_torch`.
 For each query point, the cell of the 8 around it whose stored closest point is nearest: the
 part of the lookup that needs no gradient. The torch version forms it from 8 gathers of
 ``(B, 3, n)`` rows and a dozen element-wise passes over them; here each point is one pass over

@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import data, io, parallel
-from ..viz import interop
+from ..io import objects as foreign
 from . import orientation
 from .abstractor import MIN_EXTENT, AbstractionResult, Abstractor
 
@@ -55,7 +55,8 @@ class CardMismatchWarning(UserWarning):
 
 @dataclass(frozen=True, eq=False)
 class Abstraction:
-    """One shape with its abstraction.
+    """One shape as the user gave it, with its :class:`AbstractionResult` (``result``): the
+    cuboids, and the shape's own geometry on demand.
 
     Attributes
     ----------
@@ -130,8 +131,9 @@ class Abstraction:
 
 @dataclass(frozen=True, eq=False)
 class Abstractions:
-    """What :func:`abstract_shapes` returns: the usable shapes in input order, one line per input
-    that could not be used (the batch goes on), and the model that abstracted them."""
+    """What :func:`abstract_shapes` returns for a batch: the usable shapes (:class:`Abstraction`) in
+    input order, one line per input that could not be used (the batch goes on), and the model that
+    abstracted them with its model-card check."""
 
     shapes: list
     errors: list
@@ -185,12 +187,12 @@ def as_shape(obj):
         return io.PointCloud(obj.vertices)
     if package == "open3d":
         if type(obj).__name__ == "TriangleMesh":
-            m = interop.mesh_from_o3d(obj)
+            m = foreign.mesh_from_o3d(obj)
             return io.Mesh(m.vertices, m.faces)
         if type(obj).__name__ == "PointCloud":
-            return io.PointCloud(interop.points_from_o3d(obj)[0])
+            return io.PointCloud(foreign.points_from_o3d(obj)[0])
     if package in ("pyvista", "vtkmodules", "vtk"):
-        vertices, faces = interop.from_pyvista(obj)
+        vertices, faces = foreign.from_pyvista(obj)
         return io.Mesh(vertices, faces) if len(faces) else io.PointCloud(vertices)
     if isinstance(obj, tuple) and len(obj) == 2:
         return io.Mesh(*(x.detach().cpu().numpy() if _is_tensor(x) else x for x in obj))
@@ -233,7 +235,7 @@ def abstract_shapes(
     names=None,
     cache=None,
     workers: int | None = None,
-    progress: bool = True,
+    progress: bool = False,
     executor=None,
     shard=None,
     batch_size: int = 128,
@@ -257,15 +259,17 @@ def abstract_shapes(
         As :meth:`Abstractor.predict` (``refine=N`` runs N gradient steps per shape; parts whose
         longest side is under ``min_extent`` of the shape's size, or that are nearest to none of
         its surface samples, are not present).
-    adapt : None, int or :class:`primkit.model.adaptation.AdaptConfig`
+    adapt : None, True, int or :class:`primkit.model.adaptation.AdaptConfig`
         Adapt the model to these inputs first, without labels (:func:`primkit.model.adaptation.adapt`;
-        an int is the number of steps, with the other settings at their defaults); the shapes are
+        an int is the number of steps, True (or ``"auto"``) the default settings, whose steps follow
+        the inputs' count: :func:`~primkit.model.adaptation.default_steps`); the shapes are
         then abstracted by the adapted model, which ``Abstractions.model`` holds. Experimental; the
         shapes are read from the cache at each batch, so memory does not grow with their number.
     settings : data.PrepareSettings, optional
         How to prepare (resolution, samples, axes); default the model's.
     names : one name per in-memory shape (default ``shape<i>``, ``i`` its position in ``inputs``).
-    cache, workers, progress : the preparation cache folder, processes and progress bars.
+    cache, workers, progress : the preparation cache folder, processes and progress bars (tqdm,
+        on stderr; off by default).
     executor, shard : where files are prepared, and which shard of them is abstracted
         (:func:`primkit.data.prepare_collection`'s); shapes given as arrays are never sharded.
     batch_size : shapes read from the cache and abstracted at once.
@@ -327,7 +331,8 @@ def abstract_shapes(
     if adapt:
         from .adaptation import AdaptConfig, ShapeSequence, adapt as adapt_model
 
-        config = adapt if isinstance(adapt, AdaptConfig) else AdaptConfig(steps=int(adapt))
+        config = (adapt if isinstance(adapt, AdaptConfig)
+                  else AdaptConfig() if adapt is True or adapt == "auto" else AdaptConfig(steps=int(adapt)))
         everything = ShapeSequence(len(order), lambda i: coll[order[i][1]] if order[i][0] == "file"
                                    else memory[order[i][1]][1])  # read from the cache at each batch
         named = str(model) if isinstance(model, (str, os.PathLike)) else None
@@ -360,13 +365,13 @@ def _fit_losses(results, prepared) -> list:
 
     # the network's own fit: a refined shape's loss before refinement (fit_losses too), and a shape
     # left with no part (a high existence threshold) says nothing of the model
-    refined = [r.refinement["loss_before"] for r in results if r.refinement is not None]
+    refined = [r.refinement.loss_before for r in results if r.refinement is not None]
     pairs = [(r, p) for r, p in zip(results, prepared) if r.refinement is None and r.canonical.existence.any()]
     if not pairs:
         return refined
     shapes = [r.canonical_shape(p) for r, p in pairs]
     return refined + list(fit_losses([r.canonical for r, _ in pairs], shapes, points=1000,
-                                     samples_per_cuboid=96)["total"])
+                                     samples_per_cuboid=96).total)
 
 
 def _card_check(abstractor, losses) -> tuple:

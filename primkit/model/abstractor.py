@@ -30,7 +30,6 @@ and :meth:`AbstractionResult.save` writes a JSON file (schema-versioned, see
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, replace
 from pathlib import Path
 
@@ -38,13 +37,16 @@ import numpy as np
 
 from .. import data, io, primitives
 from . import orientation
+from .parts import default_part_names
 from .bundled import resolve_model
-from ..viz.palette import part_colors
+from ..primitives.palette import part_colors
 from .fitting import fit_losses
 from .fitting import refine as refine_cuboids
+from .cuboids_file import cuboids_document, write_cuboids_file
+from .orientation import Alignment
 from .network import load_network
 
-__all__ = ["Abstractor", "AbstractionResult", "MIN_EXTENT", "ORIENTATION_POINTS", "ORIENTATION_SAMPLES",
+__all__ = ["Abstractor", "AbstractionResult", "Refinement", "MIN_EXTENT", "ORIENTATION_POINTS", "ORIENTATION_SAMPLES",
            "drop_unsized_parts"]
 
 #: Surface points of a shape and samples per cuboid with which orientations are scored.
@@ -109,8 +111,24 @@ def drop_unsized_parts(cuboids: primitives.Cuboids, points, min_extent: float = 
 
 
 @dataclass(frozen=True)
+class Refinement:
+    """How ``refine`` changed one shape's cuboids: ``steps`` Adam steps, and the fit loss
+    (:func:`primkit.model.fitting.fit_losses`) before and after."""
+
+    steps: int
+    loss_before: float
+    loss_after: float
+
+    def to_dict(self) -> dict:
+        """JSON-ready (the ``refinement`` entry of ``<name>.cuboids.json``)."""
+        return {"steps": self.steps, "loss_before": self.loss_before, "loss_after": self.loss_after}
+
+
+@dataclass(frozen=True)
 class AbstractionResult:
-    """The abstraction of one shape.
+    """The cuboids a model gives one prepared shape: a value, with no geometry of the shape
+    (:class:`primkit.model.abstraction.Abstraction` pairs it with the shape; :mod:`primkit.model`
+    sets the four names side by side).
 
     Attributes
     ----------
@@ -121,6 +139,14 @@ class AbstractionResult:
         The same in the canonical frame of the network.
     frame : geometry.CanonicalFrame
     source : str
+    alignment : orientation.Alignment or None
+        How ``align`` turned the shape; None when it was not asked.
+    refinement : Refinement or None
+        What ``refine`` did; None when it was not asked.
+    model : str
+        The model that abstracted it, as given (a bundled name or a model file's path; "" unknown).
+    part_names : tuple of str
+        The model's name of each part slot (empty: ``part<k>``).
     """
 
     name: str
@@ -128,28 +154,32 @@ class AbstractionResult:
     canonical: primitives.Cuboids
     frame: object
     source: str = ""
-    alignment: dict | None = None
-    refinement: dict | None = None
+    alignment: Alignment | None = None
+    refinement: Refinement | None = None
+    model: str = ""
+    part_names: tuple = ()
+
+    def _file_fields(self) -> dict:
+        extra = {}
+        if self.alignment is not None:
+            extra["alignment"] = self.alignment.to_dict()
+        else:  # as declared (or the defaults): say which axes were taken as up and front
+            axes = orientation.describe_rotation(self.frame.rotation)
+            extra["alignment"] = {"mode": "none", "up": axes.up, "front": axes.front}
+        if self.refinement is not None:
+            extra["refinement"] = self.refinement.to_dict()
+        return dict(name=self.name, source=self.source, frame="input", canonical_frame=self.frame,
+                    model=self.model or None, part_names=list(self.part_names) or None, **extra)
 
     def to_dict(self) -> dict:
-        d = self.cuboids.to_dict()
-        d["name"] = self.name
-        d["source"] = self.source
-        d["frame"] = "input"
-        d["canonical_frame"] = self.frame.to_dict()
-        if self.alignment is not None:
-            d["alignment"] = self.alignment
-        else:  # as declared (or the defaults): say which axes were taken as up and front
-            d["alignment"] = {"mode": "none", **orientation.describe_rotation(self.frame.rotation)}
-        if self.refinement is not None:
-            d["refinement"] = self.refinement
-        return d
+        """The JSON of ``<name>.cuboids.json`` (:mod:`primkit.model.cuboids_file`, cuboids in the input's frame)."""
+        return cuboids_document(self.cuboids, **self._file_fields())
 
     def canonical_shape(self, shape):
         """The prepared ``shape`` in the frame of ``canonical`` (turned when ``align`` chose an orientation)."""
         if self.alignment is None:
             return shape
-        return orientation.rotate_prepared(shape, np.asarray(self.alignment["rotation"], float))
+        return orientation.rotate_prepared(shape, np.asarray(self.alignment.rotation, float))
 
     def save(self, folder, *, overwrite: bool = False, mesh_format: str = ".ply") -> tuple[Path, Path]:
         """Write ``<name>.cuboids.json`` and ``<name>.cuboids<mesh_format>`` into ``folder``."""
@@ -162,13 +192,17 @@ class AbstractionResult:
         v, f, part = self.cuboids.to_mesh()
         colors = part_colors(self.cuboids.count)[part] if len(f) else None  # no part present: an empty mesh
         io.write_mesh(mesh_path, v, f, face_colors=colors, overwrite=overwrite)
-        with io.atomic_output(json_path, overwrite=overwrite) as tmp:
-            Path(tmp).write_text(json.dumps(self.to_dict(), indent=1))
+        self.save_json(json_path, overwrite=overwrite)
         return json_path, mesh_path
+
+    def save_json(self, path, *, overwrite: bool = False) -> Path:
+        """Write ``path``, a ``<name>.cuboids.json`` alone (:func:`primkit.model.cuboids_file.write_cuboids_file`)."""
+        return write_cuboids_file(path, self.cuboids, overwrite=overwrite, **self._file_fields())
 
 
 class Abstractor:
-    """A trained abstractor: the network and its model-file metadata.
+    """A trained model, loaded once: the network, its part names and its model-file metadata;
+    :meth:`predict` turns prepared shapes into :class:`AbstractionResult` values.
 
     Parameters
     ----------
@@ -176,18 +210,20 @@ class Abstractor:
     metadata : dict
     """
 
-    def __init__(self, network, metadata: dict, device: str | None = None):
+    def __init__(self, network, metadata: dict, device: str | None = None, *, model: str = ""):
         import torch
 
         self.device = device or ("cuda" if torch.cuda.is_available() else "cpu")
         self.network = network.to(self.device).eval()
         self.metadata = metadata
+        #: the model as given to :meth:`load` (a bundled name or a path), recorded in the results
+        self.model = str(model)
 
     @classmethod
     def load(cls, path, device: str | None = None) -> "Abstractor":
         """Load a model file written by ``primkit train``, or a bundled model by name (``"chair"``)."""
         net, meta = load_network(resolve_model(path))
-        return cls(net, meta, device)
+        return cls(net, meta, device, model=str(path))
 
     @property
     def parts(self) -> int:
@@ -200,7 +236,7 @@ class Abstractor:
     @property
     def part_names(self) -> list[str]:
         names = self.metadata.get("part_names")
-        return list(names) if names else [f"part{k}" for k in range(self.parts)]
+        return list(names) if names else default_part_names(self.parts)
 
     @property
     def hold_out_every(self) -> int:
@@ -236,8 +272,10 @@ class Abstractor:
         return {k: np.concatenate(v) for k, v in out.items()}
 
     def _cuboids(self, raw: dict, i: int, existence_threshold: float) -> primitives.Cuboids:
+        # max_half_extent * sigmoid(x) is exactly 0 in float32 below x of about -104 (a part driven to
+        # no size, as adaptation can): floored so that a Cuboids can hold it; drop_unsized_parts drops it
         return primitives.Cuboids(
-            raw["half_extents"][i], raw["quaternions"][i], raw["translations"][i],
+            np.maximum(raw["half_extents"][i], 1e-12), raw["quaternions"][i], raw["translations"][i],
             raw["existence"][i] > existence_threshold, probabilities=raw["existence"][i],
         )
 
@@ -270,11 +308,11 @@ class Abstractor:
                 pick = rng.choice(len(s.points), min(points, len(s.points)), replace=False)
                 scored.extend([replace(s, points=s.points[pick])] * len(candidates))
             out[start : start + len(block)] = fit_losses(cubs, scored, points=0, samples_per_cuboid=samples_per_cuboid,
-                                                         )["total"].reshape(len(block), len(candidates))
+                                                         ).total.reshape(len(block), len(candidates))
         return out
 
     def orient(self, shapes, mode: str = "auto", existence_threshold: float = 0.5, *, up_margin: float | None = None,
-               chunk: int = 16, vote_shapes: int = 24):
+               chunk: int = 16, vote_shapes: int = 24) -> tuple[list, list[Alignment]]:
         """Shapes turned into the orientation ``mode`` finds (:data:`primkit.model.orientation.ALIGN_MODES`).
 
         Each candidate orientation is predicted and scored with the fit losses
@@ -290,7 +328,8 @@ class Abstractor:
         collection's up axis on every shape left one in ten Princeton chairs and three in ten
         tables on their side). It costs 24 candidates a shape, as ``"any"`` does.
 
-        Returns ``(turned shapes, reports)``; a report gives the ``mode``, the chosen ``rotation``
+        Returns ``(turned shapes, reports)``; a report (:class:`~primkit.model.orientation.Alignment`)
+        gives the ``mode``, the chosen ``rotation``
         of the canonical frame, the input axes taken as ``up`` and ``front``, the loss of the
         chosen orientation and of the shape as given, and how the up axis was decided.
         """
@@ -334,14 +373,9 @@ class Abstractor:
         for i, s in enumerate(shapes):
             chosen = orientation.rotate_prepared(s, rotations[choice[i]])
             turned_out.append(chosen)
-            reports.append({
-                "mode": mode,
-                "rotation": rotations[choice[i]].tolist(),
-                **orientation.describe_rotation(chosen.frame.rotation),
-                "up_decided_by": up_decided[i],
-                "loss": loss[i],
-                "loss_as_given": as_given[i],
-            })
+            axes = orientation.describe_rotation(chosen.frame.rotation)
+            reports.append(Alignment(mode, rotations[choice[i]].copy(), axes.up, axes.front, up_decided[i], loss[i],
+                                     as_given[i]))
         return turned_out, reports
 
     def predict(
@@ -394,16 +428,16 @@ class Abstractor:
         if refine:
             refined = []
             for i in range(0, len(shapes), batch_size):
-                part, losses = refine_cuboids(cubs[i : i + batch_size], shapes[i : i + batch_size], refine, seed=seed)
-                refined.extend(part)
-                for j in range(len(part)):
-                    refinements[i + j] = {"steps": int(refine), "loss_before": float(losses["before"][j]),
-                                          "loss_after": float(losses["after"][j])}
+                done = refine_cuboids(cubs[i : i + batch_size], shapes[i : i + batch_size], refine, seed=seed)
+                refined.extend(done.cuboids)
+                for j in range(len(done.cuboids)):
+                    refinements[i + j] = Refinement(int(refine), float(done.loss_before[j]), float(done.loss_after[j]))
             cubs = refined
             if min_extent is not None:
                 cubs = [drop_unsized_parts(c, s.points, min_extent) for c, s in zip(cubs, shapes)]
         results = []
         for s, cub, al, rf in zip(shapes, cubs, alignments, refinements):
             back = np.linalg.inv(s.frame.matrix)
-            results.append(AbstractionResult(s.name, cub.transformed(back), cub, s.frame, s.source, al, rf))
+            results.append(AbstractionResult(s.name, cub.transformed(back), cub, s.frame, s.source, al, rf,
+                                             model=self.model, part_names=tuple(self.part_names)))
         return results

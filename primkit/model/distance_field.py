@@ -24,10 +24,10 @@ import torch
 
 from ._compiled import kernels
 
-__all__ = ["lookup_distance_sq", "lookup_distance"]
+__all__ = ["lookup_distance_sq_torch", "lookup_distance_torch"]
 
 
-def lookup_distance_sq(closest: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
+def lookup_distance_sq_torch(closest: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
     """Squared distance to the surface at arbitrary points, differentiable in ``points``.
 
     Parameters
@@ -114,6 +114,6 @@ def _winners(planar, points, res):
         return torch.gather(planar, 2, best_lin[:, None, :].expand(batch, 3, n))  # (B, 3, n)
 
 
-def lookup_distance(closest: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
-    """Distance (not squared) to the surface; see :func:`lookup_distance_sq`. Returns (B, n)."""
-    return lookup_distance_sq(closest, points).clamp_min(1e-20).sqrt()
+def lookup_distance_torch(closest: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
+    """Distance (not squared) to the surface; see :func:`lookup_distance_sq_torch`. Returns (B, n)."""
+    return lookup_distance_sq_torch(closest, points).clamp_min(1e-20).sqrt()

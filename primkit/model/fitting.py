@@ -16,14 +16,47 @@ Inputs and outputs are NumPy (:class:`primkit.primitives.Cuboids`); torch stays 
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
 
 from .losses import coverage_loss, surface_consistency
 
-__all__ = ["fit_losses", "refine"]
+__all__ = ["FitLosses", "Refined", "fit_losses", "refine"]
+
+
+@dataclass(frozen=True, eq=False)
+class FitLosses:
+    """The losses of :func:`fit_losses`, one value per shape.
+
+    Attributes
+    ----------
+    coverage, consistency : (n,) float
+    total : (n,) float
+        ``coverage + consistency``.
+    """
+
+    coverage: np.ndarray
+    consistency: np.ndarray
+    total: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class Refined:
+    """What :func:`refine` returns.
+
+    Attributes
+    ----------
+    cuboids : list of primitives.Cuboids
+        Same part slots and existence as given; absent parts unchanged.
+    loss_before, loss_after : (n,) float
+        Total losses (:attr:`FitLosses.total`) of the given and of the refined cuboids.
+    """
+
+    cuboids: list
+    loss_before: np.ndarray
+    loss_after: np.ndarray
 
 
 def _stack(cuboids, shapes, points: int, generator: torch.Generator):
@@ -51,7 +84,7 @@ def _losses(z, q, t, present, closest, pts, samples_per_cuboid, generator):
     return cov, cons
 
 
-def fit_losses(cuboids, shapes, *, samples_per_cuboid: int = 300, points: int = 4000, seed: int = 0) -> dict:
+def fit_losses(cuboids, shapes, *, samples_per_cuboid: int = 300, points: int = 4000, seed: int = 0) -> FitLosses:
     """Coverage and consistency losses of cuboids on shapes (canonical frame, present parts only).
 
     Parameters
@@ -65,14 +98,14 @@ def fit_losses(cuboids, shapes, *, samples_per_cuboid: int = 300, points: int = 
 
     Returns
     -------
-    dict of ``(n,) float`` arrays: ``coverage``, ``consistency`` and ``total`` (their sum).
+    FitLosses: ``(n,) float`` arrays ``coverage``, ``consistency`` and ``total`` (their sum).
     """
     g = torch.Generator().manual_seed(seed)
     with torch.no_grad():
         z, q, t, present, closest, pts = _stack(cuboids, shapes, points, g)
         cov, cons = _losses(z, q, t, present, closest, pts, samples_per_cuboid, g)
     cov, cons = cov.double().numpy(), cons.double().numpy()
-    return {"coverage": cov, "consistency": cons, "total": cov + cons}
+    return FitLosses(cov, cons, cov + cons)
 
 
 def refine(
@@ -85,7 +118,7 @@ def refine(
     points: int = 1000,
     seed: int = 0,
     device: str = "cpu",
-) -> tuple[list, dict]:
+) -> Refined:
     """Refine each shape's cuboids by gradient descent on its own coverage + consistency losses.
 
     Parameters
@@ -102,16 +135,14 @@ def refine(
 
     Returns
     -------
-    refined : list of primitives.Cuboids
-        Same part slots and existence; absent parts unchanged.
-    losses : dict
-        ``before`` and ``after``: ``(n,) float`` total losses of :func:`fit_losses`.
+    Refined: the refined cuboids (same part slots and existence; absent parts unchanged) and the
+    total losses of :func:`fit_losses` before and after.
     """
     cuboids = list(cuboids)
     shapes = list(shapes)
-    before = fit_losses(cuboids, shapes, seed=seed)["total"]
+    before = fit_losses(cuboids, shapes, seed=seed).total
     if steps <= 0 or not cuboids:
-        return cuboids, {"before": before, "after": before}
+        return Refined(cuboids, before, before)
     g = torch.Generator().manual_seed(seed)
     z, q, t, present, closest, all_pts = _stack(cuboids, shapes, 0, g)
     log_z = torch.log(z.clamp_min(1e-4)).to(device).requires_grad_(True)
@@ -143,5 +174,5 @@ def refine(
             quaternions=np.where(keep[:, None], c.quaternions, q_new[i]),
             translations=np.where(keep[:, None], c.translations, t_new[i]),
         ))
-    after = fit_losses(refined, shapes, seed=seed)["total"]
-    return refined, {"before": before, "after": after}
+    after = fit_losses(refined, shapes, seed=seed).total
+    return Refined(refined, before, after)

@@ -29,8 +29,8 @@ import torch
 import torch.nn.functional as F
 
 from ._compiled import kernels
-from .distance_field import lookup_distance_sq
-from ..primitives import (cuboid_distance_sq_torch, quaternion_to_matrix_torch, sample_surface_torch,
+from .distance_field import lookup_distance_sq_torch
+from ..primitives import (cuboid_distance_sq_torch, quaternion_to_matrix_torch, sample_cuboid_surfaces_torch,
                           surface_coefficients_torch, surface_samples_from_coefficients_torch)
 
 __all__ = [
@@ -202,7 +202,7 @@ def consistency_loss(closest, samples, weights, present) -> torch.Tensor:
     closest : (B, R, R, R, 3) tensor
         Each shape's closest-point grid.
     samples : (B, m, k, 3) tensor
-        Points on each cuboid's surface (:func:`primkit.primitives.sample_surface_torch`).
+        Points on each cuboid's surface (:func:`primkit.primitives.sample_cuboid_surfaces_torch`).
     weights : (B, m, k) tensor
         Their importance weights (face areas).
     present : (B, m) tensor of 0/1
@@ -218,7 +218,7 @@ def consistency_per_part(closest, samples, weights) -> torch.Tensor:
     """(B, m) area-weighted mean squared distance of each cuboid's surface to the shape, present
     or not (:func:`consistency_loss` sums the present ones)."""
     batch, m, k, _ = samples.shape
-    d2 = lookup_distance_sq(closest, samples.reshape(batch, m * k, 3)).reshape(batch, m, k)
+    d2 = lookup_distance_sq_torch(closest, samples.reshape(batch, m * k, 3)).reshape(batch, m, k)
     return _weighted_part_means(d2, weights)
 
 
@@ -226,8 +226,8 @@ def surface_consistency(closest, half_extents, quaternions, translations, sample
                         generator: torch.Generator | None = None) -> torch.Tensor:
     """(B, m) :func:`consistency_per_part` of fresh surface samples of every cuboid, present or not.
 
-    The samples' face coefficients come from ``generator`` as :func:`sample_surface_torch` draws
-    them, so this is ``consistency_per_part(closest, *sample_surface_torch(...))``. On the CPU the
+    The samples' face coefficients come from ``generator`` as :func:`sample_cuboid_surfaces_torch` draws
+    them, so this is ``consistency_per_part(closest, *sample_cuboid_surfaces_torch(...))``. On the CPU the
     samples, their lookup and the gradient are one compiled pass per part
     (:mod:`primkit.model._field_kernels`: the same sample points and winning cells, the gradient in
     closed form; the weighted sums in another order, so values agree to float rounding, 2e-6
@@ -337,7 +337,7 @@ def shape_losses(
     """
     z, q, t = prediction.half_extents, prediction.quaternions, prediction.translations
     if weights.symmetry:  # the symmetry term reads the samples themselves
-        samples, w = sample_surface_torch(z, q, t, samples_per_cuboid, generator=generator)
+        samples, w = sample_cuboid_surfaces_torch(z, q, t, samples_per_cuboid, generator=generator)
         per_part = consistency_per_part(closest, samples, w)
     else:
         per_part = surface_consistency(closest, z, q, t, samples_per_cuboid, generator)

@@ -62,7 +62,7 @@ __all__ = [
     "MAX_DEPTH",
     "ModelFileError",
     "check_tensors",
-    "load_model",
+    "load_model_file",
     "read_header",
     "read_metadata",
     "save_model",
@@ -287,7 +287,7 @@ def read_metadata(path) -> dict:
         return _parse_metadata(path, f.metadata())
 
 
-def load_model(path, map_location="cpu") -> tuple[dict[str, Tensor], dict]:
+def load_model_file(path, map_location="cpu") -> tuple[dict[str, Tensor], dict]:
     """Read the model file ``path``: ``(state_dict, metadata)``.
 
     map_location : device for the tensors (``"cpu"``, ``"cuda:0"``, a ``torch.device``).
@@ -313,7 +313,7 @@ def update_metadata(path, output, changes: dict, *, overwrite: bool = False) -> 
     from ..io import check_outputs
 
     check_outputs([output], inputs=[path], overwrite=overwrite)
-    weights, metadata = load_model(path)
+    weights, metadata = load_model_file(path)
     metadata = {**metadata, **changes}
     metadata.pop("created", None)
     return save_model(output, weights, metadata, overwrite=overwrite)

@@ -75,7 +75,7 @@ import torch
 from torch import Tensor, nn
 from torch.nn import functional as F
 
-from .modelfile import ModelFileError, check_tensors, load_model, read_header
+from .modelfile import ModelFileError, check_tensors, load_model_file, read_header
 
 #: Tensors of a model file that are not the network's: the part labeller's
 #: (:mod:`primkit.segmentation.labeller`, which reads and checks them itself).
@@ -84,13 +84,13 @@ AUXILIARY_PREFIXES = ("labeller.",)
 __all__ = [
     "INITIAL_EXISTENCE",
     "INITIAL_HALF_EXTENT",
-    "MAX_PARTS",
-    "MAX_GRID",
+    "MAX_NETWORK_PARTS",
+    "MAX_NETWORK_GRID",
     "MAX_FC_WIDTH",
     "AbstractionNet",
     "NetworkConfig",
     "PrimitivePrediction",
-    "state_shapes",
+    "abstraction_net_state_shapes",
     "read_network",
     "load_network",
 ]
@@ -109,8 +109,8 @@ _ENCODERS = ("released", "paper")
 
 #: Bounds of the architecture's fields: far above any use (the paper: 20 parts, 32^3, 100 units),
 #: far below what would exhaust memory (a 256^3 grid of batch 32 is 2 GB of input alone).
-MAX_PARTS = 1024
-MAX_GRID = 256
+MAX_NETWORK_PARTS = 1024
+MAX_NETWORK_GRID = 256
 MAX_FC_WIDTH = 8192
 
 
@@ -133,16 +133,16 @@ class NetworkConfig:
     max_half_extent: float = 0.5
 
     def __post_init__(self) -> None:
-        if not isinstance(self.parts, int) or isinstance(self.parts, bool) or not 1 <= self.parts <= MAX_PARTS:
-            raise ValueError(f"`parts` must be an int from 1 to {MAX_PARTS}, got {self.parts!r}")
+        if not isinstance(self.parts, int) or isinstance(self.parts, bool) or not 1 <= self.parts <= MAX_NETWORK_PARTS:
+            raise ValueError(f"`parts` must be an int from 1 to {MAX_NETWORK_PARTS}, got {self.parts!r}")
         grid = self.grid
         if (
             not isinstance(grid, int)
             or isinstance(grid, bool)
-            or not 4 <= grid <= MAX_GRID
+            or not 4 <= grid <= MAX_NETWORK_GRID
             or grid & (grid - 1) != 0
         ):
-            raise ValueError(f"`grid` must be a power of two from 4 to {MAX_GRID} (e.g. 32 or 64), got {grid!r}")
+            raise ValueError(f"`grid` must be a power of two from 4 to {MAX_NETWORK_GRID} (e.g. 32 or 64), got {grid!r}")
         if not isinstance(self.encoder, str) or self.encoder not in _ENCODERS:
             raise ValueError(f"`encoder` must be one of {_ENCODERS}, got {self.encoder!r}")
         if not isinstance(self.fc_width, int) or isinstance(self.fc_width, bool) or not 1 <= self.fc_width <= MAX_FC_WIDTH:
@@ -388,7 +388,7 @@ class AbstractionNet(nn.Module):
         )
 
 
-def state_shapes(config: NetworkConfig) -> dict:
+def abstraction_net_state_shapes(config: NetworkConfig) -> dict[str, tuple[tuple[int, ...], torch.dtype]]:
     """``name -> (shape, dtype)`` of the state dict of ``AbstractionNet(config)``, from a network
     built on torch's ``meta`` device (no memory is allocated, whatever the config)."""
     with torch.device("meta"):
@@ -418,7 +418,7 @@ def read_network(path) -> tuple[NetworkConfig, dict]:
         raise ModelFileError(path, f"part_names must be a list of {config.parts} strings (one per part slot)")
     tensors = {k: v for k, v in tensors.items() if not k.startswith(AUXILIARY_PREFIXES)}  # a labeller's, checked there
     model = {k[len("model."):]: v for k, v in tensors.items() if k.startswith("model.")}
-    check_tensors(path, state_shapes(config), model or tensors)  # a checkpoint's optimizer and rng tensors aside
+    check_tensors(path, abstraction_net_state_shapes(config), model or tensors)  # a checkpoint's optimizer and rng tensors aside
     return config, meta
 
 
@@ -426,7 +426,7 @@ def load_network(path, map_location="cpu") -> tuple[AbstractionNet, dict]:
     """Network and metadata from a model file (or a checkpoint) written by :func:`primkit.model.training.train`,
     validated (:func:`read_network`) before anything is allocated."""
     config, _ = read_network(path)
-    weights, meta = load_model(path, map_location=map_location)
+    weights, meta = load_model_file(path, map_location=map_location)
     net = AbstractionNet(config)
     weights = {k: v for k, v in weights.items() if not k.startswith(AUXILIARY_PREFIXES)}
     state = {k[len("model."):]: v for k, v in weights.items() if k.startswith("model.")} or weights

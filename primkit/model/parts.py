@@ -14,10 +14,10 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["default_names", "resolve_parts", "names_from_labels", "label_codes", "named_labels"]
+__all__ = ["default_part_names", "resolve_parts", "names_from_labels", "label_codes", "named_labels"]
 
 
-def default_names(count: int) -> list[str]:
+def default_part_names(count: int) -> list[str]:
     """``["part0", "part1", ...]``: the names of unnamed indices."""
     return [f"part{k}" for k in range(count)]
 
@@ -100,7 +100,7 @@ def names_from_labels(assignments, labels, weights, label_names, count: int):
             raise ValueError(f"assignments, labels and weights differ in length ({len(idx)}, {len(lab)}, {len(w)})")
         ok = (lab >= 0) & (lab < len(label_names)) & (idx >= 0) & (idx < count)
         np.add.at(table, (idx[ok], lab[ok]), w[ok])
-    names = default_names(count)
+    names = default_part_names(count)
     for k in range(count):
         if table[k].sum() > 0:
             names[k] = label_names[int(np.argmax(table[k]))]

@@ -14,7 +14,10 @@ sample) and a parsimony of 4e-5 per part. Chosen on PartNet validation chairs
 (``scripts/partnet_chairs.py``): REINFORCE kept the same six parts on nearly every chair and never
 used one for arms; the local gradient lets parts come and go with the shape, and 4e-5 keeps about
 nine of the twenty on a chair (2e-5: about twelve; 8e-5: about seven, and arms are found less often:
-F1 0.68 against 0.85). About 85 minutes per category on a 2-core CPU. The animal model keeps its short REINFORCE schedule.
+F1 0.68 against 0.85). About 85 minutes per category on a 2-core CPU.
+There is no animal preset: the four-legged-animal model (480 procedural animals, a short
+REINFORCE schedule of 2k + 3k iterations) was never trained on this schedule and was dropped
+(issue 32; docs/results.md).
 """
 
 from __future__ import annotations
@@ -97,15 +100,6 @@ PRESETS: dict[str, Preset] = {
     "chair": _shapenet("chair", "03001627", "chair", 50000),
     "table": _shapenet("table", "04379243", "table", 50000),
     "airplane": _shapenet("airplane", "02691156", "airplane", 50000),
-    "animal": Preset(
-        name="animal",
-        category="four-legged animal",
-        data="480 procedural four-legged animals: primkit generate animal -n 480 --seed 0 -o animals",
-        command="primkit generate animal -n 480 --seed 0 -o animals && primkit train animals --preset animal -o animal.safetensors",
-        terms=PROCEDURAL_TERMS,
-        hold_out_every=10,
-        config=_schedule(5000),
-    ),
 }
 
 

@@ -26,6 +26,8 @@ import sys
 import functools
 import threading
 import time
+import logging
+import warnings
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
@@ -37,6 +39,8 @@ from . import modelfile
 from .losses import (LossWeights, MovingBaseline, SlotPlacement, local_existence_surrogate, reinforce_surrogate,
                      shape_losses)
 from .network import AbstractionNet, NetworkConfig
+
+_logger = logging.getLogger(__name__)
 
 __all__ = ["TrainConfig", "ShapeTensors", "PreparedDataset", "TrainResult", "train", "isolated_torch_state",
            "training_outputs", "check_training_outputs", "check_checkpoint", "claim_output"]
@@ -96,7 +100,7 @@ class ShapeTensors:
     (1 GiB, about 1,800 shapes of 10,000 samples at 32^3; ``PRIMKIT_STACK_LIMIT_MIB``, or
     ``stack_limit``) is decoded once into the tensors below, the fastest batches. A larger one
     is *streamed*: nothing is loaded, each batch is gathered from the cache's memory-mapped rows
-    and decoded (:meth:`primkit.data.PreparedCollection.gather`, :func:`decode_closest`; a few
+    and decoded (:meth:`primkit.data.PreparedCollection.gather`, :func:`decode_closest_torch`; a few
     ms a batch), so that training starts at once and holds only its batch whatever the
     collection's size. A list of :class:`primkit.data.PreparedShape` is stacked. Every way gives
     the same batches, bit for bit, for the same shapes and generator.
@@ -106,7 +110,7 @@ class ShapeTensors:
     occupancy : (S, R, R, R) uint8
     closest : (S, R, R, R, 3) float32
         Stored coordinate-planar (a ``(S, 3, R, R, R)`` tensor seen through a permutation), the
-        layout :func:`primkit.model.distance_field.lookup_distance_sq` reads without a copy.
+        layout :func:`primkit.model.distance_field.lookup_distance_sq_torch` reads without a copy.
     points : (S, n, 3) float32
     point_labels : (S, n) int32
         These four when stacked (``streamed`` False).
@@ -155,7 +159,7 @@ class ShapeTensors:
             idx = np.arange(lo, min(count, lo + chunk))
             occ, codes, near, pts = coll.gather(idx, np.broadcast_to(every, (len(idx), n)))
             self.occupancy[lo:lo + len(idx)] = torch.from_numpy(occ.view(np.uint8))
-            closest = torch.from_numpy(codes) if near is None else decode_closest(codes, near, res)
+            closest = torch.from_numpy(codes) if near is None else decode_closest_torch(codes, near, res)
             planar[lo:lo + len(idx)] = closest.reshape(len(idx), 3, res, res, res)
             self.points[lo:lo + len(idx)] = torch.from_numpy(pts)
         self.closest = planar.permute(0, 2, 3, 4, 1)
@@ -180,7 +184,7 @@ class ShapeTensors:
             occ, codes, near, pts = self._collection.gather(index.numpy(), pick.numpy())
             occ = torch.from_numpy(occ).unsqueeze(1).to(device=device, dtype=torch.float32)
             res = self._resolution
-            closest = torch.from_numpy(codes) if near is None else decode_closest(codes, near, res)
+            closest = torch.from_numpy(codes) if near is None else decode_closest_torch(codes, near, res)
             closest = closest.reshape(len(index), 3, res, res, res).to(device)
             return occ, closest.permute(0, 2, 3, 4, 1), torch.from_numpy(pts).to(device)
         occ = self.occupancy.index_select(0, index).unsqueeze(1).to(device=device, dtype=torch.float32)
@@ -192,7 +196,7 @@ class ShapeTensors:
         return occ, closest, pts
 
 
-def decode_closest(codes, near, resolution: int) -> torch.Tensor:
+def decode_closest_torch(codes, near, resolution: int) -> torch.Tensor:
     """The torch twin of :func:`primkit.geometry.decode_closest` (planar), the same float32
     values bit for bit (the same operations in the same order; ``tests/model/test_training.py``):
     (b, 3, R^3) closest points from (b, 3, R^3) uint8 codes and (b, R^3 / 8) near bits. Measured
@@ -339,15 +343,15 @@ def _restore_optimizer(optimizer, tensors: dict, scalars: dict) -> None:
 
 def _save_checkpoint(path, net, optimizer, generator, baseline, iteration, history, config, extra) -> bool:
     """Write the checkpoint; on any failure of the writer (a full disk raises OSError or safetensors'
-    SafetensorError, the folder gone or read-only) say so on stderr and return False: the run goes
-    on, and the previous checkpoint, if any, stands (writes are atomic)."""
+    SafetensorError, the folder gone or read-only) say so (a :class:`RuntimeWarning`) and return False:
+    the run goes on, and the previous checkpoint, if any, stands (writes are atomic)."""
     try:
         _write_checkpoint(path, net, optimizer, generator, baseline, iteration, history, config, extra)
     except Exception as exc:  # noqa: BLE001 - whatever the writer raises, training must not be lost
         reason = getattr(exc, "strerror", None) or str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         kept = f"the checkpoint {path} of an earlier iteration stands" if os.path.exists(path) else "no checkpoint yet"
-        print(f"\nprimkit: warning: could not write the checkpoint {path} at iteration {iteration} "
-              f"({type(exc).__name__}: {reason}); {kept}; training goes on", file=sys.stderr)
+        warnings.warn(f"could not write the checkpoint {path} at iteration {iteration} "
+                      f"({type(exc).__name__}: {reason}); {kept}; training goes on", RuntimeWarning, stacklevel=2)
         return False
     return True
 
@@ -461,14 +465,14 @@ def check_checkpoint(path, network: NetworkConfig) -> dict:
 
 def _read_checkpoint(path, network: NetworkConfig, config: TrainConfig) -> tuple[dict, dict]:
     """The weights and ``checkpoint`` metadata of a checkpoint of ``network`` (:func:`check_checkpoint`);
-    training settings that differ from the checkpoint's are named on stderr (this run's are used)."""
+    training settings that differ from the checkpoint's are named in a warning (this run's are used)."""
     ck = check_checkpoint(path, network)
     before = ck.get("config") if isinstance(ck.get("config"), dict) else {}
     changed = [f"{k} {before[k]} -> {v}" for k, v in config.to_dict().items() if k in before and before[k] != v]
     if changed:
-        print(f"primkit: note: resuming {path} with settings that differ from its own: {', '.join(changed)}",
-              file=sys.stderr)
-    weights, _ = modelfile.load_model(path, map_location="cpu")
+        warnings.warn(f"resuming {path} with settings that differ from its own: {', '.join(changed)}", UserWarning,
+                      stacklevel=3)
+    weights, _ = modelfile.load_model_file(path, map_location="cpu")
     return weights, ck
 
 
@@ -546,7 +550,7 @@ def train(
     *,
     device: str | None = None,
     resume=None,
-    progress: bool = True,
+    progress: bool = False,
     description: dict | None = None,
     overwrite: bool = False,
     threads: int | None = None,
@@ -565,6 +569,8 @@ def train(
         Model file to write; nothing is written when None.
     device : str, optional
         ``"cuda"`` when available, else ``"cpu"``.
+    progress : bool
+        A tqdm bar over the iterations, on stderr (off by default: a library call is silent).
     description : dict, optional
         What the data is and its terms, stored in the model file (``training.data``).
     threads : int, optional
@@ -719,14 +725,14 @@ def _train(shapes, output, config, device, resume, progress, description, thread
                 if ckpt_path is not None and rank == 0 and _save_checkpoint(
                         ckpt_path, net, optimizer, generator, baseline, it + 1, history, config,
                         {"placement": placement.state_dict()}):
-                    print(f"\ninterrupted after iteration {it + 1}: checkpoint saved to {ckpt_path} (resume with --resume)", file=sys.stderr)
+                    _logger.warning("interrupted after iteration %d: checkpoint saved to %s (resume with --resume)", it + 1, ckpt_path)
                 break
             if ckpt_path is not None and rank == 0 and (it + 1) % config.checkpoint_every == 0 and it + 1 < total:
                 _save_checkpoint(ckpt_path, net, optimizer, generator, baseline, it + 1, history, config,
                                      {"placement": placement.state_dict()})
     except KeyboardInterrupt:
         interrupted = True
-        print("\ninterrupted twice: stopped without saving this iteration (the last checkpoint stands)", file=sys.stderr)
+        _logger.warning("interrupted twice: stopped without saving this iteration (the last checkpoint stands)")
     finally:
         bar.close()
         governor.close()

@@ -29,10 +29,10 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["run", "main"]
+__all__ = ["label_arrays", "main"]
 
 
-def run(points: np.ndarray, faces: np.ndarray, options: dict) -> dict:
+def label_arrays(points: np.ndarray, faces: np.ndarray, options: dict) -> dict[str, np.ndarray]:
     """Label one shape held as arrays; the arrays of ``OUT.npz`` (see the module notes)."""
     from ..viz.palette import part_colors
     from .common import label_shape
@@ -68,7 +68,7 @@ def main(argv=None) -> int:
         return 2
     try:
         with np.load(argv[0], allow_pickle=False) as given:
-            out = run(given["points"], given["faces"], json.loads(str(given["options"])))
+            out = label_arrays(given["points"], given["faces"], json.loads(str(given["options"])))
     except (ValueError, TypeError, OSError, KeyError) as exc:
         print(f"primkit segmentation: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}", file=sys.stderr)
         return 2

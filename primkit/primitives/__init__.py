@@ -47,22 +47,23 @@ torch is imported only when one of them is called.
 
 Modules: :mod:`~primkit.primitives.cuboids` (the value type), :mod:`~primkit.primitives.rotations`,
 :mod:`~primkit.primitives.distances` (points against cuboids), :mod:`~primkit.primitives.sampling`,
-:mod:`~primkit.primitives.differentiable` (the torch twins). ``primkit.primitives`` imports only
+:mod:`~primkit.primitives.differentiable` (the torch twins), :mod:`~primkit.primitives.palette` (the
+colour of each part index). ``primkit.primitives`` imports only
 :mod:`primkit.io` (to write JSON atomically).
 """
 
 from .cuboids import CORNER_SIGNS, SCHEMA_VERSION, Cuboids
-from .differentiable import (cuboid_distance_sq_torch, quaternion_to_matrix_torch, sample_surface_torch,
+from .differentiable import (cuboid_distance_sq_torch, quaternion_to_matrix_torch, sample_cuboid_surfaces_torch,
                              surface_coefficients_torch, surface_samples_from_coefficients_torch, world_to_local_torch)
-from .distances import assign_points, contains, local_to_world, point_cuboid_distance, union_distance, world_to_local
+from .distances import Assignment, assign_points, assign_points_with_distance, contains, local_to_world, point_cuboid_distance, union_distance, world_to_local
 from .rotations import matrix_to_quaternion, quaternion_to_matrix
-from .sampling import SurfaceSamples, fraction_inside_others, prune_covered, prune_covered_many, sample_surface, sample_volume, union_surface_samples
+from .sampling import CuboidSurfaceSamples, fraction_inside_others, prune_covered, prune_covered_many, sample_cuboid_surfaces, sample_volume, union_surface_samples
 
 __all__ = [
     "SCHEMA_VERSION",
     "CORNER_SIGNS",
     "Cuboids",
-    "SurfaceSamples",
+    "CuboidSurfaceSamples",
     "quaternion_to_matrix",
     "matrix_to_quaternion",
     "world_to_local",
@@ -70,17 +71,19 @@ __all__ = [
     "point_cuboid_distance",
     "union_distance",
     "contains",
-    "sample_surface",
+    "sample_cuboid_surfaces",
     "sample_volume",
     "fraction_inside_others",
     "prune_covered",
     "prune_covered_many",
     "union_surface_samples",
     "assign_points",
+    "assign_points_with_distance",
+    "Assignment",
     "quaternion_to_matrix_torch",
     "world_to_local_torch",
     "cuboid_distance_sq_torch",
-    "sample_surface_torch",
+    "sample_cuboid_surfaces_torch",
     "surface_coefficients_torch",
     "surface_samples_from_coefficients_torch",
 ]

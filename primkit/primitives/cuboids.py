@@ -20,6 +20,10 @@ __all__ = ["SCHEMA_VERSION", "CORNER_SIGNS", "Cuboids", "as_points", "check_cubo
 #: Version of the JSON layout written by :meth:`Cuboids.to_dict`.
 SCHEMA_VERSION = 1
 
+#: The newest schema :meth:`Cuboids.from_dict` reads: version 2 is a ``<name>.cuboids.json`` file
+#: (:mod:`primkit.model.cuboids_file`), whose ``parts`` are version 1's.
+_NEWEST_READ = 2
+
 
 # Corner c of the unit cube, as signs: bit 0 -> x, bit 1 -> y, bit 2 -> z.
 CORNER_SIGNS = np.array(
@@ -248,9 +252,9 @@ class Cuboids:
         version = d.get("schema_version")
         if not isinstance(version, int) or isinstance(version, bool):
             raise ValueError("cuboids data has no integer `schema_version`")
-        if version > SCHEMA_VERSION:
+        if version > _NEWEST_READ:
             raise ValueError(
-                f"cuboids schema_version {version} is newer than this primkit reads ({SCHEMA_VERSION}); "
+                f"cuboids schema_version {version} is newer than this primkit reads ({_NEWEST_READ}); "
                 "upgrade primkit"
             )
         if version < 1:

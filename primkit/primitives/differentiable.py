@@ -11,7 +11,7 @@ from .sampling import face_area_pairs, surface_layout
 if TYPE_CHECKING:  # pragma: no cover
     import torch
 
-__all__ = ["quaternion_to_matrix_torch", "world_to_local_torch", "cuboid_distance_sq_torch", "sample_surface_torch",
+__all__ = ["quaternion_to_matrix_torch", "world_to_local_torch", "cuboid_distance_sq_torch", "sample_cuboid_surfaces_torch",
            "surface_coefficients_torch", "surface_samples_from_coefficients_torch"]
 
 
@@ -103,7 +103,7 @@ def cuboid_distance_sq_torch(
 def surface_samples_from_coefficients_torch(
     half_extents: torch.Tensor, quaternions: torch.Tensor, translations: torch.Tensor, uv: torch.Tensor
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Surface points (B, m, k, 3) and weights (B, m, k) of :func:`sample_surface_torch` from given
+    """Surface points (B, m, k, 3) and weights (B, m, k) of :func:`sample_cuboid_surfaces_torch` from given
     face coefficients ``uv`` (B, m, k, 2) in [-1, 1] (:func:`surface_coefficients_torch`)."""
     import torch
 
@@ -131,7 +131,7 @@ def surface_samples_from_coefficients_torch(
     return points, weights
 
 
-def sample_surface_torch(
+def sample_cuboid_surfaces_torch(
     half_extents: torch.Tensor,
     quaternions: torch.Tensor,
     translations: torch.Tensor,
@@ -147,7 +147,7 @@ def sample_surface_torch(
     translations : (B, m, 3)
     samples_per_cuboid : int
         ``k``, a positive multiple of 6; ``k / 6`` samples per face, in the face order of the
-        module notes (as :func:`sample_surface`).
+        module notes (as :func:`sample_cuboid_surfaces`).
     generator : torch.Generator, optional
         Source of the coefficients ``u``; they are drawn on the generator's device and moved.
 
@@ -169,7 +169,7 @@ def surface_coefficients_torch(
     samples_per_cuboid: int = 150,
     generator: torch.Generator | None = None,
 ) -> torch.Tensor:
-    """The random face coefficients :func:`sample_surface_torch` places its samples by: (B, m, k, 2)
+    """The random face coefficients :func:`sample_cuboid_surfaces_torch` places its samples by: (B, m, k, 2)
     uniform in [-1, 1], drawn on the generator's device (from the same stream, so that a caller
     forming the samples its own way gets the same points), on ``half_extents``' device and dtype."""
     import torch

@@ -3,13 +3,15 @@ containment, and the co-segmentation rule (:func:`assign_points`)."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from .cuboids import Cuboids, as_points, check_cuboids
 
-__all__ = ["world_to_local", "local_to_world", "point_cuboid_distance", "union_distance", "contains", "assign_points"]
+__all__ = ["world_to_local", "local_to_world", "point_cuboid_distance", "union_distance", "contains", "assign_points",
+           "Assignment", "assign_points_with_distance"]
 
 #: points processed at once against all cuboids (bounds the (m, n, 3) temporaries)
 CHUNK = 65536
@@ -79,14 +81,30 @@ def contains(points: Any, cuboids: Cuboids, *, tol: float = 0.0) -> np.ndarray:
     return out
 
 
-def assign_points(points: Any, cuboids: Cuboids, *, return_distance: bool = False, chunk: int = 8192):
+@dataclass(frozen=True, eq=False)
+class Assignment:
+    """What :func:`assign_points_with_distance` returns.
+
+    Attributes
+    ----------
+    labels : (n,) int
+        The slot of each point's nearest present cuboid (:func:`assign_points`).
+    distance : (n,) float
+        The distance from each point to that cuboid (0 inside).
+    """
+
+    labels: np.ndarray
+    distance: np.ndarray
+
+
+def assign_points(points: Any, cuboids: Cuboids, *, chunk: int = 8192) -> np.ndarray:
     """Index (slot) of the nearest present cuboid for each point: the co-segmentation rule.
 
     Ties (several cuboids at the same distance, e.g. 0 for a point inside several) go to the
     larger volume, then to the lower index.
 
-    points : (n, 3) float  ->  (n,) int, and with ``return_distance`` also (n,) float, the
-    distance to that cuboid. Raises ValueError when no part is present.
+    points : (n, 3) float  ->  (n,) int. Raises ValueError when no part is present.
+    :func:`assign_points_with_distance` gives the distances too.
 
     Speed: the points are taken in chunks of ``chunk``; for each chunk the local coordinates in
     all present cuboids come from one ``(c, 3) @ (3, 3k)`` product, and the excess over the
@@ -95,6 +113,15 @@ def assign_points(points: Any, cuboids: Cuboids, *, return_distance: bool = Fals
     (``benchmarks/bench_segment.py``). Neither Open3D nor libigl offers point-to-oriented-box
     distances for many boxes at once; this is the closed form of the paper's distance.
     """
+    return _assign(points, cuboids, chunk, with_distance=False)[0]
+
+
+def assign_points_with_distance(points: Any, cuboids: Cuboids, *, chunk: int = 8192) -> Assignment:
+    """:func:`assign_points` and the distance from each point to its cuboid, in one pass."""
+    return Assignment(*_assign(points, cuboids, chunk, with_distance=True))
+
+
+def _assign(points, cuboids, chunk: int, *, with_distance: bool) -> tuple[np.ndarray, np.ndarray | None]:
     points = as_points(points)
     c = check_cuboids(cuboids)
     if not c.existence.any():
@@ -108,7 +135,7 @@ def assign_points(points: Any, cuboids: Cuboids, *, return_distance: bool = Fals
     offset = np.einsum("kij,ki->jk", rot, c.translations[order]).reshape(3 * k)
     extents = c.half_extents[order].T.reshape(3 * k)
     labels = np.empty(len(points), dtype=np.int64)
-    dist = np.empty(len(points)) if return_distance else None
+    dist = np.empty(len(points)) if with_distance else None
     for start in range(0, len(points), chunk):
         block = points[start : start + chunk]
         excess = block @ stacked
@@ -123,4 +150,4 @@ def assign_points(points: Any, cuboids: Cuboids, *, return_distance: bool = Fals
         labels[start : start + len(block)] = order[best]
         if dist is not None:
             dist[start : start + len(block)] = np.sqrt(np.take_along_axis(d2, best[:, None], 1)[:, 0])
-    return (labels, dist) if return_distance else labels
+    return labels, dist

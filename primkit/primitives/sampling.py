@@ -12,7 +12,7 @@ import numpy as np
 from .cuboids import Cuboids, check_cuboids
 from .distances import CHUNK, contains, local_to_world
 
-__all__ = ["SurfaceSamples", "surface_layout", "face_area_pairs", "sample_surface", "sample_volume",
+__all__ = ["CuboidSurfaceSamples", "surface_layout", "face_area_pairs", "sample_cuboid_surfaces", "sample_volume",
            "fraction_inside_others", "prune_covered", "union_surface_samples"]
 
 #: a sample within this distance of another cuboid's boundary counts as on it (canonical units)
@@ -22,7 +22,7 @@ _NUDGE = 1e-8
 
 
 @dataclass(frozen=True, eq=False)
-class SurfaceSamples:
+class CuboidSurfaceSamples:
     """Points on the surfaces of cuboids, with importance weights (see the module notes).
 
     Attributes
@@ -64,7 +64,7 @@ def face_area_pairs() -> np.ndarray:
     return np.array([[1, 2], [2, 0], [0, 1]])
 
 
-def _surface_from_uv(cuboids: Cuboids, uv: np.ndarray) -> SurfaceSamples:
+def _surface_from_uv(cuboids: Cuboids, uv: np.ndarray) -> CuboidSurfaceSamples:
     """Surface samples from given coefficients ``uv`` (m, k, 2) in [-1, 1]."""
     m, k = uv.shape[:2]
     face, fixed, spread = surface_layout(k)
@@ -75,10 +75,10 @@ def _surface_from_uv(cuboids: Cuboids, uv: np.ndarray) -> SurfaceSamples:
     pairs = face_area_pairs()
     areas = 4.0 * z[:, pairs[:, 0]] * z[:, pairs[:, 1]]  # (m, 3)
     weights = areas[:, face // 2] / (k // 6)
-    return SurfaceSamples(points, weights, np.broadcast_to(face, (m, k)).copy())
+    return CuboidSurfaceSamples(points, weights, np.broadcast_to(face, (m, k)).copy())
 
 
-def sample_surface(cuboids: Cuboids, samples_per_cuboid: int = 150, seed: Any = None) -> SurfaceSamples:
+def sample_cuboid_surfaces(cuboids: Cuboids, samples_per_cuboid: int = 150, seed: Any = None) -> CuboidSurfaceSamples:
     """Reparametrised surface samples of every cuboid (absent ones included; the caller masks).
 
     Parameters
@@ -90,7 +90,7 @@ def sample_surface(cuboids: Cuboids, samples_per_cuboid: int = 150, seed: Any = 
 
     Returns
     -------
-    SurfaceSamples
+    CuboidSurfaceSamples
         ``points`` (m, k, 3), ``weights`` (m, k) summing to each surface area, ``face`` (m, k).
     """
     c = check_cuboids(cuboids)

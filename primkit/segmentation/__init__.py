@@ -14,8 +14,8 @@ given (Tulsiani et al. 2017, Sec. 5.1): every surface element goes to its neares
 * :mod:`.segmenter`: collections of files (:class:`Segmenter`) and one shape (:func:`segment`);
 * :mod:`.graphcut`: the graph-cut labelling (alpha-expansion over faces, voxels or points).
 
-May import: ``primkit.model`` (abstraction), ``primkit.data``, ``primkit.viz`` (the palette),
-``primkit.primitives``, ``primkit.geometry``, ``primkit.io``. Inside: segmenter -> voxels, points -> meshes
+May import: ``primkit.viz``, ``primkit.model`` (abstraction), ``primkit.data``, ``primkit.primitives``
+(with the palette), ``primkit.geometry``, ``primkit.io``. Inside: segmenter -> voxels, points -> meshes
 -> graphcut.
 """
 

@@ -17,7 +17,9 @@ once by minimising a Potts energy over a graph of the shape:
   ``eta = 0.2`` of their angle (a cut along a concave crease is cheap, along a convex one or a flat
   panel dear: the "minima rule" weights common in mesh segmentation).
 
-``smoothness`` (dimensionless) trades the two; 0 gives back the nearest rule.
+``smoothness`` (dimensionless) trades the two; 0 gives back the nearest rule. The cut moves
+boundaries but does not remove parts: a present part it leaves without any element gets its
+nearest-rule elements back (:func:`keep_parts`).
 
 The minimiser is alpha-expansion (Boykov, Veksler & Zabih 2001) started from the nearest
 labelling; every move is one s-t minimum cut, solved with :func:`scipy.sparse.csgraph.maximum_flow`.
@@ -54,6 +56,7 @@ __all__ = [
     "point_graph",
     "cuboid_costs",
     "graphcut_labels",
+    "keep_parts",
 ]
 
 #: How elements get their part index: ``"nearest"`` (each element alone, the paper's rule) or
@@ -341,12 +344,38 @@ def cuboid_costs(samples, cuboids: primitives.Cuboids, diag: float) -> np.ndarra
     return d2.reshape(n, s, -1).mean(axis=1) / max(diag, 1e-300) ** 2
 
 
-def graphcut_labels(samples, edges, contact, mass, cuboids: primitives.Cuboids, init, smoothness: float) -> np.ndarray:
+def keep_parts(labels, init) -> np.ndarray:
+    """``labels`` with every part that ``init`` gives elements to and ``labels`` gives none
+    getting back its ``init`` elements: the cut moves boundaries, it does not remove parts.
+
+    labels, init : (n,) int part indices  ->  (n,) int.
+
+    Why: existence is the abstraction's decision (and a part that covers nothing is already not
+    present, :mod:`primkit.primitives`); a small part (a network's arm is often a cuboid a few
+    hundredths wide, 25-190 of a PartNet chair's ~15,000 voxels under the nearest rule) costs the
+    cut more in boundary than its data term saves, so the cut hands it to a neighbour and the part
+    is present without any element. On the PartNet validation chairs that took 5 of 70 detected
+    armchairs' arms (arm F1 0.859 -> 0.828) for +0.018 mean IoU; with this rule the F1 is the
+    nearest rule's and the IoU gain +0.014 (docs/surface-labels.md).
+    """
+    labels = np.asarray(labels, np.int64).copy()
+    init = np.asarray(init, np.int64)
+    lost = np.setdiff1d(np.unique(init), np.unique(labels))
+    if len(lost):
+        back = np.isin(init, lost)
+        labels[back] = init[back]
+    return labels
+
+
+def graphcut_labels(samples, edges, contact, mass, cuboids: primitives.Cuboids, init, smoothness: float,
+                    *, keep: bool = True) -> np.ndarray:
     """Part index of each element by alpha-expansion over its graph.
 
     samples : (n, s, 3) float, points of each element in the cuboids' frame; edges, contact,
     mass : from :func:`mesh_graph`, :func:`voxel_graph` or :func:`point_graph`; init : (n,) int,
     the nearest labelling (part indices)  ->  (n,) int part indices (present parts only).
+    ``keep``: a part the cut leaves without elements gets its nearest-rule elements back
+    (:func:`keep_parts`).
     """
     present = cuboids.present
     init = np.asarray(init, np.int64)
@@ -357,6 +386,6 @@ def graphcut_labels(samples, edges, contact, mass, cuboids: primitives.Cuboids, 
     unary = cuboid_costs(samples, cuboids, diag) * np.asarray(mass, float)[:, None]
     slot = np.full(cuboids.count, -1, np.int64)
     slot[present] = np.arange(len(present))
-    labels = alpha_expansion(unary, edges, smoothness * np.asarray(contact, float), init=slot[init])
-    return present[labels]
+    labels = present[alpha_expansion(unary, edges, smoothness * np.asarray(contact, float), init=slot[init])]
+    return keep_parts(labels, init) if keep else labels
 

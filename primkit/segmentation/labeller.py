@@ -770,12 +770,12 @@ def write_labeller(model_path, output, labeller: Labeller, changes: dict | None 
     labeller it had) and ``changes`` merged into its metadata; ``model_path`` is never modified."""
     import torch
 
-    from ..model.modelfile import load_model, save_model
+    from ..model.modelfile import load_model_file, save_model
 
     from ..io import check_outputs
 
     check_outputs([output], inputs=[model_path], overwrite=overwrite)
-    weights, metadata = load_model(model_path)
+    weights, metadata = load_model_file(model_path)
     weights = {k: v for k, v in weights.items() if not k.startswith(LABELLER_PREFIX)}
     arrays, description = labeller.to_tensors()
     weights.update({k: torch.from_numpy(np.array(v)) for k, v in arrays.items()})

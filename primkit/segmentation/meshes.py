@@ -39,7 +39,7 @@ import numpy as np
 
 from .. import io, primitives
 from ..model import parts
-from ..viz.palette import part_colors
+from ..primitives.palette import part_colors
 from . import graphcut
 
 __all__ = [
@@ -225,7 +225,7 @@ def segment_mesh(vertices, faces, cuboids: primitives.Cuboids, *, name: str = "s
     (:data:`primkit.segmentation.graphcut.DEFAULT_LABELLING`)."""
     vertices = np.asarray(vertices, float)
     faces = np.asarray(faces, np.int64)
-    names = list(part_names) if part_names is not None else parts.default_names(cuboids.count)
+    names = list(part_names) if part_names is not None else parts.default_part_names(cuboids.count)
     how = graphcut.as_labelling(labelling)
     labels = (surface_face_labels(vertices, faces, cuboids, smoothness=how.smoothness) if how.method_for("mesh") == "graphcut"
               else face_labels(vertices, faces, cuboids))

@@ -10,7 +10,7 @@ import numpy as np
 
 from .. import io, primitives
 from ..model import parts
-from ..viz.palette import part_colors
+from ..primitives.palette import part_colors
 from . import graphcut
 from .meshes import point_labels, semantic_codes
 
@@ -77,7 +77,7 @@ def segment_points(cloud: io.PointCloud, cuboids: primitives.Cuboids, *, name: s
     ``labelling``: ``"nearest"`` (each point to its nearest cuboid), ``"graphcut"`` or None (the
     default: a graph cut over the points' 8-NN graph) or a
     :class:`primkit.segmentation.graphcut.Labelling`."""
-    names = list(part_names) if part_names is not None else parts.default_names(cuboids.count)
+    names = list(part_names) if part_names is not None else parts.default_part_names(cuboids.count)
     points = np.asarray(cloud.points, float)
     labels = point_labels(points, cuboids) if cuboids.existence.any() else np.full(len(points), -1, np.int64)
     how = graphcut.as_labelling(labelling)

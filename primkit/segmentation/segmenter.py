@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import io, parallel
-from ..data import parallel_map
+from ..parallel import parallel_map
 from ..model.abstraction import abstract, abstract_shapes, load_model
 from .labeller import (Labeller, LabellerSettings, frame_features, grid_elements, label_elements, mesh_elements,
                        point_elements, read_labeller)
@@ -136,14 +136,14 @@ class Segmenter:
     def part_names(self) -> list:
         return self.abstractor.part_names
 
-    def abstract_files(self, paths, *, cache_dir=None, workers=None, progress=True, executor=None, shard=None):
+    def abstract_files(self, paths, *, cache_dir=None, workers=None, progress=False, executor=None, shard=None):
         """Abstractions of shape files: ``(results, errors)`` (:func:`primkit.model.abstraction.abstract_shapes`;
         ``executor`` prepares there, ``shard`` abstracts only that shard of the files)."""
         out = abstract_shapes(paths, self.abstractor, up=self.up, front=self.front, cache=cache_dir, workers=workers,
                               progress=progress, executor=executor, shard=shard, **self.predict_options)
         return out.results, out.errors
 
-    def segment_files(self, paths, *, cache_dir=None, workers=None, progress=True, executor=None, shard=None):
+    def segment_files(self, paths, *, cache_dir=None, workers=None, progress=False, executor=None, shard=None):
         """Abstract and co-segment shape files.
 
         Returns ``(segmentations, errors)``: one :class:`Segmentation` (meshes),
@@ -161,7 +161,7 @@ class Segmenter:
                                                   executor=pool, shard=shard)
             return self.segment_results(results, workers=workers, progress=progress, errors=errors, executor=pool)
 
-    def segment_results(self, results, *, workers=None, progress=True, errors=(), executor=None):
+    def segment_results(self, results, *, workers=None, progress=False, errors=(), executor=None):
         """Co-segment the source files of abstraction results (in parallel processes, or on ``executor``)."""
         jobs = [(r.source, r.cuboids, r.name, self.part_names, self.labeller, r, self.labelling) for r in results]
         segs, errors = [], list(errors)

@@ -33,7 +33,7 @@ import numpy as np
 
 from .. import geometry, io, primitives
 from ..model import parts
-from ..viz.palette import part_colors
+from ..primitives.palette import part_colors
 from . import graphcut, meshes
 
 __all__ = [
@@ -226,7 +226,7 @@ def segment_voxels(grid: io.VoxelGrid, cuboids: primitives.Cuboids, *, name: str
                    part_names=None, labelling=None) -> VoxelSegmentation:
     """Co-segment one voxel grid by its abstraction (cuboids in the grid's model coordinates;
     ``labelling`` as in :func:`label_voxels`)."""
-    names = list(part_names) if part_names is not None else parts.default_names(cuboids.count)
+    names = list(part_names) if part_names is not None else parts.default_part_names(cuboids.count)
     return VoxelSegmentation(name, source, grid, label_voxels(grid, cuboids, labelling=labelling), cuboids, names)
 
 

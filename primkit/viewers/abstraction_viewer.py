@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..model.parts import default_part_names
 from ..viz.palette import part_colors
 from ..viz.interop import to_pyvista
 from ..viz.camera import apply_camera
@@ -95,7 +96,7 @@ def abstraction_viewer(vertices, faces, cuboids, names=None, *, title: str = "",
     cuboids : primkit.primitives.Cuboids, in the mesh's frame
     names : list of str, one per part slot (default ``part<k>``)
     """
-    names = list(names) if names is not None else [f"part{k}" for k in range(cuboids.count)]
+    names = list(names) if names is not None else default_part_names(cuboids.count)
     p = common.new_plotter(off_screen, window_size, f"primkit - {title or 'abstraction'}")
     # no depth peeling: with Mesa (llvmpipe, EGL or Xvfb) it hid every translucent cuboid
     mesh_actor = p.add_mesh(to_pyvista((vertices, faces)), color="lightgrey", smooth_shading=False, pickable=False)

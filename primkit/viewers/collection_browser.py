@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..model.parts import default_part_names
 from ..viz.palette import part_colors
 from ..viz.interop import to_pyvista
 from ..viz.camera import CAMERA, apply_camera
@@ -102,7 +103,7 @@ def collection_browser(shapes, part_names=None, *, columns: int | None = None, m
     if not shapes:
         raise ValueError("no shapes to browse")
     count = shapes[0].result.canonical.count
-    part_names = list(part_names) if part_names is not None else [f"part{k}" for k in range(count)]
+    part_names = list(part_names) if part_names is not None else default_part_names(count)
     columns = columns or int(np.ceil(np.sqrt(len(shapes) * 1.5)))
     offsets = grid_offsets(len(shapes), columns)
     p = common.new_plotter(off_screen, window_size, f"primkit - {title or 'collection'}")

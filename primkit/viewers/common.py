@@ -7,16 +7,17 @@ from dataclasses import dataclass
 import numpy as np
 
 from .. import io
+from ..model.parts import default_part_names
 from ..segmentation import face_labels as segmentation_face_labels
 from ..segmentation import point_labels
 from ..viz.backend import pyvista_module
 from ..viz.interop import to_pyvista
 
-__all__ = ["face_labels", "part_labels", "PointShape", "drawable", "add_cuboid_edges", "describe_part", "text_of", "pick_actor", "on_click",
+__all__ = ["face_labels_or_unlabelled", "part_labels", "PointShape", "drawable", "add_cuboid_edges", "describe_part", "text_of", "pick_actor", "on_click",
            "display_position", "new_plotter"]
 
 
-def face_labels(vertices, faces, cuboids) -> np.ndarray:
+def face_labels_or_unlabelled(vertices, faces, cuboids) -> np.ndarray:
     """(f,) int: the co-segmentation (:func:`primkit.segmentation.face_labels`), -1 when no part is present."""
     if not cuboids.existence.any():
         return np.full(len(faces), -1, np.int64)
@@ -27,7 +28,7 @@ def part_labels(vertices, faces, cuboids) -> np.ndarray:
     """The co-segmentation of what a viewer draws: per face for a mesh, per point when ``faces``
     is empty (a point cloud); -1 when no part is present."""
     if len(faces):
-        return face_labels(vertices, faces, cuboids)
+        return face_labels_or_unlabelled(vertices, faces, cuboids)
     if not cuboids.existence.any():
         return np.full(len(vertices), -1, np.int64)
     return point_labels(vertices, cuboids)
@@ -91,7 +92,7 @@ def add_cuboid_edges(plotter, cuboids, *, opacity: float = 1.0, line_width: floa
 def describe_part(cuboids, k: int, names) -> str:
     """Several lines: index, name and parameters of part ``k``."""
     q = cuboids.quaternions[k]
-    lines = [f"part {k}: {names[k] if k < len(names) else f'part{k}'}",
+    lines = [f"part {k}: {names[k] if k < len(names) else default_part_names(k + 1)[k]}",
              "size " + " x ".join(f"{2 * z:.3f}" for z in cuboids.half_extents[k]),
              "centre (" + ", ".join(f"{t:.3f}" for t in cuboids.translations[k]) + ")",
              "rotation wxyz (" + ", ".join(f"{x:.3f}" for x in q) + ")"]

@@ -30,6 +30,7 @@ from ..viz.palette import part_colors
 from ..viz.interop import to_pyvista
 from ..viz.camera import CAMERA, apply_camera
 from ..deformation import bind, edit_cuboids, seam_falloff, transfer_transforms
+from ..model.parts import default_part_names
 
 from . import common
 
@@ -112,7 +113,7 @@ def deformation_viewer(source, target, part_names=None, *, part: int | None = No
     """Build the viewer for two :class:`primkit.model.abstraction.Abstraction` s abstracted by one model."""
     sc, tc = source.result.canonical, target.result.canonical
     sv, tv = source.canonical_vertices(), target.canonical_vertices()
-    names = list(part_names) if part_names is not None else [f"part{k}" for k in range(sc.count)]
+    names = list(part_names) if part_names is not None else default_part_names(sc.count)
     transfer = transfer_transforms(sc, tc)
     binding = bind(sv, sc, falloff=seam_falloff(sv, sc, transfer.transforms),
                    faces=source.faces if len(source.faces) else None)  # a point cloud: no faces

@@ -189,7 +189,7 @@ class Open3DViewer:
             return {}
         folder.mkdir(parents=True, exist_ok=True)
         palette = np.vstack([part_colors(max(labelled.cuboids.count, 1)), [[200, 200, 200]]]).astype(np.uint8)
-        labelled.cuboids.save_json(paths["cuboids"])
+        labelled.abstraction.result.save_json(paths["cuboids"])
         if mesh:
             vertices, faces = self.shape
             io.write_labels(paths["labels"], labelled.face_labels)

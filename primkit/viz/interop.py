@@ -20,7 +20,8 @@ index through Open3D's own operations: :func:`mesh_to_o3d_tensor` (``triangle["p
 :func:`points_to_o3d_tensor` (``point["part"]``), :func:`cuboids_to_o3d_tensor` and
 :func:`cuboids_to_o3d_tensor_lineset`; the functions back take either API.
 
-and back: :func:`mesh_from_o3d`, :func:`points_from_o3d`, :func:`from_pyvista`.
+and back: :func:`mesh_from_o3d`, :func:`points_from_o3d`, :func:`from_pyvista` (defined in
+:mod:`primkit.io.objects`, below the model, which takes such objects as input; the same functions).
 
 Decisions:
 
@@ -44,12 +45,11 @@ Open3D and pyvista are imported inside the functions: importing this module cost
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
+from ..io.objects import O3DMesh, colors_to_uint8, from_pyvista, is_tensor_geometry, mesh_from_o3d, points_from_o3d
 from ..primitives import CORNER_SIGNS, Cuboids
-from .palette import part_colors
+from ..primitives.palette import part_colors
 from .backend import pyvista_module
 from .camera import CAMERA
 from ..io import atomic_output
@@ -78,26 +78,6 @@ __all__ = [
 # exactly one sign. Derived, not typed in, so it cannot disagree with the corner layout.
 _EDGES = np.array([(a, b) for a in range(8) for b in range(a + 1, 8)
                    if np.sum(CORNER_SIGNS[a] != CORNER_SIGNS[b]) == 1], dtype=np.int64)
-
-
-@dataclass(frozen=True, eq=False)
-class O3DMesh:
-    """A mesh read back from Open3D.
-
-    Attributes
-    ----------
-    vertices : (n, 3) float
-    faces : (f, 3) int
-    vertex_colors : (n, 3) uint8 or None
-    face_colors : (f, 3) uint8 or None
-        Set when every face's three vertex colours agree (a mesh written by :func:`mesh_to_o3d`
-        with ``face_colors``).
-    """
-
-    vertices: np.ndarray
-    faces: np.ndarray
-    vertex_colors: np.ndarray | None = None
-    face_colors: np.ndarray | None = None
 
 
 def _check_colors(colors, count: int, what: str) -> np.ndarray:
@@ -224,32 +204,6 @@ def mesh_to_o3d(vertices, faces, *, vertex_colors=None, face_colors=None):
     return mesh
 
 
-def _to_uint8(colors: np.ndarray) -> np.ndarray:
-    return np.clip(np.rint(np.asarray(colors, dtype=np.float64) * 255.0), 0, 255).astype(np.uint8)
-
-
-def mesh_from_o3d(mesh) -> O3DMesh:
-    """An Open3D triangle mesh (``open3d.geometry.TriangleMesh`` or the tensor
-    ``open3d.t.geometry.TriangleMesh``) as arrays (:class:`O3DMesh`), colours as uint8."""
-    if is_tensor_geometry(mesh):
-        v = mesh.vertex.positions.numpy().astype(np.float64)
-        f = mesh.triangle.indices.numpy().astype(np.int64).reshape(-1, 3) if "indices" in mesh.triangle else \
-            np.zeros((0, 3), np.int64)
-        colors = mesh.vertex.colors.numpy() if "colors" in mesh.vertex else None
-    else:
-        v = np.asarray(mesh.vertices, dtype=np.float64).copy()
-        f = np.asarray(mesh.triangles, dtype=np.int64).copy().reshape(-1, 3)
-        colors = np.asarray(mesh.vertex_colors) if mesh.has_vertex_colors() else None
-    vc = fc = None
-    if colors is not None:
-        vc = _to_uint8(colors)
-        if len(f):
-            corner = vc[f]  # (f, 3 corners, 3 channels)
-            if np.all(corner == corner[:, :1]):
-                fc = corner[:, 0].copy()
-    return O3DMesh(v, f, vc, fc)
-
-
 def points_to_o3d(points, colors=None, normals=None):
     """Points as an ``open3d.geometry.PointCloud``.
 
@@ -271,27 +225,9 @@ def points_to_o3d(points, colors=None, normals=None):
     return pcd
 
 
-def points_from_o3d(pcd) -> tuple[np.ndarray, np.ndarray | None]:
-    """An Open3D point cloud (``open3d.geometry.PointCloud`` or ``open3d.t.geometry.PointCloud``) as
-    ``(points (n, 3) float, colors (n, 3) uint8 or None)``."""
-    if is_tensor_geometry(pcd):
-        p = pcd.point.positions.numpy().astype(np.float64)
-        c = _to_uint8(pcd.point.colors.numpy()) if "colors" in pcd.point else None
-        return p, c
-    p = np.asarray(pcd.points, dtype=np.float64).copy()
-    c = _to_uint8(np.asarray(pcd.colors)) if pcd.has_colors() else None
-    return p, c
-
-
 # --------------------------------------------------------------------------------------------
 # Open3D tensor geometry (open3d.t.geometry): attributes by name
 # --------------------------------------------------------------------------------------------
-
-
-def is_tensor_geometry(obj) -> bool:
-    """True for ``open3d.t.geometry`` objects (named attributes: ``vertex``/``triangle``/``point``/``line``)."""
-    module = type(obj).__module__
-    return module.split(".")[0] == "open3d" and ".t." in module + "."
 
 
 def _tensor(values, dtype=None):
@@ -440,7 +376,7 @@ def to_pyvista(obj, *, colors=None, face_colors=None, edges: bool = False, inclu
                 colors = np.asarray(obj.colors) if obj.has_colors() else None
             poly = pv.PolyData(pts, lines=np.hstack([np.full((len(lines), 1), 2), lines]).ravel())
             if colors is not None:
-                poly.cell_data["rgb"] = _to_uint8(colors)
+                poly.cell_data["rgb"] = colors_to_uint8(colors)
             if is_tensor_geometry(obj) and "part" in obj.line:
                 poly.cell_data["part"] = obj.line["part"].numpy().astype(np.int64).ravel()
             return poly
@@ -477,7 +413,9 @@ def to_pyvista_blocks(cuboids: Cuboids, names=None, *, colors=None, edges: bool 
     """
     pv = pyvista_module()
     c = _check_cuboids(cuboids)
-    names = list(names) if names is not None else [f"part{k}" for k in range(c.count)]
+    from ..model.parts import default_part_names  # here: reading files through pyvista must not load primkit.model
+
+    names = list(names) if names is not None else default_part_names(c.count)
     if len(names) < c.count:
         raise ValueError(f"`names` must have one name per part slot ({c.count}), got {len(names)}")
     palette = part_colors(c.count) if colors is None else _check_colors(colors, c.count, "colors")
@@ -488,21 +426,6 @@ def to_pyvista_blocks(cuboids: Cuboids, names=None, *, colors=None, edges: bool 
         poly.field_data["part_name"] = np.array([str(names[k])])
         blocks.append(poly, f"{int(k)} {names[k]}")
     return blocks
-
-
-def from_pyvista(poly) -> tuple[np.ndarray, np.ndarray]:
-    """A pyvista (or any VTK) surface as ``(vertices (n, 3) float, faces (f, 3) int)``.
-
-    Polygons with more than three corners are triangulated first (pyvista's ``triangulate``).
-    """
-    pv = pyvista_module()
-    poly = pv.wrap(poly)
-    if not isinstance(poly, pv.PolyData):
-        poly = poly.extract_surface()
-    if poly.n_cells and not poly.is_all_triangles:
-        poly = poly.triangulate()
-    faces = poly.faces.reshape(-1, 4)[:, 1:] if poly.faces.size else np.zeros((0, 3), np.int64)
-    return np.asarray(poly.points, dtype=np.float64).copy(), faces.astype(np.int64)
 
 
 # --------------------------------------------------------------------------------------------

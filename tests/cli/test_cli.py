@@ -2,6 +2,7 @@
 
 import hashlib
 import json
+from pathlib import Path
 
 import pytest
 
@@ -54,7 +55,9 @@ def test_abstract_batch_goes_on_past_a_bad_file(trained, tmp_path, capsys):
     jsons = sorted(out.glob("*.cuboids.json"))
     assert len(jsons) == 2 and len(list(out.glob("*.cuboids.ply"))) == 2
     d = json.loads(jsons[0].read_text())
-    assert d["schema_version"] == 1 and len(d["parts"]) == 6  # absent parts kept, indices stable
+    assert d["schema_version"] == 2 and len(d["parts"]) == 6  # absent parts kept, indices stable
+    assert d["frame"] == "input" and d["canonical_frame"] is not None and Path(d["model"]).name == Path(model).name
+    assert len(d["part_names"]) == 6 and d["present"] == [p["index"] for p in d["parts"] if p["present"]]
     cub = primitives.Cuboids.from_dict(d)
     assert [p["index"] for p in d["parts"]] == list(range(6))
     # results are in the input's frame: the cuboids overlap the input mesh's bounding box

@@ -7,7 +7,7 @@ import torch
 import trimesh
 
 from primkit import geometry
-from primkit.model.distance_field import lookup_distance_sq
+from primkit.model.distance_field import lookup_distance_sq_torch
 
 
 def brute_force_distance(points, vertices, faces):
@@ -190,7 +190,7 @@ def test_voxel_boundary_mesh_is_closed_and_has_the_voxel_volume():
 
 
 def _lookup(closest, points):
-    return lookup_distance_sq(torch.as_tensor(closest, dtype=torch.float64)[None], torch.as_tensor(points)[None])[0]
+    return lookup_distance_sq_torch(torch.as_tensor(closest, dtype=torch.float64)[None], torch.as_tensor(points)[None])[0]
 
 
 def test_lookup_at_cell_centres_and_upper_bound(meshes):
@@ -220,7 +220,7 @@ def test_lookup_is_the_minimum_over_the_eight_surrounding_cells(meshes):
         cp = grid.closest[idx[:, 0], idx[:, 1], idx[:, 2]].astype(float)
         ref = np.minimum(ref, ((pts - cp) ** 2).sum(1))
     closest = torch.as_tensor(grid.closest, dtype=torch.float64)[None]
-    got = lookup_distance_sq(closest, torch.as_tensor(pts)[None])[0].numpy()
+    got = lookup_distance_sq_torch(closest, torch.as_tensor(pts)[None])[0].numpy()
     np.testing.assert_allclose(got, ref, rtol=1e-12, atol=1e-15)
 
 
@@ -232,12 +232,12 @@ def test_lookup_batched_planar_and_nan(meshes):
     planar = stacked.permute(0, 4, 1, 2, 3).contiguous().permute(0, 2, 3, 4, 1)
     assert not planar.is_contiguous()
     pts = torch.as_tensor(np.random.default_rng(7).uniform(-0.8, 0.8, size=(2, 300, 3)), dtype=torch.float32)
-    got = lookup_distance_sq(stacked, pts)
-    assert torch.equal(got, lookup_distance_sq(planar, pts))
+    got = lookup_distance_sq_torch(stacked, pts)
+    assert torch.equal(got, lookup_distance_sq_torch(planar, pts))
     for b in range(2):
         np.testing.assert_allclose(got[b].double().numpy(), _lookup(grids[b], pts[b].double()).numpy(), rtol=1e-5, atol=1e-7)
     pts[1, 5] = float("nan")
-    out = lookup_distance_sq(stacked, pts)
+    out = lookup_distance_sq_torch(stacked, pts)
     assert torch.isnan(out[1, 5]) and torch.isfinite(out).sum() == out.numel() - 1
 
 
@@ -247,14 +247,14 @@ def test_lookup_gradient_matches_finite_differences(meshes):
     closest = torch.as_tensor(grid.closest, dtype=torch.float64)[None]
     rng = np.random.default_rng(5)
     pts = torch.tensor(rng.uniform(-0.7, 0.7, size=(1, 200, 3)), requires_grad=True)
-    lookup_distance_sq(closest, pts).sum().backward()
+    lookup_distance_sq_torch(closest, pts).sum().backward()
     eps = 1e-6
     fd = torch.zeros_like(pts)
     with torch.no_grad():
         for k in range(3):
             step = torch.zeros_like(pts)
             step[..., k] = eps
-            fd[..., k] = (lookup_distance_sq(closest, pts + step) - lookup_distance_sq(closest, pts - step)) / (2 * eps)
+            fd[..., k] = (lookup_distance_sq_torch(closest, pts + step) - lookup_distance_sq_torch(closest, pts - step)) / (2 * eps)
     err = (fd - pts.grad).abs().amax(-1)[0]
     # a difference across a switch of the winning cell is not a derivative: allow a few
     assert (err < 1e-6).float().mean() > 0.97
@@ -268,7 +268,7 @@ def test_lookup_outside_the_grid_keeps_growing(meshes):
     exact = np.linalg.norm(pts, axis=1) - 0.5  # sphere of radius 0.5 (faceted: slightly inside)
     np.testing.assert_allclose(d, exact, atol=0.02)
     pts_t = torch.tensor(pts[None], requires_grad=True)
-    lookup_distance_sq(torch.as_tensor(grid.closest, dtype=torch.float64)[None], pts_t).sum().backward()
+    lookup_distance_sq_torch(torch.as_tensor(grid.closest, dtype=torch.float64)[None], pts_t).sum().backward()
     assert (pts_t.grad.norm(dim=-1) > 1).all()
 
 

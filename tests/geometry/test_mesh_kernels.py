@@ -8,7 +8,7 @@ import pytest
 
 from primkit import geometry, io, synthetic
 
-kernels = pytest.importorskip("primkit.geometry._mesh_kernels", reason="Numba is not installed")
+from primkit.geometry import _mesh_kernels as kernels  # noqa: E402 - Numba is a dependency: no skip
 
 DATA = Path(__file__).resolve().parents[3] / "shared" / "data"
 

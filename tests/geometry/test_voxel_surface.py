@@ -82,7 +82,6 @@ def _more_grids():
 def test_compiled_transform_gives_scipys_points():
     """The transform at the voxel centres (Numba) against SciPy's transform of the whole lattice:
     the same nearest node everywhere, ties included, on grids with far centres and many ties."""
-    pytest.importorskip("numba")
     for occ in _more_grids():
         fast = geometry.voxel_closest_points(occ)
         reference = geometry.voxel_closest_points(occ, engine="scipy")

@@ -100,7 +100,7 @@ def test_projection_matches_the_rendered_silhouette(grids):
     v, f = views.shape_surface(grids[0])
     with views.ViewRenderer(settings) as r:
         for az, el in ((0, 10), (70, 30), (200, 0)):
-            cam = views.Camera(az, el, 2.0, 35.0)
+            cam = views.OrbitCamera(az, el, 2.0, 35.0)
             _, alpha = r.render(v, f, cam, np.random.default_rng(0))
             rows, cols = np.nonzero(alpha > 0.5)
             uv = views.project(v, cam, 64)
@@ -166,7 +166,9 @@ def test_distillation_loss_does_not_see_the_quaternion_sign():
     assert float(same["rotation"]) == pytest.approx(0, abs=1e-12) and float(same["translations"]) == 0
 
 
-@pytest.mark.parametrize("swap, geometric", [(0.0, 0.0), (0.75, 0.0), (0.0, 5.0)])
+@pytest.mark.parametrize("swap, geometric", [(0.0, 0.0),  # the fast loop keeps the plain run; the others cost
+                                             pytest.param(0.75, 0.0, marks=pytest.mark.integration),  # 25 s CPU
+                                             pytest.param(0.0, 5.0, marks=pytest.mark.integration)])  # 20 s
 def test_short_training_run_lowers_the_loss(chairs, swap, geometric):
     settings = views.ViewSettings(size=32, supersample=1)
     v = views.render_views([c.occupancy for c in chairs], 4, settings=settings, seed=0, keep_foreground=swap > 0)
@@ -223,7 +225,7 @@ def test_geometric_loss_against_brute_force_on_a_box():
     excess = np.clip(np.abs(shape.points) - small, 0, None)
     coverage = float((excess ** 2).sum(1).mean())
     inner = primitives.Cuboids(small[None], np.array([[1.0, 0, 0, 0]]), np.zeros((1, 3)), np.array([True]))
-    dense = primitives.sample_surface(inner, 6000, seed=1)
+    dense = primitives.sample_cuboid_surfaces(inner, 6000, seed=1)
     d = (box - np.abs(dense.points.reshape(-1, 3))).min(1)
     consistency = float((dense.weights.reshape(-1) * d ** 2).sum() / dense.weights.sum())
     got = float(_geometric_loss(_pred([small, far[0]], [np.zeros(3), far[1]]), used_one, pts, closest, 150, gen))

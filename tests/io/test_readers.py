@@ -39,6 +39,7 @@ def read_both(reader, path):
 # ------------------------------------------------------------------------------ shared data
 
 
+@pytest.mark.integration  # every shared mesh read twice
 @pytest.mark.shared
 def test_readers_give_the_old_arrays_on_every_shared_mesh(shared_data):
     files = sorted(p for p in shared_data.rglob("*") if p.suffix.lower() in io.MESH_SUFFIXES + (".xyz", ".npy"))
@@ -301,10 +302,7 @@ def _read_under_address_limit(path: Path, reader: str, headroom_mib: int, env=No
         import resource, sys
         import numpy, trimesh, trimesh.exchange.gltf
         from primkit import io
-        try:  # the compiled parsers (Numba) loaded before the limit is set, as in a running program
-            from primkit.io import _text_kernels
-        except ImportError:
-            pass
+        from primkit.io import _text_kernels  # the compiled parsers loaded before the limit is set, as in a running program
         size = int(open("/proc/self/statm").read().split()[0]) * resource.getpagesize()
         limit = size + {headroom_mib} * 2**20
         resource.setrlimit(resource.RLIMIT_AS, (limit, limit))

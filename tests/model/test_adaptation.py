@@ -56,6 +56,18 @@ def test_bad_settings_are_refused(parent, shapes):
         adapt(parent, [], AdaptConfig(steps=1))
 
 
+def test_default_steps_follow_the_collection_and_the_command_line_resolves_them():
+    from primkit.cli._common import _adapt_steps
+    from primkit.model.adaptation import default_steps
+
+    # 40 draws a shape in batches of 16, within [200, 600]
+    assert [default_steps(n) for n in (1, 20, 80, 81, 219, 240, 1000)] == [200, 200, 200, 203, 548, 600, 600]
+    assert default_steps(219, batch_size=32) == 274
+    assert _adapt_steps("auto") is True and _adapt_steps("50") == 50  # --adapt alone, --adapt 50
+    with pytest.raises(ValueError, match="steps"):
+        adapt(Abstractor.load("chair"), [object()], AdaptConfig(steps=0))
+
+
 def test_parent_answers_computed_once_equal_the_per_step_pass(parent, shapes):
     # the pull's target is the parent's answer on an input that is never augmented: computed once per
     # shape before the steps, it equals the parent's network run on each shape alone, turned as found
@@ -77,6 +89,24 @@ def test_parent_answers_computed_once_equal_the_per_step_pass(parent, shapes):
     every = adapt(parent, shapes, AdaptConfig(steps=3, batch_size=4, seed=5, parent_pass="every-step"))
     for (k, a), b in zip(once.network.state_dict().items(), every.network.state_dict().values()):
         torch.testing.assert_close(a, b, rtol=0, atol=1e-4, msg=k)
+
+
+def test_a_turned_batch_equals_the_turned_shapes(shapes):
+    # the stream turns each shape of a batch by its frame's rotation; the arrays must be those of
+    # orientation.rotate_prepared (cells moved with their centres, vectors turned), shape by shape
+    from primkit.model import orientation
+    from primkit.model.adaptation import _Stream
+
+    turns = [orientation.AXIS_ROTATIONS[5], np.eye(3), orientation.AXIS_ROTATIONS[17]]
+    stream = _Stream(shapes, np.stack(turns))
+    occ, closest, pts = stream.batch([0, 1, 2, 0], 50, torch.Generator().manual_seed(4))
+    pick = torch.randint(0, stream.samples, (4, 50), generator=torch.Generator().manual_seed(4)).numpy()
+    assert occ.shape == (4, 1, 32, 32, 32) and closest.shape == (4, 32, 32, 32, 3) and pts.shape == (4, 50, 3)
+    for b, i in enumerate([0, 1, 2, 0]):
+        turned = orientation.rotate_prepared(shapes[i], turns[i])
+        np.testing.assert_array_equal(occ[b, 0].numpy(), turned.occupancy.astype(np.float32))
+        np.testing.assert_allclose(closest[b].numpy(), turned.closest, rtol=0, atol=1e-6)
+        np.testing.assert_allclose(pts[b].numpy(), np.asarray(turned.points)[pick[b]], rtol=0, atol=1e-6)
 
 
 def test_a_cached_collection_streams_the_same_batches_as_its_decoded_list(parent, tmp_path):

@@ -7,7 +7,7 @@ import torch
 from primkit import geometry, synthetic
 from primkit.model import distance_field
 
-kernel = pytest.importorskip("primkit.model._field_kernels", reason="Numba is not installed")
+from primkit.model import _field_kernels as kernel  # Numba is a dependency: a kernel that fails to load fails here
 
 
 @pytest.fixture(scope="module")
@@ -53,14 +53,14 @@ def test_the_same_cells_as_the_torch_search(grids, dtype):
 
 
 def test_lookup_values_and_gradients_equal_the_torch_search(grids, monkeypatch):
-    """lookup_distance_sq through the compiled search against the same function with the compiled
+    """lookup_distance_sq_torch through the compiled search against the same function with the compiled
     search turned off: the same values and gradients, bit for bit."""
     closest = torch.as_tensor(grids)
     pts = torch.as_tensor(np.random.default_rng(2).uniform(-0.7, 0.7, (3, 3000, 3)), dtype=torch.float32)
 
     def run():
         p = pts.clone().requires_grad_(True)
-        d = distance_field.lookup_distance_sq(closest, p)
+        d = distance_field.lookup_distance_sq_torch(closest, p)
         d.sum().backward()
         return d.detach(), p.grad
 
@@ -84,7 +84,7 @@ def _cuboids(dtype, seed=3):
 
 @pytest.mark.parametrize("dtype, tol", [(torch.float64, 1e-12), (torch.float32, 2e-5)])
 def test_compiled_consistency_equals_the_torch_form_and_its_gradient(grids, dtype, tol):
-    """surface_consistency (compiled on the CPU) against the torch form, sample_surface_torch +
+    """surface_consistency (compiled on the CPU) against the torch form, sample_cuboid_surfaces_torch +
     consistency_per_part under autograd, from the same random coefficients: values and gradients
     with respect to extents, quaternions and translations, under an uneven weighting of the parts."""
     from primkit.model import losses
@@ -99,7 +99,7 @@ def test_compiled_consistency_equals_the_torch_form_and_its_gradient(grids, dtyp
             out = losses.surface_consistency(closest, *leaves, 150, generator)
             assert type(out.grad_fn).__name__ == "_SurfaceConsistencyBackward"  # the compiled path was taken
         else:
-            out = losses.consistency_per_part(closest, *losses.sample_surface_torch(*leaves, 150, generator=generator))
+            out = losses.consistency_per_part(closest, *losses.sample_cuboid_surfaces_torch(*leaves, 150, generator=generator))
         (out * scale).sum().backward()
         return [out.detach()] + [x.grad for x in leaves]
 
@@ -110,12 +110,12 @@ def test_compiled_consistency_equals_the_torch_form_and_its_gradient(grids, dtyp
 
 
 def test_the_compiled_path_draws_the_same_random_stream(grids):
-    """surface_consistency draws its coefficients as sample_surface_torch does: the generator ends
+    """surface_consistency draws its coefficients as sample_cuboid_surfaces_torch does: the generator ends
     in the same state either way."""
     from primkit.model import losses
 
     z, q, t = _cuboids(torch.float32)
     g1, g2 = torch.Generator().manual_seed(4), torch.Generator().manual_seed(4)
     losses.surface_consistency(torch.as_tensor(grids), z, q, t, 150, g1)
-    losses.sample_surface_torch(z, q, t, 150, generator=g2)
+    losses.sample_cuboid_surfaces_torch(z, q, t, 150, generator=g2)
     assert torch.equal(torch.rand(4, generator=g1), torch.rand(4, generator=g2))

@@ -23,13 +23,13 @@ def test_the_exact_box_has_near_zero_losses_and_worse_boxes_more(box_shape):
     moved = _box((0.5, 0.3, 0.2), t=(0.1, 0.0, 0.0))
     out = fit_losses([exact, small, moved], [box_shape] * 3)
     # coverage of the exact box is zero up to float32 (every surface point is on it)
-    assert out["coverage"][0] < 1e-10
+    assert out.coverage[0] < 1e-10
     # consistency goes through the closest-point grid: bounded by the grid's spacing, not zero
-    assert out["consistency"][0] < (1 / 32) ** 2
-    assert out["total"][1] > 10 * out["total"][0] and out["total"][2] > 10 * out["total"][0]
+    assert out.consistency[0] < (1 / 32) ** 2
+    assert out.total[1] > 10 * out.total[0] and out.total[2] > 10 * out.total[0]
     # coverage of the small box against brute force: squared distance of the samples to the box
     d = primitives.point_cuboid_distance(box_shape.points, small)[:, 0]
-    assert abs(out["coverage"][1] - np.mean(d**2)) < 0.05 * np.mean(d**2)
+    assert abs(out.coverage[1] - np.mean(d**2)) < 0.05 * np.mean(d**2)
 
 
 def test_refine_recovers_the_box_and_keeps_slots(box_shape):
@@ -39,8 +39,9 @@ def test_refine_recovers_the_box_and_keeps_slots(box_shape):
         np.array([[0.08, -0.05, 0.02], [0.3, 0.3, 0.3]]),
         np.array([True, False]),
     )
-    (out,), losses = refine([start], [box_shape], steps=300, seed=1)
-    assert losses["after"][0] < 0.1 * losses["before"][0]
+    refined = refine([start], [box_shape], steps=300, seed=1)
+    (out,) = refined.cuboids
+    assert refined.loss_after[0] < 0.1 * refined.loss_before[0]
     assert np.allclose(out.half_extents[0], [0.5, 0.3, 0.2], atol=0.03)
     assert np.allclose(out.translations[0], 0.0, atol=0.03)
     # absent slot untouched, existence unchanged
@@ -51,5 +52,6 @@ def test_refine_recovers_the_box_and_keeps_slots(box_shape):
 
 def test_refine_zero_steps_returns_the_input(box_shape):
     start = _box((0.4, 0.3, 0.2))
-    (out,), losses = refine([start], [box_shape], steps=0)
-    assert out is start and losses["before"][0] == losses["after"][0]
+    refined = refine([start], [box_shape], steps=0)
+    (out,) = refined.cuboids
+    assert out is start and refined.loss_before[0] == refined.loss_after[0]

@@ -9,7 +9,7 @@ import pytest
 import torch
 from safetensors.torch import save_file
 
-from primkit.model.modelfile import FORMAT_VERSION, ModelFileError, load_model, read_metadata, save_model
+from primkit.model.modelfile import FORMAT_VERSION, ModelFileError, load_model_file, read_metadata, save_model
 from primkit.model.network import AbstractionNet, NetworkConfig
 
 
@@ -44,7 +44,7 @@ def test_round_trip(tmp_path):
     path, net = saved_model(tmp_path)
     assert path == tmp_path / "model.safetensors" and path.is_file()
     assert [p.name for p in tmp_path.iterdir()] == ["model.safetensors"]  # no temporary left behind
-    weights, metadata = load_model(path)
+    weights, metadata = load_model_file(path)
     state = net.state_dict()
     assert weights.keys() == state.keys()
     for name, tensor in state.items():
@@ -76,7 +76,7 @@ def test_refuses_to_overwrite(tmp_path):
     assert "--force" in str(info.value)
     assert path.read_bytes() == before
     save_model(path, {"w": torch.zeros(2)}, example_metadata(), overwrite=True)
-    weights, _ = load_model(path)
+    weights, _ = load_model_file(path)
     assert list(weights) == ["w"]
 
 
@@ -123,7 +123,7 @@ def test_rejects_pickle_without_running_it(tmp_path):
 
     for path in (evil, disguised, legacy, raw):
         with pytest.raises(ModelFileError) as info:
-            load_model(path)
+            load_model_file(path)
         assert_one_line_naming(info.value, path)
         with pytest.raises(ModelFileError):
             read_metadata(path)
@@ -137,7 +137,7 @@ def test_rejects_random_bytes_and_empty_file(tmp_path):
     empty.write_bytes(b"")
     for path in (noise, empty):
         with pytest.raises(ModelFileError) as info:
-            load_model(path)
+            load_model_file(path)
         assert_one_line_naming(info.value, path)
 
 
@@ -148,14 +148,14 @@ def test_rejects_truncated_file(tmp_path):
         cut = tmp_path / f"cut{keep}.safetensors"
         cut.write_bytes(data[:keep])
         with pytest.raises(ModelFileError) as info:
-            load_model(cut)
+            load_model_file(cut)
         assert_one_line_naming(info.value, cut)
 
 
 def test_rejects_missing_file_and_directory(tmp_path):
     for path in (tmp_path / "nope.safetensors", tmp_path):
         with pytest.raises(ModelFileError) as info:
-            load_model(path)
+            load_model_file(path)
         assert_one_line_naming(info.value, path)
 
 
@@ -168,7 +168,7 @@ def test_rejects_plain_safetensors(tmp_path):
     save_file({"w": torch.zeros(2)}, foreign, metadata={"primkit": json.dumps({"hello": 1})})
     for path in (plain, other, foreign):
         with pytest.raises(ModelFileError, match="not a primkit model file") as info:
-            load_model(path)
+            load_model_file(path)
         assert_one_line_naming(info.value, path)
     bad_json = tmp_path / "bad.safetensors"
     save_file({"w": torch.zeros(2)}, bad_json, metadata={"primkit": "{not json"})
@@ -194,7 +194,7 @@ def test_rejects_newer_format_version(tmp_path):
     newer = _rewrite_metadata(
         path, tmp_path / "newer.safetensors", lambda m: m.update(format_version=FORMAT_VERSION + 1)
     )
-    for read in (load_model, read_metadata):
+    for read in (load_model_file, read_metadata):
         with pytest.raises(ModelFileError) as info:
             read(newer)
         assert_one_line_naming(info.value, newer)
@@ -209,7 +209,7 @@ def test_rejects_missing_required_keys(tmp_path):
     path, _ = saved_model(tmp_path)
     lacking = _rewrite_metadata(path, tmp_path / "lacking.safetensors", lambda m: m.pop("network"))
     with pytest.raises(ModelFileError, match="network") as info:
-        load_model(lacking)
+        load_model_file(lacking)
     assert_one_line_naming(info.value, lacking)
 
 
@@ -222,5 +222,5 @@ def test_error_is_value_error_with_path(tmp_path):
 def test_saves_to_relative_path(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     path = save_model("rel.safetensors", {"w": torch.ones(2)}, example_metadata())
-    assert load_model(path)[1]["grid"] == 32
+    assert load_model_file(path)[1]["grid"] == 32
     assert os.listdir(tmp_path) == ["rel.safetensors"]

@@ -12,7 +12,7 @@ from primkit.metrics import score
 from primkit.model.bundled import bundled_models, resolve_model
 from primkit.model.presets import PRESETS
 
-EXPECTED = {"chair", "table", "airplane", "animal"}
+EXPECTED = {"chair", "table", "airplane"}  # the animal model was dropped (issue 32)
 RETRAINED = ("chair", "airplane")  # with the local existence gradient, the paper's schedule
 
 
@@ -104,11 +104,35 @@ def test_chair_model_explains_procedural_chairs(chair_model, procedural_chairs):
     assert np.mean([s.chamfer for s in scores]) < 0.0287 + 3 * 0.0023
 
 
+def test_the_same_part_gets_the_same_index_on_every_chair(chair_model):
+    """The method's central claim, on shapes from another source than the model's training data:
+    the bundled chair model (ShapeNet chairs) puts each procedural chair's seat on one primitive
+    index and its back on one other index, the same for every chair, and they are the indices its
+    model file names "seat" and "back". A part's index on a chair is the primitive holding most of
+    the part's surface samples (nearest cuboid). Measured before writing this: 72 chairs (seeds 0-4
+    and 10000, 12 each) all seat 16, back 18; the smallest share of a part's samples on its index
+    0.81 (seat) and 0.47 (back: a tall back may take two cuboids, the larger one holding most)."""
+    from primkit.primitives import assign_points
+
+    names = synthetic.PART_NAMES["chair"]
+    shapes = synthetic.generate("chair", 24, seed=2017)
+    prepared = [data.prepare(io.Mesh(s.vertices, s.faces), face_labels=s.face_labels, name=f"c{i}")
+                for i, s in enumerate(shapes)]
+    results = chair_model.predict(prepared)
+    picks = {"seat": set(), "back": set()}
+    for r, p in zip(results, prepared):
+        index = assign_points(p.points, r.canonical)
+        for part in picks:
+            held = np.bincount(index[p.point_labels == names.index(part)], minlength=r.canonical.count)
+            picks[part].add(int(held.argmax()))
+    assert picks == {"seat": {chair_model.part_names.index("seat")}, "back": {chair_model.part_names.index("back")}}
+
+
 def test_refine_improves_the_fit(chair_model, procedural_chairs):
     _, shapes = procedural_chairs
     results = chair_model.predict(shapes[:3], refine=100)
     for r in results:
-        assert r.refinement["loss_after"] < r.refinement["loss_before"]
+        assert r.refinement.loss_after < r.refinement.loss_before
 
 
 def test_align_auto_finds_up_on_turned_chairs(chair_model, procedural_chairs):

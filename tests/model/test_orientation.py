@@ -22,7 +22,7 @@ def test_the_24_rotations_are_distinct_proper_axis_rotations():
 
 def test_describe_rotation_names_the_input_axes():
     rot = geometry.axis_rotation("+z", "-y")
-    assert orientation.describe_rotation(rot) == {"up": "+z", "front": "-y"}
+    assert orientation.describe_rotation(rot) == orientation.FrameAxes(up="+z", front="-y")
 
 
 @pytest.mark.parametrize("which", [3, 11, 20])
@@ -137,7 +137,7 @@ def test_a_chair_lying_down_among_upright_ones_is_stood_up(chair_model_for_frame
     originals = [s.frame.rotation[1] for s in procedural_prepared]
     assert np.allclose(ups[2], originals[2])  # canonical Y of the result is the original's Y
     assert sum(np.allclose(u, o) for u, o in zip(ups, originals)) >= 5
-    assert results[2].alignment["up_decided_by"].startswith("shape: lying down")
+    assert results[2].alignment.up_decided_by.startswith("shape: lying down")
 
 
 def test_the_vtk_filter_takes_the_command_lines_frame_on_a_coseg_chair(shared_data, tmp_path):

@@ -31,9 +31,9 @@ def test_parts_keep_their_index_on_held_out_chairs(tmp_path):
     agreement = part_label_agreement([r.canonical for r in results], [s.points for s in held_out],
                                      [s.point_labels for s in held_out], names=names)
     for part in ("seat", "back", "leg_front_left", "leg_front_right", "leg_back_left", "leg_back_right"):
-        assert agreement["per_label"][part]["agreement"] >= 0.9, (part, agreement["per_label"][part])
+        assert agreement.per_label[part].agreement >= 0.9, (part, agreement.per_label[part])
     summary = summarize([score(r.canonical, s, ChamferConvention()) for r, s in zip(results, held_out)])
-    assert summary["iou"]["mean"] > 0.3
+    assert summary.iou.mean > 0.3
 
 
 def test_existence_varies_with_the_shape_with_the_local_gradient(tmp_path):

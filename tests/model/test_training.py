@@ -1,5 +1,6 @@
 """Losses against brute force and finite differences, REINFORCE, and real (small) training runs."""
 
+import logging
 import signal
 import subprocess
 import sys
@@ -53,7 +54,7 @@ def test_consistency_loss_matches_weighted_brute_force(prepared_chairs):
     closest = torch.from_numpy(np.stack([p.closest for p in prepared_chairs[:2]])).double()
     z, q, t = random_cuboids(2, 4, seed=1)
     present = torch.tensor([[1, 1, 0, 1], [0, 1, 1, 1]], dtype=torch.float64)
-    samples, w = primitives.sample_surface_torch(z, q, t, 60, generator=torch.Generator().manual_seed(0))
+    samples, w = primitives.sample_cuboid_surfaces_torch(z, q, t, 60, generator=torch.Generator().manual_seed(0))
     got = losses.consistency_loss(closest, samples, w, present)
     # brute force: every sample's distance by looping over the 8 neighbouring cells
     from primkit.geometry import grid_centres
@@ -86,7 +87,7 @@ def test_loss_gradients_match_finite_differences(prepared_chairs):
     present = torch.ones(1, 3, dtype=torch.float64)
 
     def total(z, q, t):
-        samples, w = primitives.sample_surface_torch(z, q, t, 30, generator=torch.Generator().manual_seed(5))
+        samples, w = primitives.sample_cuboid_surfaces_torch(z, q, t, 30, generator=torch.Generator().manual_seed(5))
         return (losses.coverage_loss(pts, z, q, t, present) + losses.consistency_loss(closest, samples, w, present)
                 + losses.symmetry_loss(samples, w, z, q, t, present))
 
@@ -145,6 +146,16 @@ def test_end_to_end_training_reduces_the_loss(prepared_chairs, tmp_path):
     first, last = result.history[0]["total"], result.history[-1]["total"]
     assert last < 0.5 * first
     assert out.exists() and (tmp_path / "m.training.png").exists() and (tmp_path / "m.history.json").exists()
+    from pictures import read_picture
+
+    # the plot: total, coverage and consistency drawn in matplotlib's first three colours in the
+    # upper panel (losses; measured 700-800 pixels each), nothing coloured in the lower one (the
+    # parts in use, in black)
+    plot = read_picture(tmp_path / "m.training.png")
+    upper = type(plot)(plot.rgb[:300], plot.background, plot.foreground[:300])
+    lower = type(plot)(plot.rgb[300:], plot.background, plot.foreground[300:])
+    for colour in ((31, 119, 180), (255, 127, 14), (44, 160, 44)):
+        assert upper.colour_pixels(colour) > 200 and lower.colour_pixels(colour) < 20, colour
     net, meta = network.load_network(out)
     assert meta["training"]["iterations"] == 180 and meta["network"]["parts"] == 8
     x = torch.from_numpy(prepared_chairs[0].occupancy[None].astype(np.float32))
@@ -155,7 +166,7 @@ def test_end_to_end_training_reduces_the_loss(prepared_chairs, tmp_path):
     assert all(h["parts"] == 8 for h in result.history if h["stage"] == 1)
 
 
-def test_same_seed_same_model_and_resume_after_interrupt(prepared_chairs, tmp_path, monkeypatch):
+def test_same_seed_same_model_and_resume_after_interrupt(prepared_chairs, tmp_path, monkeypatch, caplog):
     # bit-identical for the same thread count: pinned, as the load of a shared machine would change it
     monkeypatch.setenv("PRIMKIT_THREADS", "1")
     shapes = training.ShapeTensors(prepared_chairs[:4])
@@ -175,10 +186,15 @@ def test_same_seed_same_model_and_resume_after_interrupt(prepared_chairs, tmp_pa
         return original(self, *args, **kwargs)
 
     monkeypatch.setattr(training.ShapeTensors, "batch", flaky)
-    c = training.train(shapes, tmp_path / "c.safetensors", cfg, progress=False)
+    with caplog.at_level(logging.WARNING, logger="primkit.model.training"):
+        c = training.train(shapes, tmp_path / "c.safetensors", cfg, progress=False)
     assert c.interrupted and not (tmp_path / "c.safetensors").exists()
     ckpt = tmp_path / "c.safetensors.checkpoint.safetensors"
     assert ckpt.exists()
+    # said as a log record (the CLI shows it), naming the checkpoint to resume from
+    (said,) = [r for r in caplog.records if r.name == "primkit.model.training"]
+    assert said.levelno == logging.WARNING and "interrupted after iteration 17" in said.getMessage()
+    assert str(ckpt) in said.getMessage()
     monkeypatch.setattr(training.ShapeTensors, "batch", original)
     d = training.train(shapes, tmp_path / "c.safetensors", cfg, progress=False, resume=ckpt)
     for (k, va), vd in zip(a.network.state_dict().items(), d.network.state_dict().values()):
@@ -266,4 +282,4 @@ def test_torch_decoding_of_closest_points_is_numpys_bit_for_bit():
     codes = rng.integers(0, 256, (3, 3, res**3), dtype=np.uint8)
     near = rng.integers(0, 256, (3, res**3 // 8), dtype=np.uint8)
     want = geometry.decode_closest(codes, near, res, planar=True)
-    assert torch.equal(training.decode_closest(codes, near, res), torch.from_numpy(want))
+    assert torch.equal(training.decode_closest_torch(codes, near, res), torch.from_numpy(want))

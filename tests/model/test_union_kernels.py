@@ -7,7 +7,7 @@ import torch
 from primkit.model import losses
 from primkit.model._compiled import kernels
 
-pytest.importorskip("primkit.model._union_kernels", reason="Numba is not installed")
+from primkit.model import _union_kernels  # noqa: E402,F401 - Numba is a dependency: a kernel that fails to load fails here
 
 
 def _case(dtype, m=20, seed=0):
@@ -52,3 +52,16 @@ def test_points_with_a_gradient_take_the_torch_form():
     union = losses._union_distance_sq(points, z, q, t, present)
     union.sum().backward()
     assert points.grad is not None and torch.isfinite(points.grad).all()
+
+
+def test_the_compiled_kernels_serve_every_cpu_float_call():
+    """``kernels`` falls back to the torch forms only for what the kernels do not take (other
+    dtypes, CUDA): on the CPU with float32 or float64 it returns the compiled module, so a kernel
+    module that fails to load fails this test instead of training silently on the slower path."""
+    x = torch.zeros(2, 3)
+    for name in ("_union_kernels", "_field_kernels"):
+        for dtype in (torch.float32, torch.float64):
+            module = kernels(name, x.to(dtype))
+            assert module is not None and module.__name__ == f"primkit.model.{name}", (name, dtype)
+    assert kernels("_union_kernels", x.half()) is None
+    assert kernels("_union_kernels", x, data=(x.clone().requires_grad_(),)) is None

@@ -97,6 +97,7 @@ def test_write_refuses_to_overwrite_and_legacy_geometry(segmented, tmp_path):
         pk.write(tmp_path / "b.ply", seg.geometry.to_legacy())
 
 
+@pytest.mark.integration  # a CLI process rendering with Open3D
 def test_view_open3d_png_with_no_display(segmented, tmp_path):
     """``primkit view open3d --png`` with DISPLAY unset: Open3D's OffscreenRenderer draws the parts in
     primkit's colours."""

@@ -105,6 +105,7 @@ def _check(got_file, info_file, chair):
     return info
 
 
+@pytest.mark.integration  # a pvpython process
 @pytest.mark.shared
 def test_pvpython_loads_the_plugin_and_gives_primkit_segments_labels(pvpython, chair, tmp_path):
     script = tmp_path / "run.py"
@@ -118,6 +119,7 @@ def test_pvpython_loads_the_plugin_and_gives_primkit_segments_labels(pvpython, c
     _check(tmp_path / "got.npz", tmp_path / "info.json", chair)
 
 
+@pytest.mark.integration  # the ParaView GUI under xvfb
 @pytest.mark.shared
 def test_the_paraview_gui_loads_the_plugin_after_its_startup_script(paraview_gui, chair, tmp_path):
     """The GUI's route: ``paraview --script=<plugin file>`` (which puts back inspect.getargspec), then

@@ -327,9 +327,9 @@ def test_torch_surface_sampling_matches_numpy():
         np.testing.assert_allclose(w[b].numpy(), ref.weights, atol=1e-12)
     # the public sampler: shapes, points on the surface, weights sum to the area, reproducible
     g = torch.Generator().manual_seed(0)
-    pts, w = P.sample_surface_torch(z, q, t, samples_per_cuboid=k, generator=g)
+    pts, w = P.sample_cuboid_surfaces_torch(z, q, t, samples_per_cuboid=k, generator=g)
     assert pts.shape == (B, m, k, 3) and w.shape == (B, m, k)
-    pts2, _ = P.sample_surface_torch(z, q, t, samples_per_cuboid=k, generator=torch.Generator().manual_seed(0))
+    pts2, _ = P.sample_cuboid_surfaces_torch(z, q, t, samples_per_cuboid=k, generator=torch.Generator().manual_seed(0))
     assert torch.equal(pts, pts2)
     for b in range(B):
         d = P.point_cuboid_distance(pts[b].reshape(-1, 3).numpy(), cs[b]).reshape(m, k, m)
@@ -338,7 +338,7 @@ def test_torch_surface_sampling_matches_numpy():
         area = 8 * (zz[:, 0] * zz[:, 1] + zz[:, 1] * zz[:, 2] + zz[:, 0] * zz[:, 2])
         np.testing.assert_allclose(w[b].sum(-1).numpy(), area, rtol=1e-12)
     with pytest.raises(ValueError, match="multiple of 6"):
-        P.sample_surface_torch(z, q, t, samples_per_cuboid=10)
+        P.sample_cuboid_surfaces_torch(z, q, t, samples_per_cuboid=10)
 
 
 def test_surface_sampling_gradcheck():
@@ -347,7 +347,7 @@ def test_surface_sampling_gradcheck():
     z, q, t = (a.clone().requires_grad_(True) for a in (z, q, t))
 
     def f(z, q, t):
-        return P.sample_surface_torch(z, q, t, samples_per_cuboid=12, generator=torch.Generator().manual_seed(5))
+        return P.sample_cuboid_surfaces_torch(z, q, t, samples_per_cuboid=12, generator=torch.Generator().manual_seed(5))
 
     assert torch.autograd.gradcheck(f, (z, q, t))
 
@@ -361,7 +361,7 @@ def test_sample_surface_invariants():
     rng = np.random.default_rng(14)
     c = random_cuboids(rng, 5, present=[1, 1, 0, 1, 1])
     k = 60
-    s = P.sample_surface(c, k, seed=3)
+    s = P.sample_cuboid_surfaces(c, k, seed=3)
     assert s.points.shape == (5, k, 3) and s.weights.shape == (5, k) and s.face.shape == (5, k)
     z = c.half_extents
     for i in range(c.count):
@@ -379,16 +379,16 @@ def test_sample_surface_invariants():
     area = 8 * (z[:, 0] * z[:, 1] + z[:, 1] * z[:, 2] + z[:, 0] * z[:, 2])
     np.testing.assert_allclose(s.weights.sum(axis=1), area, rtol=1e-12)
     # reproducible with a seed
-    np.testing.assert_array_equal(P.sample_surface(c, k, seed=3).points, s.points)
+    np.testing.assert_array_equal(P.sample_cuboid_surfaces(c, k, seed=3).points, s.points)
     with pytest.raises(ValueError, match="multiple of 6"):
-        P.sample_surface(c, 100)
+        P.sample_cuboid_surfaces(c, 100)
 
 
 def test_weighted_surface_samples_are_area_uniform():
     # with importance weights, the weighted mean of x^2 over a box surface matches the exact value
     z = np.array([0.1, 0.3, 0.6])
     c = axis_aligned(z, [0, 0, 0])
-    s = P.sample_surface(c, 6 * 20000, seed=0)
+    s = P.sample_cuboid_surfaces(c, 6 * 20000, seed=0)
     x2 = s.points[0, :, 0] ** 2
     est = np.sum(s.weights[0] * x2) / s.weights[0].sum()
     # exact: faces +-x contribute z0^2 * area; the other four faces x^2 averages z0^2 / 3
@@ -507,7 +507,7 @@ def test_json_refusals(tmp_path):
     np.testing.assert_array_equal(Cuboids.load_json(path).half_extents, c2.half_extents)
     d = c.to_dict()
     with pytest.raises(ValueError, match="newer"):
-        Cuboids.from_dict({**d, "schema_version": P.SCHEMA_VERSION + 1})
+        Cuboids.from_dict({**d, "schema_version": 3})  # 2 is a <name>.cuboids.json (primkit.model.cuboids_file)
     with pytest.raises(ValueError, match="schema_version"):
         Cuboids.from_dict({k: v for k, v in d.items() if k != "schema_version"})
     with pytest.raises(ValueError, match="malformed"):

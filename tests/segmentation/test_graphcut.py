@@ -184,3 +184,29 @@ def test_cuboid_costs_match_the_primitives_distance():
     d2 = primitives.point_cuboid_distance(samples.reshape(-1, 3), cuboids, squared=True)[:, cuboids.present]
     expected = d2.reshape(50, 4, -1).mean(axis=1) / 2.0**2
     np.testing.assert_allclose(graphcut.cuboid_costs(samples, cuboids, 2.0), expected, rtol=1e-9, atol=1e-15)
+
+
+def test_a_part_the_cut_would_erase_keeps_its_nearest_elements():
+    # a 12 x 3 x 12 voxel slab explained by one large cuboid and a small one over a 2 x 1 x 2 corner
+    # (a network's thin arm): the cut's boundary around the small part costs more than its data term
+    # saves, so without `keep` it goes to the large part; with it, it gets exactly its nearest-rule
+    # voxels back and every other voxel keeps the cut's label
+    cuboids = primitives.Cuboids([[0.45, 0.15, 0.45], [0.06, 0.15, 0.06]], [[1, 0, 0, 0]] * 2,
+                                 [[-0.1, -0.05, -0.1], [0.5, -0.05, 0.5]], [True, True])
+    occupancy = np.zeros((16, 16, 16), bool)
+    occupancy[2:14, 6:9, 2:14] = True
+    grid = io.VoxelGrid(occupancy, translate=np.array([-0.8, -0.8, -0.8]), scale=1.6)
+    centres, index = segmentation.voxel_centres(grid)
+    init = segmentation.meshes.point_labels(centres, cuboids)
+    assert 0 < (init == 1).sum() < 0.1 * len(init)  # the corner
+    edges, contact, mass = graphcut.voxel_graph(index)
+    args = (centres[:, None, :], edges, contact, mass, cuboids, init, 1e-2)
+    erased = graphcut.graphcut_labels(*args, keep=False)
+    kept = graphcut.graphcut_labels(*args)
+    assert not (erased == 1).any()
+    np.testing.assert_array_equal(kept == 1, init == 1)
+    np.testing.assert_array_equal(kept[init != 1], erased[init != 1])
+    assert set(np.unique(segmentation.label_voxels(grid, cuboids, labelling=graphcut.Labelling("graphcut", 1e-2))[occupancy])) == {0, 1}
+    # a part the cut keeps is left as the cut made it
+    np.testing.assert_array_equal(graphcut.keep_parts([0, 0, 1, 1], [0, 1, 1, 0]), [0, 0, 1, 1])
+    np.testing.assert_array_equal(graphcut.keep_parts([0, 0, 0, 2], [0, 1, 1, 2]), [0, 1, 1, 2])

@@ -343,6 +343,7 @@ def test_decide_drops_labels_below_their_share():
     assert np.array_equal(lab.decide(proba, 0.02), [0] * 99 + [1])  # label 2 on 1% of the elements: dropped
 
 
+@pytest.mark.integration  # fits a labeller on whole chairs through name-parts
 def test_a_learned_labeller_names_the_faces_the_segmenter_writes(chairs, tmp_path):
     """fit_labeller on abstracted labelled meshes; the segmenter's ``named`` is the labeller's
     prediction on the shape's elements, and --semantic codes are those names' 1-based codes."""
@@ -430,6 +431,7 @@ def test_the_vtk_filter_carries_a_label_array(chairs, tmp_path):
     assert "label" not in pv.wrap(f.GetOutputDataObject(0)).cell_data  # the bundled chair has no labeller
 
 
+@pytest.mark.integration  # two name-parts runs; scikit-learn bins weighted samples slowly
 def test_name_parts_learns_from_labelled_point_clouds(chairs, tmp_path):
     """Point clouds with <stem>.labels.npy beside them: name-parts learns a labeller from three,
     and segment --semantic names the fourth's points with it (codes of labels.csv)."""

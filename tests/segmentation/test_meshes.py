@@ -44,10 +44,11 @@ def test_point_labels_match_brute_force():
         got = segmentation.point_labels(pts, cub)
         want = np.array([_brute_force_label(p, cub) for p in pts])
         np.testing.assert_array_equal(got, want)
-    labels, dist = primitives.assign_points(pts, cub, return_distance=True, chunk=64)  # several chunks
-    np.testing.assert_array_equal(labels, got)
+    both = primitives.assign_points_with_distance(pts, cub, chunk=64)  # several chunks
+    np.testing.assert_array_equal(both.labels, got)
+    np.testing.assert_array_equal(primitives.assign_points(pts, cub, chunk=64), got)
     d = primitives.point_cuboid_distance(pts, cub)
-    np.testing.assert_allclose(dist, d[np.arange(len(pts)), labels], atol=1e-12)
+    np.testing.assert_allclose(both.distance, d[np.arange(len(pts)), got], atol=1e-12)
 
 
 def test_ties_go_to_the_larger_cuboid_then_the_lower_index():
@@ -228,6 +229,7 @@ def test_segment_command_goes_past_a_bad_file(tmp_path, capsys):
     assert "exists" in capsys.readouterr().err
 
 
+@pytest.mark.integration  # name-parts on meshes through the CLI
 def test_name_parts_writes_a_named_copy(tmp_path, capsys):
     from primkit.model.abstractor import Abstractor
     from primkit.model.bundled import resolve_model
@@ -253,10 +255,12 @@ def test_name_parts_writes_a_named_copy(tmp_path, capsys):
 
 @pytest.mark.shared
 def test_coseg_chairs_accuracy(shared_data, tmp_path):
-    """The README's figure: with default flags (no axes declared, no refinement) the bundled chair
-    labels 90.7% of the COSEG chairs' faces right under the paper's protocol and with its stored
-    names (both label conventions: large_chairs 1 back, 2 seat, 3 legs; chairs_101-120 1 legs,
-    2 seat, 3 back)."""
+    """The figure of docs/results.md: with default flags (no axes declared, no refinement) the
+    bundled chair labels 94.4% of the COSEG chairs' faces (98.2% of their surface) right under the
+    paper's protocol and with its stored names (both label conventions: large_chairs 1 back,
+    2 seat, 3 legs; chairs_101-120 1 legs, 2 seat, 3 back). The run is deterministic (measured
+    again here: 0.9439 and 0.9820); the bounds allow 0.01, one chair in ten losing a tenth of its
+    faces."""
     root = shared_data / "coseg_chairs"
     seg = segmentation.Segmenter("chair")
     files = sorted(root.glob("*/shapes/*.off"))
@@ -269,5 +273,5 @@ def test_coseg_chairs_accuracy(shared_data, tmp_path):
         truths.append(segmentation.read_ground_truth(p.parent.parent / "gt" / f"{p.stem}.seg", len(s.faces), conv, names))
     report = segmentation.evaluate(segs, truths, part_names=seg.part_names)
     paper = report["protocols"]["collection-majority"]
-    assert paper["mean_area"] >= 0.92 and paper["mean_faces"] >= 0.90
-    assert report["protocols"]["model-names"]["mean_faces"] >= 0.90
+    assert paper["mean_area"] >= 0.982 - 0.01 and paper["mean_faces"] >= 0.944 - 0.01
+    assert report["protocols"]["model-names"]["mean_faces"] >= 0.944 - 0.01

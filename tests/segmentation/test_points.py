@@ -40,7 +40,14 @@ def test_segment_writes_a_label_per_point_by_the_rule(clouds, tmp_path, capsys):
         assert np.array_equal(raw["part"], labels) and np.allclose(np.stack([raw["x"], raw["y"], raw["z"]], 1), points)
     summary = (out / "summary-points.csv").read_text().splitlines()
     assert summary[0].startswith("shape,points,parts_present") and len(summary) == 1 + len(paths)
-    assert (tmp_path / "s.png").is_file() and not (out / "summary.csv").exists()
+    assert not (out / "summary.csv").exists()
+    from pictures import read_picture
+
+    # the picture shows the clouds coloured by part: the colours of the two parts holding most
+    # points on every cloud are drawn
+    counts = sum(np.bincount(np.load(out / f"{p.stem}.parts.npy"), minlength=20) for p in paths)
+    shown = read_picture(tmp_path / "s.png").part_colours_shown(np.argsort(counts)[::-1][:2])
+    assert shown and min(shown.values()) > 200, shown
     # the library's one-shape form gives the same
     one = segment(paths[0], model="chair", workers=1, labelling="nearest")
     assert isinstance(one, PointSegmentation) and np.array_equal(one.labels, np.load(out / f"{paths[0].stem}.parts.npy"))

@@ -32,7 +32,7 @@ def test_edges_are_the_twelve_cuboid_edges():
 def test_lineset_and_mesh_colours_follow_part_index():
     c = _cuboids()
     ls = interop.cuboids_to_lineset(c)
-    colors = interop._to_uint8(np.asarray(ls.colors))
+    colors = interop.colors_to_uint8(np.asarray(ls.colors))
     assert np.array_equal(colors, part_colors(c.count)[np.repeat(c.present, 12)])
     mesh = interop.cuboids_to_o3d(c)
     back = interop.mesh_from_o3d(mesh)
@@ -149,7 +149,7 @@ def test_tensor_cuboids_have_parts_colours_and_twelve_edges():
     v, f, part = c.to_mesh()
     assert np.array_equal(mesh.triangle["part"].numpy(), part)
     assert np.allclose(mesh.vertex.positions.numpy(), v, atol=1e-6)
-    colours = interop._to_uint8(mesh.vertex["colors"].numpy())
+    colours = interop.colors_to_uint8(mesh.vertex["colors"].numpy())
     assert np.array_equal(colours, part_colors(c.count)[np.repeat(c.present, 8)])
     lines = interop.cuboids_to_o3d_tensor_lineset(c)
     assert lines.line.indices.numpy().shape == (12 * len(c.present), 2)

@@ -17,7 +17,7 @@ __all__ = ["MODEL_DIR", "bundled_models", "resolve_model"]
 MODEL_DIR = Path(__file__).resolve().parent
 
 
-def bundled_models() -> dict:
+def bundled_models() -> dict[str, Path]:
     """``{name: path}`` of the model files shipped with primkit, sorted by name."""
     return {p.stem: p for p in sorted(MODEL_DIR.glob("*.safetensors"))}
 
