@@ -95,7 +95,7 @@ DOCUMENTS = {
     "primkit.model.training.check_checkpoint": "the checkpoint's JSON metadata",
     "primkit.viz.web.scene_figure": "a plotly figure (plotly's JSON layout)",
     "primkit.report.page_scene_figure": "a plotly figure (plotly's JSON layout)",
-    "primkit.segmentation.meshes.parse_label_names": "label value -> name, keyed by the data",
+    "primkit.segmentation.evaluation.parse_label_names": "label value -> name, keyed by the data",
     "primkit.segmentation.labeller.TreeEnsemble.arrays": "the arrays of the model file, by tensor name",
     "primkit.data.cache.CacheSegment.row_arrays": "the arrays of a cache file, by array name",
     "primkit.data.cache.encode_row": "the arrays of a cache file, by array name",
@@ -108,8 +108,8 @@ PENDING = {
     "primkit.segmentation.meshes.Segmentation.save": "paths by role; segmentation is being reworked",
     "primkit.segmentation.points.PointSegmentation.save": "paths by role; segmentation is being reworked",
     "primkit.segmentation.voxels.VoxelSegmentation.save": "paths by role; segmentation is being reworked",
-    "primkit.segmentation.meshes.evaluate": "ground-truth evaluation moves to its own module (step 1)",
-    "primkit.segmentation.voxels.evaluate_voxels": "ground-truth evaluation moves to its own module (step 1)",
+    "primkit.segmentation.evaluation.evaluate": "ground-truth evaluation: its own module now; its result type is next",
+    "primkit.segmentation.evaluation.evaluate_voxels": "ground-truth evaluation: its own module now; its result type is next",
 }
 
 
@@ -154,7 +154,7 @@ def test_the_dict_check_can_fail():
     assert _untyped_dict(ast.parse("dict", mode="eval").body)
     assert _untyped_dict(ast.parse("dict[str, Any]", mode="eval").body)
     assert not _untyped_dict(ast.parse("dict[str, Path]", mode="eval").body)
-    assert "primkit.segmentation.meshes.evaluate" in dict_returning_functions()  # pending, so still found
+    assert "primkit.segmentation.evaluation.evaluate" in dict_returning_functions()  # pending, so still found
 
 
 def test_no_public_function_returns_a_dict_of_results():
