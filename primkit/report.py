@@ -231,7 +231,7 @@ def _deformation(shapes, similarity, folder: Path, overwrite: bool) -> dict:
     for src in range(min(len(shapes), DEFORMED_SHAPES)):
         a, b = shapes[src], shapes[int(partner[src])]
         d = deformation.deform(a.vertices, a.cuboids, b.cuboids, faces=a.faces)
-        q = d.quality(a.faces)
+        q = d.quality(a.faces).to_dict()
         tiles += [Tile(f"{a.name[:16]}", [segmentation_layer(a.vertices, a.faces, a.labels, a.cuboids.count)]),
                   Tile(f"partner {b.name[:14]}", [segmentation_layer(b.vertices, b.faces, b.labels, b.cuboids.count)]),
                   Tile("deformed", [segmentation_layer(d.vertices, a.faces, a.labels, a.cuboids.count)])]

@@ -70,5 +70,6 @@ def run(args) -> int:
     save_adapted(child, output, overwrite=args.force)
     a = child.metadata["adaptation"]
     print(f"{output}: {a['parent']} adapted to {a['shapes']} shapes (digest {a['digest']}), {a['config']['steps']} steps, "
-          f"{a['seconds']:.0f} s")
+          f"{a['seconds']:.0f} s; {100 * a['index_agreement']:.1f}% of surface samples keep their part's index "
+          f"({a['agreement_shapes']} shapes)")
     return status

@@ -154,7 +154,7 @@ def _cmd_deform(args) -> int:
         return _deform_points(args, mesh, src, tgt, out, png, js, abstractor, ss, rs, ts, rt)
     v = rs.frame.to_canonical(mesh.vertices)
     d = deformation.deform(v, rs.canonical, rt.canonical, falloff=args.falloff, faces=mesh.faces, unfold=True)
-    q = d.quality(mesh.faces, target_points=ts.points, source_points=ss.points)
+    q = d.quality(mesh.faces, target_points=ts.points, source_points=ss.points).to_dict()
     names = abstractor.part_names
     _print_transfer(d.transfer, names)
     print(f"Chamfer-L1 to the target (canonical frames, 10000+10000 samples): source {q['chamfer_source_target']:.4f} "
@@ -262,7 +262,7 @@ def _cmd_edit(args) -> int:
     mesh = _source_mesh(src)
     v = shape.frame.to_canonical(mesh.vertices)
     d = deformation.edit(v, res.canonical, **edits, falloff=args.falloff, faces=mesh.faces, unfold=True)
-    q = d.quality(mesh.faces)
+    q = d.quality(mesh.faces).to_dict()
     e = d.edit
     h0, h1 = _print_edit(d, q, v, names)
     io.write_like(src, out, shape.frame.from_canonical(d.vertices), mesh.faces, overwrite=args.force)

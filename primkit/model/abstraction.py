@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import data, io, parallel
-from ..io import objects as foreign
+from ..io.objects import from_pyvista, mesh_from_o3d, points_from_o3d
 from . import orientation
 from .abstractor import MIN_EXTENT, AbstractionResult, Abstractor
 
@@ -187,12 +187,12 @@ def as_shape(obj):
         return io.PointCloud(obj.vertices)
     if package == "open3d":
         if type(obj).__name__ == "TriangleMesh":
-            m = foreign.mesh_from_o3d(obj)
+            m = mesh_from_o3d(obj)
             return io.Mesh(m.vertices, m.faces)
         if type(obj).__name__ == "PointCloud":
-            return io.PointCloud(foreign.points_from_o3d(obj)[0])
+            return io.PointCloud(points_from_o3d(obj)[0])
     if package in ("pyvista", "vtkmodules", "vtk"):
-        vertices, faces = foreign.from_pyvista(obj)
+        vertices, faces = from_pyvista(obj)
         return io.Mesh(vertices, faces) if len(faces) else io.PointCloud(vertices)
     if isinstance(obj, tuple) and len(obj) == 2:
         return io.Mesh(*(x.detach().cpu().numpy() if _is_tensor(x) else x for x in obj))
