@@ -83,6 +83,11 @@ def test_shards_skip_done_and_an_executor_from_the_library(collection, tmp_path)
     written = sorted(p.name for p in out.iterdir())
     assert written == sorted([f"{n}{ext}" for n in run.plan.todo_names for ext in (".seg", ".parts.ply", ".cuboids.json")]
                              + ["summary.shard-1-of-2.csv"])
+    from primkit.model.cuboids_file import read_cuboids_file
+
+    kept = read_cuboids_file(out / f"{run.plan.todo_names[0]}.cuboids.json")  # the one schema, with the frame
+    assert kept.schema_version == 2 and kept.canonical_frame is not None and kept.model == "chair"
+    assert kept.part_names == segmenter.part_names
     lost = run.plan.todo_names[1]
     (out / f"{lost}.cuboids.json").unlink()
     again = segmenter.run([collection / "in"], out, shard="1/2", skip_done=True, cache_dir=cache, workers=1)

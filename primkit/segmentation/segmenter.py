@@ -187,8 +187,10 @@ class Segmenter:
         folder = plan.folder
         with parallel.executor_from(executor) as pool, warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", CardMismatchWarning)
-            segs, errors = self.segment_files(plan, cache_dir=cache_dir, workers=workers, executor=pool,
-                                              progress=progress)
+            results, errors = self.abstract_files(plan, cache_dir=cache_dir, workers=workers, progress=progress,
+                                                  executor=pool)  # segment_files' two steps, keeping the results
+            segs, errors = self.segment_results(results, workers=workers, progress=progress, errors=errors,
+                                                executor=pool)
         run = SegmentationRun(segmentations=segs, errors=list(errors), plan=plan)
         for w in caught:  # the model-card warning kept for the caller (and the summary); the others as they came
             if issubclass(w.category, CardMismatchWarning):
@@ -219,10 +221,12 @@ class Segmenter:
                     Path(tmp).write_text(codes)
         from ..model.cuboids_file import write_cuboids_file
 
-        for s in segs:  # the schema of every <name>.cuboids.json (its canonical_frame not known here)
+        frames = {r.name: r.frame for r in results}
+        for s in segs:  # the schema of every <name>.cuboids.json, without abstract's alignment record: how
+            # `auto` decided the up axis depends on the batch, and a --skip-done rerun must write the same bytes
             write_cuboids_file(folder / f"{s.name}.cuboids.json", s.cuboids, name=s.name, source=s.source,
-                               model=self.abstractor.model or None, part_names=s.part_names or None,
-                               overwrite=overwrite)
+                               canonical_frame=frames[s.name], model=self.abstractor.model or None,
+                               part_names=s.part_names or None, overwrite=overwrite)
         if picture:
             run.picture = outputs.write_picture(segs, picture)
         if ground_truth and kinds["mesh"]:
