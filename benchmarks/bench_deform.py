@@ -70,7 +70,7 @@ def main():
                        unfold=unf)
             dt = time.perf_counter() - t0
             q = d.quality(ff)
-            rows.append([f"{name}: {method}{' + unfold' if unf else ''}", f"{dt:.3f}", f"{100 * q['flipped']:.3f}", f"{q['distortion']['all']['p99']:.4f}"])
+            rows.append([f"{name}: {method}{' + unfold' if unf else ''}", f"{dt:.3f}", f"{100 * q.flipped:.3f}", f"{q.distortion['all'].p99:.4f}"])
     table("blending weights", ["shape: method", "s", "flipped %", "distortion p99"], rows)
 
 

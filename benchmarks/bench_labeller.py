@@ -8,8 +8,9 @@ runs it) once with ``labeller=None`` (names by part index) and once with the mod
 
 Usage (from the repository root)::
 
-    primkit name-parts CHAIRS... --model chair --labels ../shared/data/partnet_chair_boxes -o named.safetensors
-    python -m benchmarks.bench_labeller named.safetensors [--count 600] [--rounds 3] [--workers N] [--grid-sample 1,2,8]
+    python -m benchmarks.bench_labeller chair [--count 600] [--rounds 3] [--workers N] [--grid-sample 1,2,8]
+
+(``chair``: the bundled chair model's labeller; a file written by ``primkit name-parts`` works too.)
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from primkit import data
+from primkit.model.bundled import resolve_model
 from primkit.segmentation import Segmenter
 from primkit.segmentation.labeller import read_labeller
 
@@ -30,7 +32,7 @@ CHAIRS = Path(__file__).resolve().parents[2] / "shared" / "data" / "shapenetvox3
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("model", help="a model file with a labeller (primkit name-parts)")
+    ap.add_argument("model", help="a model with a labeller: a file (primkit name-parts) or a bundled name (chair)")
     ap.add_argument("--chairs", type=Path, default=CHAIRS)
     ap.add_argument("--count", type=int, default=600)
     ap.add_argument("--rounds", type=int, default=3)
@@ -39,7 +41,7 @@ def main(argv=None) -> int:
                     help="label with this grid_sample (1, 2 or 8) instead of the file's (LabellerSettings); "
                          "several: each timed in every round")
     args = ap.parse_args(argv)
-    labeller = read_labeller(args.model)
+    labeller = read_labeller(resolve_model(args.model))  # a file or a bundled model's name
     if labeller is None:
         raise SystemExit(f"{args.model}: no labeller in this model file (primkit name-parts writes one)")
     steps = [int(x) for x in args.grid_sample.split(",")] if args.grid_sample else [labeller.settings.grid_sample]

@@ -29,7 +29,7 @@ v = src.frame.to_canonical(a.vertices)  # work in the canonical frame (+Y up, lo
 
 # 1. deformation transfer: the source takes the target's configuration
 d = deformation.deform(v, src.canonical, tgt.canonical, faces=a.faces, unfold=True)  # unfold: re-solve flipped spots
-q = d.quality(a.faces, target_points=shapes[1].points, source_points=shapes[0].points)
+q = d.quality(a.faces, target_points=shapes[1].points, source_points=shapes[0].points).to_dict()
 print(f"Chamfer-L1 to the target: source {q['chamfer_source_target']:.4f} -> result {q['chamfer_result_target']:.4f}; "
       f"flipped triangles {100 * q['flipped']:.2f}%")
 io.write_mesh(out / "deformed.off", src.frame.from_canonical(d.vertices), a.faces, overwrite=True)

@@ -79,7 +79,7 @@ def _demo_outputs(out: Path, train_count: int, test_count: int) -> list:
     abstractions = [out / "abstractions" / f"chair_{i:04d}.cuboids{ext}" for i in range(test_count) for ext in (".json", ".ply")]
     fixed = [out / name for name in ("bundled.json", "bundled.png", "report.json", "abstractions.png",
                                      "report/index.html", "report/report.json")]
-    return [*training_outputs(out / "chair-demo.safetensors").values(), *fixed, *shapes, *abstractions]
+    return [*training_outputs(out / "chair-demo.safetensors").paths(), *fixed, *shapes, *abstractions]
 
 
 def run_demo(output="primkit-demo", *, quick: bool = False, force: bool = False, train_count: int = 96,

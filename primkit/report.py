@@ -27,12 +27,12 @@ from __future__ import annotations
 
 import html
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
-from . import deformation, embedding, io
+from . import data, deformation, embedding, io
 from .geometry import voxel_boundary_mesh
 from .segmentation import face_labels
 from .viz import web
@@ -231,7 +231,7 @@ def _deformation(shapes, similarity, folder: Path, overwrite: bool) -> dict:
     for src in range(min(len(shapes), DEFORMED_SHAPES)):
         a, b = shapes[src], shapes[int(partner[src])]
         d = deformation.deform(a.vertices, a.cuboids, b.cuboids, faces=a.faces)
-        q = d.quality(a.faces)
+        q = d.quality(a.faces).to_dict()
         tiles += [Tile(f"{a.name[:16]}", [segmentation_layer(a.vertices, a.faces, a.labels, a.cuboids.count)]),
                   Tile(f"partner {b.name[:14]}", [segmentation_layer(b.vertices, b.faces, b.labels, b.cuboids.count)]),
                   Tile("deformed", [segmentation_layer(d.vertices, a.faces, a.labels, a.cuboids.count)])]
@@ -241,6 +241,14 @@ def _deformation(shapes, similarity, folder: Path, overwrite: bool) -> dict:
     path = write_png(folder / "deformation.png", tiles, columns=3, tile=220, overwrite=overwrite,
                      radius=float(np.sqrt(3) / 2))
     return {"path": path, "pairs": pairs, "shown": len(pairs), "shapes": len(shapes)}
+
+
+def report_outputs(output, count: int) -> list[Path]:
+    """Every file :func:`build_report` may write into ``output`` for ``count`` shapes."""
+    out = Path(output)
+    images = [out / "images" / f"{i:03d}.{kind}.png" for i in range(count) for kind in ("mesh", "cuboids", "segmentation")]
+    return [out / "index.html", out / "report.json", out / "images" / "similarity.png",
+            out / "images" / "deformation.png", *images]
 
 
 def build_report(paths, model, output, *, refine: int = 0, align=None, up=None, front=None, overwrite: bool = False,
@@ -253,7 +261,13 @@ def build_report(paths, model, output, *, refine: int = 0, align=None, up=None, 
     :func:`primkit.model.abstraction.abstract_shapes`, as is ``adapt`` (experimental); ``progress``:
     tqdm bars on stderr (off by default).
     Returns ``(report, errors)``; ``errors`` has one line per unusable input (the rest goes on).
+
+    ``paths``: files or folders, or a :class:`primkit.data.RunPlan` (:func:`primkit.data.plan_run`),
+    whose outputs here (:func:`report_outputs`) are checked before any work.
     """
+    if isinstance(paths, data.RunPlan):  # a planned run: nothing overwritten without ``overwrite``, no input
+        paths = replace(paths, folder=Path(output), extra=report_outputs(output, len(paths.files)))
+        paths.check(overwrite)
     out = abstract_shapes(paths, model, settings=settings, align=align, up=up, front=front, refine=refine,
                           cache=cache_dir, workers=workers, progress=progress, adapt=adapt)
     if not out.shapes:

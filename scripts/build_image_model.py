@@ -32,7 +32,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 from primkit import data  # noqa: E402
 from primkit import image as views  # noqa: E402
-from primkit.model.abstractor import Abstractor  # noqa: E402
+from primkit.model.abstractor import Abstractor, RawCuboids  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data" / "shapenetvox32" / "03001627"
 _OLD = "--teacher /work/runs/chair-ab37adb.safetensors --threads 1"
@@ -117,12 +117,12 @@ def teacher_targets(teacher, coll, path: Path, limit=None):
     """The teacher's raw outputs for the first ``limit`` shapes, cached in ``path``."""
     n = len(coll) if limit is None else min(limit, len(coll))
     if path.is_file():
-        z = dict(np.load(path))
-        if len(z["existence"]) == n:
+        z = RawCuboids(**dict(np.load(path)))
+        if len(z.existence) == n:
             return z
     occ = np.stack([coll[i].occupancy for i in range(n)])
     raw = teacher.predict_canonical(occ)
-    np.savez(path, **raw)
+    np.savez(path, **raw.arrays())
     return raw
 
 
@@ -167,7 +167,7 @@ def train(teacher, train_coll, work: Path, settings, args) -> None:
     geometry = {}
     if args.geometric:
         points, closest = [], []
-        for i in range(len(targets["existence"])):  # one shape in memory at a time; 2,000 points each suffice
+        for i in range(len(targets.existence)):  # one shape in memory at a time; 2,000 points each suffice
             shape = train_coll[i]
             points.append(shape.points[:2000])
             closest.append(shape.closest)
@@ -175,8 +175,8 @@ def train(teacher, train_coll, work: Path, settings, args) -> None:
     start = im.ImageAbstractor.load(args.resume).network if args.resume else None
     net_config = im.ImageNetConfig(size=settings.size)
     print(f"distilling on {len(views_train)} views of {len(views_train.names)} chairs", flush=True)
-    result = im.train_image_model(views_train.images, views_train.shape_index, views_train.cameras, targets, progress=True,
-                                  net_config, config, network=start, foreground=views_train.foreground,
+    result = im.train_image_model(views_train.images, views_train.shape_index, views_train.cameras, targets,
+                                  net_config, config, progress=True, network=start, foreground=views_train.foreground,
                                   alpha=views_train.alpha, **geometry)
     model = im.ImageAbstractor(result.network, {})
     meta = {
@@ -240,7 +240,7 @@ def evaluate(teacher, held_coll, work: Path, settings, args) -> dict:
         results = model.predict(v.images, names=[v.names[i] for i in v.shape_index])
         seconds = (time.time() - t) / len(v)
         scores = [score(r.cuboids, shapes[i]) for r, i in zip(results, v.shape_index)]
-        errors = _param_errors(raw, {k: targets[k][v.shape_index] for k in targets})
+        errors = _param_errors(raw.arrays(), targets.rows(v.shape_index).arrays())
         az_err = np.abs((np.array([r.azimuth_deg for r in results]) - v.cameras[:, 0] + 180) % 360 - 180)
         report[tag] = {**_summary(scores, seconds), "against_teacher": errors,
                        "azimuth_error_deg_median": round(float(np.median(az_err)), 1)}

@@ -8,7 +8,7 @@ Each SETTING is a comma-separated list of :class:`primkit.model.adaptation.Adapt
 e.g. ``pull=0`` or ``steps=2000,learning_rate=3e-4`` (none: the defaults). The 10 chairs
 (``coseg_chairs/chairs_101-120`` and ``coseg_chairs/large_chairs``) are adapted to all together,
 without their labels; each folder is then scored against its own ``gt/*.seg`` under the paper's
-protocol (collection-majority mapping, :func:`primkit.segmentation.meshes.evaluate`), with the
+protocol (collection-majority mapping, :func:`primkit.segmentation.evaluation.evaluate`), with the
 default flags of ``primkit segment``. Printed per setting: the mean face accuracy over the 10, each
 chair's, the seconds the adaptation took and :func:`primkit.model.adaptation.index_agreement`.
 """
@@ -27,7 +27,7 @@ from primkit import data
 from primkit.model.abstraction import load_model
 from primkit.model.adaptation import AdaptConfig, adapt, index_agreement
 from primkit.segmentation import Segmenter
-from primkit.segmentation.meshes import evaluate, read_ground_truth
+from primkit.segmentation.evaluation import evaluate, read_ground_truth
 
 COSEG = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "coseg_chairs"
 FOLDERS = ("chairs_101-120", "large_chairs")

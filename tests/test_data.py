@@ -1,5 +1,6 @@
 """Preparation of meshes, voxel grids and point clouds, and the content-and-settings keyed cache."""
 
+import logging
 from io import BytesIO
 
 import numpy as np
@@ -162,8 +163,16 @@ def test_a_cached_shape_takes_a_quarter_of_the_first_format(tmp_path):
     assert np.array_equal(segment.shape(0).occupancy, shape.occupancy)
 
 
+def _cache_notes(caplog) -> list:
+    """The WARNING records about the cache since the last call (logger primkit.data.collection), then cleared."""
+    lines = [r.getMessage() for r in caplog.records
+             if r.name == "primkit.data.collection" and r.levelno == logging.WARNING and "cache" in r.getMessage()]
+    caplog.clear()
+    return lines
+
+
 @pytest.mark.parametrize("compact", [False, True])
-def test_damaged_cache_entries_are_prepared_again_and_said_once(tmp_path, capsys, monkeypatch, compact):
+def test_damaged_cache_entries_are_prepared_again_and_said_once(tmp_path, caplog, monkeypatch, compact):
     monkeypatch.setenv("PRIMKIT_CACHE_CODES", "compact" if compact else "exact")
     monkeypatch.setattr(data.cache, "SEGMENT_SHAPES", 2)  # 5 shapes: segments of 2, 2 and 1
     folder = tmp_path / "shapes"
@@ -180,40 +189,38 @@ def test_damaged_cache_entries_are_prepared_again_and_said_once(tmp_path, capsys
     points = segments[1] / "points.npy"
     points.write_bytes(points.read_bytes()[:3000])  # truncated
     (segments[2] / "index.json").write_text("{garbage")
-    capsys.readouterr()
+    caplog.clear()
     again = data.prepare_collection(folder, settings, cache_dir=cache, workers=1, progress=False)
-    err = capsys.readouterr().err
+    lines = _cache_notes(caplog)
     assert len(again) == 5 and not again.errors
-    lines = [line for line in err.splitlines() if "cache" in line]
-    assert len(lines) == 1 and "damaged" in lines[0] and "Traceback" not in err, err
+    assert len(lines) == 1 and "damaged" in lines[0], lines
     for i in range(5):
         got = again[i]
         assert np.array_equal(got.closest, reference[i].closest) and np.array_equal(got.points, reference[i].points)
-    capsys.readouterr()
     data.prepare_collection(folder, settings, cache_dir=cache, workers=1, progress=False)
-    assert "damaged" not in capsys.readouterr().err  # repaired for good
+    assert not _cache_notes(caplog)  # repaired for good
 
 
-def test_a_cache_of_the_other_codes_is_said_and_both_kinds_are_kept(tmp_path, capsys):
+def test_a_cache_of_the_other_codes_is_said_and_both_kinds_are_kept(tmp_path, caplog):
     folder = tmp_path / "shapes"
     synthetic.write_collection(folder, "chair", 2, seed=6)
     cache = tmp_path / "cache"
     settings = data.PrepareSettings(samples=500)
     exact = data.prepare_collection(folder, settings, cache_dir=cache, workers=1, progress=False, compact=False)
-    capsys.readouterr()
+    caplog.clear()
     compact = data.prepare_collection(folder, settings, cache_dir=cache, workers=1, progress=False, compact=True)
-    lines = [line for line in capsys.readouterr().err.splitlines() if "cache" in line]
+    lines = _cache_notes(caplog)
     assert len(lines) == 1 and "2 shapes" in lines[0] and "stored as float32" in lines[0] and "as compact codes" in lines[0]
     assert len(_segments(cache)) == 2
     # each kind reads its own segment from now on, without a word
     for kind, want in ((False, exact), (True, compact)):
         again = data.prepare_collection(folder, settings, cache_dir=cache, workers=1, progress=False, compact=kind)
-        assert "cache" not in capsys.readouterr().err
+        assert not _cache_notes(caplog)
         assert all(np.array_equal(again[i].closest, want[i].closest) for i in range(2))
     assert not np.array_equal(exact[0].closest, compact[0].closest)  # the kinds differ, within the declared error
 
 
-def test_an_old_cache_is_said_once_and_prepared_again(tmp_path, capsys):
+def test_an_old_cache_is_said_once_and_prepared_again(tmp_path, caplog):
     folder = tmp_path / "shapes"
     synthetic.write_collection(folder, "table", 2, seed=2)
     cache = tmp_path / "cache"
@@ -222,23 +229,20 @@ def test_an_old_cache_is_said_once_and_prepared_again(tmp_path, capsys):
     data.prepare(io.Mesh(table.vertices, table.faces), data.PrepareSettings(samples=100)).save(
         cache / "ab" / ("ab" + "0" * 62 + ".npz"))
     coll = data.prepare_collection(folder, data.PrepareSettings(samples=300), cache_dir=cache, workers=1, progress=False)
-    err = capsys.readouterr().err
+    lines = _cache_notes(caplog)
     assert len(coll) == 2 and not coll.errors
-    lines = [line for line in err.splitlines() if "cache" in line]
-    assert len(lines) == 1 and "older format" in lines[0] and str(cache) in lines[0], err
+    assert len(lines) == 1 and "older format" in lines[0] and str(cache) in lines[0], lines
 
 
-def test_an_unwritable_cache_prepares_in_memory(tmp_path, capsys):
+def test_an_unwritable_cache_prepares_in_memory(tmp_path, caplog):
     folder = tmp_path / "shapes"
     synthetic.write_collection(folder, "table", 3, seed=2)
     blocked = tmp_path / "cache"
     blocked.write_text("a file where the cache folder should be")  # mkdir fails, as on a read-only disk
     settings = data.PrepareSettings(samples=300)
     coll = data.prepare_collection(folder, settings, cache_dir=blocked, workers=2, progress=False)
-    err = capsys.readouterr().err
     assert len(coll) == 3 and not coll.errors
-    assert [line for line in err.splitlines() if "cache" in line] == [
-        f"primkit: cache: {blocked / 'v2'} cannot be written (Not a directory): shapes prepared in memory"], err
+    assert _cache_notes(caplog) == [f"cache: {blocked / 'v2'} cannot be written (Not a directory): shapes prepared in memory"]
     assert coll[2].points.shape == (300, 3)
     assert blocked.read_text().startswith("a file")
     # the same values as through a cache

@@ -29,9 +29,6 @@ SHARED = {
     "AXES": ({"primkit.plugins.paraview_plugin", "primkit.plugins.vtk_filter"},
              "the same filter property's choices, for the same reason as PrimkitSegmentation"),
     # left for other steps of issue 34 (see the report of this change)
-    "check_outputs": ({"primkit.cli._common", "primkit.io.files"},
-                      "cli._common's wrapper taking the command's args; the command line is being "
-                      "rewritten (issue 34 step 1), which removes or renames it"),
     "segment": ({"primkit.plugins.open3d_geometry", "primkit.segmentation.segmenter"},
                 "the Open3D plugin's `segment` is named in the README (the coordinator's file)"),
     "read_points": ({"primkit.io.formats", "primkit.plugins.pyvista_readers"},
@@ -98,7 +95,7 @@ DOCUMENTS = {
     "primkit.model.training.check_checkpoint": "the checkpoint's JSON metadata",
     "primkit.viz.web.scene_figure": "a plotly figure (plotly's JSON layout)",
     "primkit.report.page_scene_figure": "a plotly figure (plotly's JSON layout)",
-    "primkit.segmentation.meshes.parse_label_names": "label value -> name, keyed by the data",
+    "primkit.segmentation.evaluation.parse_label_names": "label value -> name, keyed by the data",
     "primkit.segmentation.labeller.TreeEnsemble.arrays": "the arrays of the model file, by tensor name",
     "primkit.data.cache.CacheSegment.row_arrays": "the arrays of a cache file, by array name",
     "primkit.data.cache.encode_row": "the arrays of a cache file, by array name",
@@ -108,21 +105,11 @@ DOCUMENTS = {
 PENDING = {
     "primkit.cli._common.abstraction_options": "the command line is being rewritten (step 1)",
     "primkit.cli.deform.parse_edit": "the command line is being rewritten (step 1)",
-    "primkit.deformation.folds.edge_distortion": "its JSON is written by cli/deform, being rewritten",
-    "primkit.deformation.mesh.Deformed.quality": "its JSON is written by cli/deform, being rewritten",
-    "primkit.model.abstractor.Abstractor.predict_canonical": "one network-output dataclass for the volume and "
-                                                             "image networks and the distillation (with the three below)",
-    "primkit.image.inference.ImageAbstractor.predict_raw": "as predict_canonical",
-    "primkit.image.network.ImageNet.forward": "as predict_canonical",
-    "primkit.image.distill.distillation_loss": "as predict_canonical",
-    "primkit.model.training.training_outputs": "paths by role: a dataclass of the training run's outputs",
-    "primkit.model.training.check_training_outputs": "as training_outputs",
-    "primkit.viewers.open3d_viewer.Open3DViewer.export": "paths by role",
     "primkit.segmentation.meshes.Segmentation.save": "paths by role; segmentation is being reworked",
     "primkit.segmentation.points.PointSegmentation.save": "paths by role; segmentation is being reworked",
     "primkit.segmentation.voxels.VoxelSegmentation.save": "paths by role; segmentation is being reworked",
-    "primkit.segmentation.meshes.evaluate": "ground-truth evaluation moves to its own module (step 1)",
-    "primkit.segmentation.voxels.evaluate_voxels": "ground-truth evaluation moves to its own module (step 1)",
+    "primkit.segmentation.evaluation.evaluate": "ground-truth evaluation: its own module now; its result type is next",
+    "primkit.segmentation.evaluation.evaluate_voxels": "ground-truth evaluation: its own module now; its result type is next",
 }
 
 
@@ -167,7 +154,7 @@ def test_the_dict_check_can_fail():
     assert _untyped_dict(ast.parse("dict", mode="eval").body)
     assert _untyped_dict(ast.parse("dict[str, Any]", mode="eval").body)
     assert not _untyped_dict(ast.parse("dict[str, Path]", mode="eval").body)
-    assert "primkit.model.training.training_outputs" in dict_returning_functions()  # pending, so still found
+    assert "primkit.segmentation.evaluation.evaluate" in dict_returning_functions()  # pending, so still found
 
 
 def test_no_public_function_returns_a_dict_of_results():

@@ -11,17 +11,20 @@ library when its command runs (the model layer imports torch, the drawing kit VT
 
 from __future__ import annotations
 
+import contextlib
+import logging
 import re
 import sys
 from pathlib import Path
 
 __all__ = [
     "err",
+    "command_logging",
     "report_errors",
     "collect",
     "output_names",
     "input_paths",
-    "check_outputs",
+    "check_command_outputs",
     "model_file",
     "settings_from_args",
     "abstraction_options",
@@ -34,9 +37,9 @@ __all__ = [
     "add_cache",
     "add_workers",
     "add_scale_out",
-    "parse_shard_option",
-    "shard_of",
     "add_png",
+    "add_quiet",
+    "progress_of",
     "add_prepare_options",
     "add_abstraction_options",
     "add_adapt",
@@ -45,11 +48,41 @@ __all__ = [
 
 #: the shared options' destinations, as ``tests/cli/test_options.py`` checks them
 SHARED_OPTIONS = ("model", "output", "force", "up", "front", "align", "refine", "cache", "workers", "png", "executor",
-                  "shard")
+                  "shard", "quiet")
 
 
 def err(msg: str) -> None:
     print(f"primkit: error: {msg}", file=sys.stderr)
+
+
+class _StderrHandler(logging.Handler):
+    """The library's log records on the command's stderr (the one in place when each is written):
+    ``primkit: note: ...`` for notes (INFO), ``primkit: ...`` for warnings (their message names
+    what they are about: ``cache: ...``)."""
+
+    def emit(self, record) -> None:
+        try:
+            text = record.getMessage()
+            prefix = "primkit: note: " if record.levelno < logging.WARNING else "primkit: "
+            print(prefix + text, file=sys.stderr)
+        except Exception:  # noqa: BLE001 - logging must never stop the command
+            self.handleError(record)
+
+
+@contextlib.contextmanager
+def command_logging(quiet: bool = False):
+    """Within the block (a command's run), the library's notes (INFO) and warnings of the
+    ``primkit`` loggers on stderr; with ``quiet``, the warnings only. Afterwards the loggers are as
+    they were (a program calling :func:`primkit.cli.main` keeps its own logging)."""
+    logger = logging.getLogger("primkit")
+    handler, level = _StderrHandler(), logger.level
+    logger.addHandler(handler)
+    logger.setLevel(logging.WARNING if quiet else logging.INFO)
+    try:
+        yield
+    finally:
+        logger.removeHandler(handler)
+        logger.setLevel(level)
 
 
 #: above this many errors, report_errors ends with a count of each reason
@@ -81,34 +114,19 @@ def report_errors(errors) -> int:
 
 
 def collect(inputs) -> list[Path]:
-    """The shape files of the command line's inputs (files as given, folders searched
-    recursively), in order. A missing input, or a folder with no shape file in it, is a one-line
-    error (FileNotFoundError) before any work."""
-    from ..data import find_shape_files
-    from ..io import MESH_SUFFIXES, POINT_SUFFIXES, VOXEL_SUFFIXES
+    """The shape files of the command line's inputs (:func:`primkit.data.collect_files`: files as
+    given, folders searched recursively; a missing input or an empty folder is a one-line error)."""
+    from ..data import collect_files
 
-    files = []
-    for item in inputs:
-        found = find_shape_files(item)
-        if not found:
-            suffixes = " ".join(dict.fromkeys(MESH_SUFFIXES + POINT_SUFFIXES + VOXEL_SUFFIXES))
-            raise FileNotFoundError(f"{item}: no shape files in this folder (searched recursively for {suffixes})")
-        files.extend(found)
-    return files
+    return collect_files(inputs)
 
 
 def output_names(files) -> list[str]:
-    """The names outputs take after each of ``files`` (:func:`primkit.data.shape_names`), saying on
-    stderr which inputs shared a name and what they are called instead."""
-    from ..data import shape_name, shape_names
+    """The names outputs take after each of ``files`` (the run plan's, :func:`primkit.data.plan_run`,
+    which notes which inputs shared a name and what they are called instead)."""
+    from ..data import plan_run
 
-    names = shape_names(files)
-    plain = [shape_name(p) for p in files]
-    for shared in dict.fromkeys(n for n, m in zip(plain, names) if n != m):
-        items = [(p, m) for p, n, m in zip(files, plain, names) if n == shared]
-        print(f"primkit: note: {len(items)} inputs are named {shared} ({', '.join(str(p) for p, _ in items)}); "
-              f"their outputs are named {', '.join(m for _, m in items)}", file=sys.stderr)
-    return names
+    return plan_run(files).names
 
 
 def input_paths(files, *extra) -> list[Path]:
@@ -136,7 +154,7 @@ def model_file(model) -> Path | None:
         return None
 
 
-def check_outputs(args, outputs, inputs=()) -> list[Path]:
+def check_command_outputs(args, outputs, inputs=()) -> list[Path]:
     """:func:`primkit.io.check_outputs` with the command's ``--force``: before any work, every
     output can be written, is no input, and replaces nothing without ``--force``."""
     from ..io import check_outputs as check
@@ -158,12 +176,12 @@ def settings_from_args(args, base=None):
 
 def abstraction_options(args) -> dict:
     """The keyword arguments of :func:`primkit.model.abstraction.abstract_shapes` that the shared
-    options give (the inputs' axes only when given, so the library's defaults stand otherwise)."""
-    options = {"align": args.align, "refine": args.refine, "cache": args.cache, "workers": args.workers}
+    options give (the inputs' axes only when given, so the library's defaults stand otherwise;
+    ``progress``: :func:`progress_of`)."""
+    options = {"align": args.align, "refine": args.refine, "cache": args.cache, "workers": args.workers,
+               "progress": progress_of(args)}
     if getattr(args, "executor", None) is not None:
         options["executor"] = args.executor
-    if getattr(args, "shard", None) is not None:
-        options["shard"] = parse_shard_option(args)
     options.update({k: getattr(args, k) for k in ("up", "front") if getattr(args, k, None) is not None})
     if getattr(args, "adapt", None):
         options["adapt"] = args.adapt
@@ -228,18 +246,19 @@ def add_scale_out(p, shard: bool = True) -> None:
                         "are named as one run's and merge without clashes")
 
 
-def parse_shard_option(args):
-    """``(k, n)`` of ``args.shard``, or None."""
-    from ..parallel import parse_shard
-
-    return parse_shard(getattr(args, "shard", None))
+def add_quiet(p) -> None:
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bars and no notes (warnings and errors still show)")
 
 
-def shard_of(args, items: list) -> list:
-    """The items of ``args.shard``'s shard (all of them without one)."""
-    from ..parallel import shard_indices
-
-    return [items[i] for i in shard_indices(len(items), parse_shard_option(args))]
+def progress_of(args) -> bool:
+    """Whether the command shows progress bars: only when its stderr is a terminal (no carriage
+    returns in a log or a pipe), and not with ``--quiet``. The library draws none unless asked."""
+    if getattr(args, "quiet", False):
+        return False
+    try:
+        return bool(sys.stderr.isatty())
+    except (AttributeError, ValueError):  # a closed or replaced stream
+        return False
 
 
 def add_png(p) -> None:
@@ -253,6 +272,7 @@ def add_prepare_options(p) -> None:
     add_axes(p)
     add_cache(p)
     add_workers(p)
+    add_quiet(p)
 
 
 def add_abstraction_options(p) -> None:
@@ -265,6 +285,7 @@ def add_abstraction_options(p) -> None:
     add_cache(p)
     add_workers(p)
     add_adapt(p)
+    add_quiet(p)
 
 
 def _adapt_steps(text: str):

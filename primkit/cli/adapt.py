@@ -6,8 +6,9 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ._common import (add_align, add_axes, add_cache, add_force, add_model, add_output, add_refine, add_workers,
-                      check_outputs, collect, err, input_paths, model_file, report_errors, settings_from_args)
+from ._common import (add_align, add_axes, add_cache, add_force, add_model, add_output, add_quiet, add_refine, add_workers,
+                      check_command_outputs, collect, err, input_paths, model_file, progress_of, report_errors,
+                      settings_from_args)
 
 
 def register(sub) -> None:
@@ -30,6 +31,7 @@ def register(sub) -> None:
     add_refine(p)  # shared by every command with --model; adapting refines nothing
     add_cache(p)
     add_workers(p)
+    add_quiet(p)
     add_force(p)
     p.set_defaults(func=run)
 
@@ -47,7 +49,7 @@ def run(args) -> int:
         output = Path(args.output)
         if output.suffix != ".safetensors":
             raise ValueError(f"{output}: the adapted model is written as '.safetensors'")
-        check_outputs(args, [output], input_paths(files, model_file(args.model)))
+        check_command_outputs(args, [output], input_paths(files, model_file(args.model)))
         if args.steps is not None and args.steps < 1:
             raise ValueError(f"--steps must be at least 1, got {args.steps}")
         if args.refine:
@@ -58,15 +60,16 @@ def run(args) -> int:
     except (ValueError, FileNotFoundError, FileExistsError, OSError) as exc:
         err(str(exc).splitlines()[0])
         return 2
-    coll = prepare_collection(files, settings, cache_dir=args.cache, workers=args.workers)
+    coll = prepare_collection(files, settings, cache_dir=args.cache, workers=args.workers, progress=progress_of(args))
     status = report_errors(coll.errors)
     if not len(coll):
         err("no usable shapes to adapt to")
         return 1
     child = adapt(parent, coll, AdaptConfig(steps=args.steps, seed=args.seed), align=align, parent_name=str(args.model),
-                  progress=True)
+                  progress=progress_of(args))
     save_adapted(child, output, overwrite=args.force)
     a = child.metadata["adaptation"]
     print(f"{output}: {a['parent']} adapted to {a['shapes']} shapes (digest {a['digest']}), {a['config']['steps']} steps, "
-          f"{a['seconds']:.0f} s")
+          f"{a['seconds']:.0f} s; {100 * a['index_agreement']:.1f}% of surface samples keep their part's index "
+          f"({a['agreement_shapes']} shapes)")
     return status

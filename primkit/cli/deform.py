@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from ..model.parts import resolve_parts
-from ._common import (abstraction_options, add_abstraction_options, add_force, add_output, add_png, check_outputs, err,
+from ._common import (abstraction_options, add_abstraction_options, add_force, add_output, add_png, check_command_outputs, err,
                       input_paths, model_file, report_errors)
 
 __all__ = ["register", "parse_edit"]
@@ -55,7 +55,7 @@ def _outputs(args, inputs, *, points: bool = False) -> tuple[Path, Path | None, 
         out = check_suffix(args.output, MESH_WRITE_SUFFIXES, "a deformed mesh")
     png = check_suffix(args.png, ".png", "a picture") if args.png else None
     js = check_suffix(args.json, ".json", "the quality measures") if args.json else out.with_suffix(".json")
-    check_outputs(args, (out, png, js), input_paths([Path(p) for p in inputs if Path(p).is_file()], model_file(args.model)))
+    check_command_outputs(args, (out, png, js), input_paths([Path(p) for p in inputs if Path(p).is_file()], model_file(args.model)))
     return out, png, js
 
 
@@ -154,7 +154,7 @@ def _cmd_deform(args) -> int:
         return _deform_points(args, mesh, src, tgt, out, png, js, abstractor, ss, rs, ts, rt)
     v = rs.frame.to_canonical(mesh.vertices)
     d = deformation.deform(v, rs.canonical, rt.canonical, falloff=args.falloff, faces=mesh.faces, unfold=True)
-    q = d.quality(mesh.faces, target_points=ts.points, source_points=ss.points)
+    q = d.quality(mesh.faces, target_points=ts.points, source_points=ss.points).to_dict()
     names = abstractor.part_names
     _print_transfer(d.transfer, names)
     print(f"Chamfer-L1 to the target (canonical frames, 10000+10000 samples): source {q['chamfer_source_target']:.4f} "
@@ -227,11 +227,7 @@ def _deform_points(args, cloud, src, tgt, out, png, js, abstractor, ss, rs, ts, 
 
 def _cmd_edit(args) -> int:
     from .. import deformation, io
-    from ..segmentation import face_labels
     from ..io import atomic_output
-    from ..viz.camera import CANONICAL_RADIUS
-    from ..viz.render import write_png
-
     from ..model.abstraction import load_model
 
     out, png, js = _outputs(args, [args.mesh])
@@ -266,19 +262,9 @@ def _cmd_edit(args) -> int:
     mesh = _source_mesh(src)
     v = shape.frame.to_canonical(mesh.vertices)
     d = deformation.edit(v, res.canonical, **edits, falloff=args.falloff, faces=mesh.faces, unfold=True)
-    q = d.quality(mesh.faces)
+    q = d.quality(mesh.faces).to_dict()
     e = d.edit
-    print("edited: " + ", ".join(f"{names[k]}[{k}]" for k in e.edited))
-    for j, below in e.carried.items():
-        print(f"  {names[j]}[{j}] carried along (rests on {', '.join(f'{names[k]}[{k}]' for k in below)})")
-    h0, h1 = np.ptp(v[:, 1]), np.ptp(d.vertices[:, 1])
-    print(f"height (canonical units, longest side 1): {h0:.4f} -> {h1:.4f} ({100 * (h1 / h0 - 1):+.1f}%)")
-    if e.lengthening is not None:
-        L = e.lengthening
-        held = "given" if L.support is None else f"underside of {names[L.support]}[{L.support}]"
-        print(f"lengthened between the floor at {L.floor:.4f} and the cut plane at {L.cut:.4f} ({held}); "
-              f"expected rise {max(L.rise(k) for k in L.factors):.4f}")
-    print(_summary_line(q) + f"; blending distance {d.binding.falloff:.4f}")
+    h0, h1 = _print_edit(d, q, v, names)
     io.write_like(src, out, shape.frame.from_canonical(d.vertices), mesh.faces, overwrite=args.force)
     report = {"source": str(src), "model": str(args.model), "output": str(out),
               "edits": {kind: {f"{names[k]}[{k}]": np.atleast_1d(val).tolist() for k, val in chosen.items()}
@@ -291,12 +277,39 @@ def _cmd_edit(args) -> int:
     with atomic_output(js, overwrite=args.force) as tmp:
         Path(tmp).write_text(json.dumps(report, indent=1))
     if png is not None:
-        flab = face_labels(v, mesh.faces, res.canonical)  # the co-segmentation rule, drawn on both
-        tiles = [_parts_tile(f"before {shape.name}", v, mesh.faces, flab, res.canonical),
-                 _parts_tile("after", d.vertices, mesh.faces, flab, e.cuboids, res.canonical.count)]
-        write_png(png, tiles, overwrite=args.force, columns=2, radius=CANONICAL_RADIUS)
+        _draw_edit(png, shape.name, v, mesh.faces, res.canonical, d, args.force)
     print(f"-> {out}, {js}" + (f", {png}" if png else ""))
     return 0
+
+
+def _print_edit(d, q, v, names) -> tuple:
+    """What the edit did, printed: the parts edited and carried, the height, the lengthening, the
+    quality; returns the heights before and after."""
+    e = d.edit
+    print("edited: " + ", ".join(f"{names[k]}[{k}]" for k in e.edited))
+    for j, below in e.carried.items():
+        print(f"  {names[j]}[{j}] carried along (rests on {', '.join(f'{names[k]}[{k}]' for k in below)})")
+    h0, h1 = np.ptp(v[:, 1]), np.ptp(d.vertices[:, 1])
+    print(f"height (canonical units, longest side 1): {h0:.4f} -> {h1:.4f} ({100 * (h1 / h0 - 1):+.1f}%)")
+    if e.lengthening is not None:
+        L = e.lengthening
+        held = "given" if L.support is None else f"underside of {names[L.support]}[{L.support}]"
+        print(f"lengthened between the floor at {L.floor:.4f} and the cut plane at {L.cut:.4f} ({held}); "
+              f"expected rise {max(L.rise(k) for k in L.factors):.4f}")
+    print(_summary_line(q) + f"; blending distance {d.binding.falloff:.4f}")
+    return h0, h1
+
+
+def _draw_edit(png, name, v, faces, canonical, d, force) -> None:
+    """The shape before and after, coloured by part (the co-segmentation rule, drawn on both)."""
+    from ..segmentation import face_labels
+    from ..viz.camera import CANONICAL_RADIUS
+    from ..viz.render import write_png
+
+    flab = face_labels(v, faces, canonical)
+    tiles = [_parts_tile(f"before {name}", v, faces, flab, canonical),
+             _parts_tile("after", d.vertices, faces, flab, d.edit.cuboids, canonical.count)]
+    write_png(png, tiles, overwrite=force, columns=2, radius=CANONICAL_RADIUS)
 
 
 def _common_options(p) -> None:

@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ._common import (abstraction_options, add_abstraction_options, add_scale_out, add_force, add_output, add_png, check_outputs, collect,
-                      err, input_paths, model_file, output_names, report_errors)
+from ._common import (abstraction_options, add_abstraction_options, add_scale_out, add_force, add_output, add_png, check_command_outputs, collect,
+                      err, input_paths, model_file, output_names, progress_of, report_errors)
 
 #: Above this many shapes ``embed`` writes no full distance matrix unless --distances yes.
 _MATRIX_LIMIT = 4000
@@ -102,17 +102,19 @@ def _picture_path(path):
 
 def _cmd_embed(args) -> int:
     from .. import embedding
+    from ..data import plan_run
     from ..io import check_suffix, write_array
 
     out = Path(args.output)
     names_out = ["distances.npy", "distances.csv", "map.csv"]
     if args.metric == "descriptor":
         names_out += ["descriptors.npy"]
-    files = collect(args.inputs)
-    output_names(files)  # says which inputs shared a name (the rows of the CSV files)
     svg = None if args.svg is None else check_suffix(args.svg, ".svg", "a map")
-    check_outputs(args, [out / n for n in names_out] + [_picture_path(args.png), svg], input_paths(files, model_file(args.model)))
-    abstractor, results, grids, errors = _abstract(args, files)
+    # the names are the rows of the CSV files (the plan says which inputs shared one)
+    plan = plan_run(args.inputs, out, extra=[out / n for n in names_out] + [_picture_path(args.png), svg],
+                    reads=[model_file(args.model)])
+    plan.check(args.force)
+    abstractor, results, grids, errors = _abstract(args, plan)
     if len(results) < 3:
         err(f"{len(results)} usable shape(s): a map needs at least 3")
         report_errors(errors)
@@ -144,7 +146,7 @@ def _cmd_embed(args) -> int:
     what = "voxel IoU" if X is None else f"parts {args.parts or 'all'} ({len(desc.parts_)} indices), {','.join(desc.what_)}"
     if args.png or args.svg:
         meshes = _thumb_meshes(results, grids, args.thumbnails, None if desc is None else desc.parts_)
-        images = embedding.render_thumbnails(meshes, size=args.thumb_size, progress=True)
+        images = embedding.render_thumbnails(meshes, size=args.thumb_size, progress=progress_of(args))
         embedding.draw_map(coords, images, args.png, svg=args.svg, title=f"t-SNE map of {s} shapes: {what}")
     print(f"{s} shapes embedded ({what}) -> {out}")
     return report_errors(errors)
@@ -161,7 +163,7 @@ def _cmd_similar(args) -> int:
     if not files:
         raise ValueError(f"no shape files found in {', '.join(args.inputs)} besides the query")
     output_names(query_files + files)
-    check_outputs(args, [out / "similar.csv", _picture_path(args.png)], input_paths(query_files + files, model_file(args.model)))
+    check_command_outputs(args, [out / "similar.csv", _picture_path(args.png)], input_paths(query_files + files, model_file(args.model)))
     abstractor, results, grids, errors = _abstract(args, query_files + files)
     if not results or str(results[0].source) != str(query_files[0]):
         err(f"{query_files[0]}: the query could not be used")
@@ -189,7 +191,7 @@ def _cmd_similar(args) -> int:
     if args.png:
         sel = None if desc is None else desc.parts_
         meshes = _thumb_meshes([query] + [results[j] for j in order], np.concatenate([qgrid, grids[order]]), args.thumbnails, sel)
-        images = embedding.render_thumbnails(meshes, size=160)
+        images = embedding.render_thumbnails(meshes, size=160, progress=progress_of(args))
         what = "voxel IoU" if X is None else f"parts {args.parts or 'all'}, {','.join(desc.what_)}"
         embedding.draw_matches(images[0], images[1:], [results[j].name for j in order], dist, args.png,
                                query_name=query.name, title=f"nearest to {query.name} by {what}")

@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ._common import (add_force, add_output, add_prepare_options, check_outputs, collect, err, input_paths, model_file,
-                      output_names, report_errors, settings_from_args)
+from ._common import (add_force, add_output, add_prepare_options, check_command_outputs, collect, err, input_paths, model_file,
+                      output_names, progress_of, report_errors, settings_from_args)
 
 __all__ = ["register", "run_train_image", "run_abstract_images", "collect_images"]
 
@@ -64,7 +64,7 @@ def run_abstract_images(args) -> int:
     out = Path(args.output)
     png = None if args.png is None else check_suffix(args.png, ".png", "a picture")
     outputs = [out / f"{n}.cuboids{ext}" for n in output_names(files) for ext in (".json", ".ply")]
-    check_outputs(args, outputs + [png], files + [model_file(args.model)])  # before any work
+    check_command_outputs(args, outputs + [png], files + [model_file(args.model)])  # before any work
     results, errors = model.predict_files(files)
     failed += errors
     vs = model.view_settings
@@ -106,27 +106,21 @@ def run_train_image(args) -> int:
         err(str(exc))
         return 2
     files = collect(args.inputs)
-    check_outputs(args, [out], input_paths(files, model_file(args.teacher)))  # before any work
+    check_command_outputs(args, [out], input_paths(files, model_file(args.teacher)))  # before any work
     every = teacher.hold_out_every if args.hold_out is None else args.hold_out
     train_files, _ = data.split_files(files, every)
     if args.limit:
         train_files = train_files[: args.limit]
     coll = data.prepare_collection(train_files, settings_from_args(args, teacher.settings), cache_dir=args.cache,
-                                   workers=args.workers)
+                                   workers=args.workers, progress=progress_of(args))
     if len(coll) == 0:
         err("no usable training shapes")
         return 2
     settings = views.ViewSettings(size=args.size)
-    occ, geometry = [], {"surface_points": [], "closest": []}
-    for shape in coll:
-        occ.append(shape.occupancy)
-        if args.geometric:  # 2,000 of each shape's surface samples are plenty for 1,000 per step
-            geometry["surface_points"].append(shape.points[:2000])
-            geometry["closest"].append(shape.closest)
-    geometry = {k: np.stack(v) for k, v in geometry.items()} if args.geometric else {}
+    occ, geometry = _teacher_arrays(coll, args.geometric)
     swap = float(args.swap_backgrounds)
     rendered = views.render_views(occ, args.views, settings=settings, palette="seen", seed=args.seed,
-                                  names=[data.shape_name(p) for p in coll.paths], progress=True,
+                                  names=[data.shape_name(p) for p in coll.paths], progress=progress_of(args),
                                   keep_foreground=swap > 0)
     targets = teacher.predict_canonical(np.stack(occ))
     config = ImageTrainConfig(iterations=args.iterations, batch_size=args.batch_size, seed=args.seed,
@@ -149,6 +143,19 @@ def run_train_image(args) -> int:
     print(f"image model: {len(coll)} shapes, {len(rendered)} views, {result.seconds / 60:.1f} min, "
           f"final loss {result.history[-1]['total']:.4f} -> {out}")
     return report_errors(coll.errors)
+
+
+def _teacher_arrays(coll, geometric: bool):
+    """The prepared shapes' occupancy grids, and (``geometric``) their samples and closest points."""
+    import numpy as np
+
+    occ, geometry = [], {"surface_points": [], "closest": []}
+    for shape in coll:
+        occ.append(shape.occupancy)
+        if geometric:  # 2,000 of each shape's surface samples are plenty for 1,000 per step
+            geometry["surface_points"].append(shape.points[:2000])
+            geometry["closest"].append(shape.closest)
+    return occ, ({k: np.stack(v) for k, v in geometry.items()} if geometric else {})
 
 
 def register(subparsers) -> None:

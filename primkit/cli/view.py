@@ -19,10 +19,11 @@ from pathlib import Path
 
 from ._common import (
     abstraction_options,
+    progress_of,
     add_abstraction_options,
     add_force,
     add_png,
-    check_outputs,
+    check_command_outputs,
     collect,
     err,
     input_paths,
@@ -66,7 +67,7 @@ def _meshes(args, inputs, progress: bool = True):
     from ..model.abstraction import abstract_shapes
     from ..viewers.common import drawable
 
-    out = abstract_shapes(inputs, args.model, progress=progress, **abstraction_options(args))
+    out = abstract_shapes(inputs, args.model, **dict(abstraction_options(args), progress=progress and progress_of(args)))
     shapes, errors = [], list(out.errors)
     for a in out:
         try:
@@ -165,7 +166,7 @@ def _view_open3d(args, off, size) -> int:
         err("view open3d --png --window takes the picture from Open3D's window and needs a display: run it under X "
             "or xvfb-run -a (without --window it draws off screen)")
         return 2
-    options = {k: v for k, v in abstraction_options(args).items() if k not in ("cache", "workers")}
+    options = {k: v for k, v in abstraction_options(args).items() if k not in ("cache", "workers", "progress")}
     viewer = open3d_viewer(given, args.model, name=Path(args.shape).stem, refine_step=args.refine_step,
                            export_folder=args.export, **options)
     if args.png is not None:
@@ -187,7 +188,7 @@ def _run(args) -> int:
     if args.png is not None:  # before any work: a .png that can be written and is none of the inputs
         given = [getattr(args, k) for k in ("shape", "source", "target") if getattr(args, k, None)]
         given += list(getattr(args, "folder", None) or [])
-        check_outputs(args, [check_suffix(args.png, ".png", "a picture")],
+        check_command_outputs(args, [check_suffix(args.png, ".png", "a picture")],
                       input_paths([f for g in given for f in collect([g])], model_file(args.model)))
     off = args.png is not None and not args.window
     return _VIEWERS[args.viewer](args, off, _size(args.size))

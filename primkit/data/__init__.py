@@ -17,6 +17,8 @@ The package, by concept (each module imports only the ones listed after it; ``se
 import-linter contract checks it):
 
 * :mod:`~primkit.data.collection`: a folder prepared through the cache, in parallel;
+* :mod:`~primkit.data.plan`: a run over a collection planned once (files, names, shard, what is
+  done, the outputs to check);
 * :mod:`~primkit.data.cache`: the cache's segments and keys;
 * :mod:`~primkit.data.files`: input files, the files read with each, their names, the split;
 * :mod:`~primkit.data.preparation`: one shape's preparation.
@@ -28,6 +30,7 @@ from __future__ import annotations
 
 from .cache import CACHE_FORMAT, SEGMENT_SHAPES, CacheSegment, compact_by_default, default_cache_dir
 from .collection import PreparedCollection, prepare_collection
+from .plan import RunPlan, collect_files, plan_run
 from .files import find_shape_files, input_files, prepare_file, shape_name, shape_names, split_files
 from .preparation import PREPARATION_VERSION, PreparedShape, PrepareSettings, prepare
 
@@ -47,4 +50,7 @@ __all__ = [
     "CacheSegment",
     "CACHE_FORMAT",
     "compact_by_default",
+    "RunPlan",
+    "plan_run",
+    "collect_files",
 ]

@@ -3,8 +3,8 @@
 
 from __future__ import annotations
 
+import logging
 import os
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -15,8 +15,10 @@ from . import cache as _cache
 from .cache import CACHE_FORMAT, CacheSegment, CacheIndex, cache_key, encode_row, old_cache_entries, \
     compact_by_default, default_cache_dir
 from .files import find_shape_files, prepare_file, shape_name, shape_names
+from .plan import RunPlan
 from .preparation import PreparedShape, PrepareSettings
 
+_logger = logging.getLogger(__name__)
 
 def _key_job(args) -> tuple:
     path, settings = args
@@ -118,7 +120,7 @@ def prepare_collection(
     *,
     cache_dir=None,
     workers: int | None = None,
-    progress: bool = True,
+    progress: bool = False,
     compact: bool | None = None,
     executor=None,
     shard=None,
@@ -140,11 +142,16 @@ def prepare_collection(
 
     Parameters
     ----------
-    files_or_folder : path or list of paths
+    files_or_folder : path, list of paths, or RunPlan
+        A :class:`primkit.data.RunPlan` gives its files, their names and what it does of them
+        (its ``selection``: the shard less what a cut run finished).
     workers : int, optional
         Processes to use; all cores by default. ``1`` prepares in this process.
     progress : bool
-        Show a progress bar (tqdm, on stderr).
+        Show a progress bar (tqdm, on stderr); off by default.
+
+    Notes on the cache (an older format, damaged entries, the other codes, a cache that cannot be
+    written) are WARNING records of the ``primkit.data.collection`` logger.
     executor : optional
         Where to prepare the shapes the cache lacks: an executor (anything with
         ``concurrent.futures.Executor.map``) or an address for :func:`primkit.parallel.executor_from`
@@ -157,19 +164,23 @@ def prepare_collection(
     """
     from concurrent.futures import ThreadPoolExecutor
 
-    if isinstance(files_or_folder, (str, os.PathLike)):
-        files = find_shape_files(files_or_folder)
+    if isinstance(files_or_folder, RunPlan):  # a planned run: its files, names and what it does of them
+        files, all_names = list(files_or_folder.files), list(files_or_folder.names)
+        shard = files_or_folder.selection if shard is None else shard
     else:
-        files = [Path(p) for p in files_or_folder]
-    all_names = shape_names(files)
+        if isinstance(files_or_folder, (str, os.PathLike)):
+            files = find_shape_files(files_or_folder)
+        else:
+            files = [Path(p) for p in files_or_folder]
+        all_names = shape_names(files)
     keep = parallel.shard_indices(len(files), shard)
     files, all_names = [files[i] for i in keep], [all_names[i] for i in keep]
     cache = Path(cache_dir) if cache_dir is not None else default_cache_dir()
     root = cache / f"v{CACHE_FORMAT}"
     old = old_cache_entries(cache)
     if old:
-        print(f"primkit: cache: {cache} holds {old} entr{'y' if old == 1 else 'ies'} of an older format, not read: "
-              f"shapes are prepared again into {root} (delete {cache}/?? to free the space)", file=sys.stderr)
+        _logger.warning(f"cache: {cache} holds {old} entr{'y' if old == 1 else 'ies'} of an older format, not read: "
+                        f"shapes are prepared again into {root} (delete {cache}/?? to free the space)")
     compact = compact_by_default() if compact is None else bool(compact)
     index = CacheIndex(root, settings, compact)
     # keys: the bytes of every file hashed, in threads (reading and hashlib release the GIL)
@@ -222,16 +233,16 @@ def prepare_collection(
                 flush()
     flush()
     if index.damaged:
-        print(f"primkit: cache: {index.damaged} damaged entr{'y' if index.damaged == 1 else 'ies'} in {root} "
-              "(truncated or not an entry) prepared again", file=sys.stderr)
+        _logger.warning(f"cache: {index.damaged} damaged entr{'y' if index.damaged == 1 else 'ies'} in {root} "
+                        "(truncated or not an entry) prepared again")
     other = sum(key in index.other_codes for key in misses)
     if other:
         kinds = ("float32 values (PRIMKIT_CACHE_CODES=exact)", "compact codes") if compact else \
                 ("compact codes", "float32 values (PRIMKIT_CACHE_CODES=exact)")
-        print(f"primkit: cache: {other} shape{'' if other == 1 else 's'} in {root} stored as {kinds[0]} prepared again "
-              f"as {kinds[1]}, this run's kind", file=sys.stderr)
+        _logger.warning(f"cache: {other} shape{'' if other == 1 else 's'} in {root} stored as {kinds[0]} prepared "
+                        f"again as {kinds[1]}, this run's kind")
     if unwritable:
-        print(f"primkit: cache: {root} cannot be written ({unwritable}): shapes prepared in memory", file=sys.stderr)
+        _logger.warning(f"cache: {root} cannot be written ({unwritable}): shapes prepared in memory")
     paths, found, errs, names = [], [], [], []
     for p, name in zip(files, all_names):
         if str(p) in errors:

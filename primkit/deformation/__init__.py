@@ -83,9 +83,9 @@ repaired) and :mod:`~primkit.deformation.mesh` (the one-call :func:`deform` and 
 
 from .binding import DEFAULT_FALLOFF, Binding, apply_transforms, bind, blend_weights, signed_distances
 from .edits import Edit, Lengthening, edit_cuboids
-from .mesh import SEAM_GAIN, Deformed, deform, edit, seam_falloff
+from .mesh import SEAM_GAIN, DeformationQuality, Deformed, deform, edit, seam_falloff
 from .transfer import MAX_RATIO, MIN_HALF_EXTENT, Transfer, cuboid_map, transfer_transforms
-from .folds import UNFOLD_ROUNDS, edge_distortion, flipped_fraction, unfold
+from .folds import UNFOLD_ROUNDS, EdgeStats, edge_distortion, flipped_fraction, unfold
 
 __all__ = [
     "Binding",
@@ -104,6 +104,8 @@ __all__ = [
     "edit",
     "flipped_fraction",
     "edge_distortion",
+    "EdgeStats",
+    "DeformationQuality",
     "DEFAULT_FALLOFF",
     "MIN_HALF_EXTENT",
     "MAX_RATIO",

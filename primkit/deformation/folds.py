@@ -3,11 +3,28 @@ local repair of folds, :func:`unfold` (see :mod:`primkit.deformation`)."""
 
 from __future__ import annotations
 
+from dataclasses import asdict, dataclass
+
 import numpy as np
 
 from .binding import as_vertices
 
-__all__ = ["UNFOLD_ROUNDS", "face_normals", "flipped_fraction", "edge_distortion", "unfold"]
+__all__ = ["UNFOLD_ROUNDS", "face_normals", "flipped_fraction", "EdgeStats", "edge_distortion", "unfold"]
+
+
+@dataclass(frozen=True)
+class EdgeStats:
+    """Relative edge-length changes of a set of edges (:func:`edge_distortion`): how many, their
+    median, 99th percentile and maximum (all 0 for no edge)."""
+
+    edges: int
+    median: float
+    p99: float
+    max: float
+
+    def to_dict(self) -> dict:
+        """JSON-ready: ``{"edges", "median", "p99", "max"}``."""
+        return asdict(self)
 
 
 #: rounds of :func:`unfold` (neighbourhoods of 1, 2, 4, 8, 16 edges)
@@ -125,14 +142,14 @@ def unfold(rest, deformed, faces, linear, *, rounds: int = UNFOLD_ROUNDS) -> tup
     return x, resolved
 
 
-def edge_distortion(before, after, faces, labels, linear=None) -> dict:
+def edge_distortion(before, after, faces, labels, linear=None) -> dict[int | str, EdgeStats]:
     """Relative edge-length change inside parts: ``| |e'| / |A e| - 1 |`` for edges whose two
     ends are bound to the same part, with ``A`` that part's linear map (identity without
     ``linear``: plain stretch). 0 means the part moved exactly as its cuboid.
 
     before, after : (n, 3) float; faces : (f, 3) int; labels : (n,) int; linear : (m, 3, 3) float
 
-    Returns {part slot: {"edges", "median", "p99", "max"}} and "all" over every such edge.
+    Returns {part slot: :class:`EdgeStats`} and ``"all"``: the stats over every such edge.
     """
     f = np.asarray(faces, dtype=np.int64)
     e = np.unique(np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1), axis=0)
@@ -151,8 +168,8 @@ def edge_distortion(before, after, faces, labels, linear=None) -> dict:
 
     def stats(x):
         if len(x) == 0:
-            return {"edges": 0, "median": 0.0, "p99": 0.0, "max": 0.0}
-        return {"edges": int(len(x)), "median": float(np.median(x)), "p99": float(np.percentile(x, 99)), "max": float(x.max())}
+            return EdgeStats(0, 0.0, 0.0, 0.0)
+        return EdgeStats(int(len(x)), float(np.median(x)), float(np.percentile(x, 99)), float(x.max()))
 
     out = {int(k): stats(rel[lab == k]) for k in np.unique(lab)}
     out["all"] = stats(rel)

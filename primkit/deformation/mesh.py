@@ -15,7 +15,44 @@ from .edits import Edit, Lengthening, edit_cuboids
 from .transfer import MIN_HALF_EXTENT, Transfer, transfer_transforms
 from .folds import edge_distortion, face_normals, flipped_fraction, unfold
 
-__all__ = ["SEAM_GAIN", "Deformed", "deform", "edit", "seam_falloff"]
+__all__ = ["SEAM_GAIN", "DeformationQuality", "Deformed", "deform", "edit", "seam_falloff"]
+
+
+@dataclass(frozen=True)
+class DeformationQuality:
+    """What :meth:`Deformed.quality` measures.
+
+    Attributes
+    ----------
+    flipped : float
+        Fraction of triangles whose normal turned against its normal before (plain test).
+    flipped_vs_parts : float
+        The same against the normal carried by the parts' own transforms (:func:`flipped_fraction`).
+    distortion : dict part slot or "all" -> EdgeStats
+        :func:`edge_distortion` relative to each part's own map (how far blending bent the parts).
+    stretch : dict part slot or "all" -> EdgeStats
+        Plain edge-length change inside parts.
+    chamfer_result_target, chamfer_source_target : float or None
+        Chamfer-L1 to the target points of the result and of the source (None when not asked).
+    """
+
+    flipped: float
+    flipped_vs_parts: float
+    distortion: dict
+    stretch: dict
+    chamfer_result_target: float | None = None
+    chamfer_source_target: float | None = None
+
+    def to_dict(self) -> dict:
+        """JSON-ready, the Chamfer entries only when measured: ``{"flipped", "flipped_vs_parts",
+        "distortion": {slot: {"edges", "median", "p99", "max"}}, "stretch": {...}[, "chamfer_*"]}``."""
+        out = {"flipped": self.flipped, "flipped_vs_parts": self.flipped_vs_parts,
+               "distortion": {k: v.to_dict() for k, v in self.distortion.items()},
+               "stretch": {k: v.to_dict() for k, v in self.stretch.items()}}
+        for key in ("chamfer_result_target", "chamfer_source_target"):
+            if getattr(self, key) is not None:
+                out[key] = getattr(self, key)
+        return out
 
 
 #: blending distance per unit of seam discrepancy (see :func:`seam_falloff`)
@@ -52,8 +89,9 @@ class Deformed:
     resolved: np.ndarray | None = None
     linear: np.ndarray | None = None
 
-    def quality(self, faces, *, target_points=None, source_points=None, samples: int = 10000, seed: int = 0) -> dict:
-        """Quality measures of the deformation.
+    def quality(self, faces, *, target_points=None, source_points=None, samples: int = 10000,
+                seed: int = 0) -> DeformationQuality:
+        """Quality measures of the deformation (:class:`DeformationQuality`).
 
         * ``flipped``: fraction of triangles whose normal turned against its normal before
           (plain test); ``flipped_vs_parts``: against the normal carried by the parts'
@@ -80,7 +118,7 @@ class Deformed:
             out["chamfer_result_target"] = chamfer_distance(pts, target_points)
             if source_points is not None:
                 out["chamfer_source_target"] = chamfer_distance(source_points, target_points)
-        return out
+        return DeformationQuality(**out)
 
 
 def _finish(binding: Binding, transforms, faces, do_unfold: bool, stretch: Lengthening | None = None,

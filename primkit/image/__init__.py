@@ -49,16 +49,16 @@ backend and palette, and the layers below.
 
 from .backgrounds import PALETTE_HUES, PALETTES, composite, random_background, training_backgrounds
 from .camera import OrbitCamera, ViewSettings, project, random_camera, viewpoint_targets
-from .distill import DistillWeights, ImageTrainConfig, ImageTrainResult, distillation_loss, rotation_distance, train_image_model
+from .distill import DistillationLoss, DistillWeights, ImageTrainConfig, ImageTrainResult, distillation_loss, rotation_distance, train_image_model
 from .inference import KIND, ImageAbstraction, ImageAbstractor, draw_over_image, read_image
-from .network import ImageNet, ImageNetConfig, images_to_float
+from .network import ImageNet, ImageNetConfig, ImagePrediction, images_to_float
 from .views import RenderedViews, ViewRenderer, load_views, render_views, render_views_cached, shape_surface
 
 __all__ = [
     "ViewSettings", "OrbitCamera", "project", "random_camera", "viewpoint_targets",
     "PALETTES", "PALETTE_HUES", "random_background", "training_backgrounds", "composite",
     "RenderedViews", "ViewRenderer", "shape_surface", "render_views", "render_views_cached", "load_views",
-    "ImageNetConfig", "ImageNet", "images_to_float",
-    "DistillWeights", "distillation_loss", "rotation_distance", "ImageTrainConfig", "ImageTrainResult", "train_image_model",
+    "ImageNetConfig", "ImageNet", "ImagePrediction", "images_to_float",
+    "DistillWeights", "DistillationLoss", "distillation_loss", "rotation_distance", "ImageTrainConfig", "ImageTrainResult", "train_image_model",
     "KIND", "ImageAbstractor", "ImageAbstraction", "read_image", "draw_over_image",
 ]

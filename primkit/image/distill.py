@@ -11,14 +11,15 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from ..model.abstractor import RawCuboids
 from ..model.losses import shape_losses
 from ..model.network import PrimitivePrediction
 from ..model.training import isolated_torch_state
 from .backgrounds import composite, training_backgrounds
 from .camera import viewpoint_targets
-from .network import ImageNet, ImageNetConfig, images_to_float
+from .network import ImageNet, ImageNetConfig, ImagePrediction, images_to_float
 
-__all__ = ["DistillWeights", "distillation_loss", "rotation_distance", "ImageTrainConfig", "ImageTrainResult",
+__all__ = ["DistillWeights", "DistillationLoss", "distillation_loss", "rotation_distance", "ImageTrainConfig", "ImageTrainResult",
            "train_image_model"]
 
 
@@ -40,28 +41,48 @@ class DistillWeights:
         return asdict(self)
 
 
-def distillation_loss(pred: dict, teacher: dict, viewpoint: torch.Tensor | None = None,
-                      weights: DistillWeights = DistillWeights()) -> dict:
+@dataclass(frozen=True, eq=False)
+class DistillationLoss:
+    """The student-teacher loss of a batch (:func:`distillation_loss`).
+
+    Attributes
+    ----------
+    total : scalar tensor
+        The weighted sum of the terms (what is minimised).
+    terms : dict name -> scalar tensor
+        ``existence``, ``half_extents``, ``translations``, ``rotation``, and ``viewpoint`` when a
+        viewpoint target is given (``geometric`` when the training adds it).
+    """
+
+    total: torch.Tensor
+    terms: dict[str, torch.Tensor]
+
+    def values(self) -> dict[str, float]:
+        """``{"total": ..., **terms}`` as floats (a row of the training history)."""
+        return {"total": float(self.total.detach()), **{k: float(v.detach()) for k, v in self.terms.items()}}
+
+
+def distillation_loss(pred: ImagePrediction, teacher: RawCuboids, viewpoint: torch.Tensor | None = None,
+                      weights: DistillWeights = DistillWeights()) -> DistillationLoss:
     """The student-teacher loss of a batch (see the module docstring).
 
-    pred : the student's output (:class:`ImageNet`).
-    teacher : tensors ``half_extents (B, m, 3)``, ``quaternions (B, m, 4)``, ``translations (B, m, 3)``,
-        ``existence (B, m)`` (probabilities).
+    pred : the student's output (:class:`ImageNet`, an :class:`ImagePrediction` of tensors).
+    teacher : :class:`~primkit.model.abstractor.RawCuboids` of tensors ``(B, m, ...)`` (existence as
+        probabilities).
     viewpoint : (B, 3) target (cos az, sin az, el rad), or None to leave the term out.
-    Returns a dict of scalar tensors, ``"total"`` and one per term.
     """
-    p = teacher["existence"]
+    p = teacher.existence
     w = p / p.sum(dim=1, keepdim=True).clamp(min=1e-6)  # (B, m), each row sums to 1
     terms = {
-        "existence": F.binary_cross_entropy_with_logits(pred["existence_logits"], p),
-        "half_extents": ((pred["half_extents"] - teacher["half_extents"]).abs().mean(-1) * w).sum(1).mean(),
-        "translations": ((pred["translations"] - teacher["translations"]).abs().mean(-1) * w).sum(1).mean(),
-        "rotation": (rotation_distance(pred["quaternions"], teacher["quaternions"]) * w).sum(1).mean(),
+        "existence": F.binary_cross_entropy_with_logits(pred.existence_logits, p),
+        "half_extents": ((pred.half_extents - teacher.half_extents).abs().mean(-1) * w).sum(1).mean(),
+        "translations": ((pred.translations - teacher.translations).abs().mean(-1) * w).sum(1).mean(),
+        "rotation": (rotation_distance(pred.quaternions, teacher.quaternions) * w).sum(1).mean(),
     }
     if viewpoint is not None:
-        terms["viewpoint"] = ((pred["viewpoint"] - viewpoint) ** 2).sum(-1).mean()
+        terms["viewpoint"] = ((pred.viewpoint - viewpoint) ** 2).sum(-1).mean()
     total = sum(getattr(weights, k) * v for k, v in terms.items())
-    return {"total": total, **terms}
+    return DistillationLoss(total, terms)
 
 
 def _learning_rate(peak: float, progress: float) -> float:
@@ -126,12 +147,12 @@ def _augment(x: torch.Tensor, gen: torch.Generator, shift: int, colour: bool = F
     return ((x - mean) * gain + mean + bias).clamp(0, 1)
 
 
-def _geometric_loss(pred: dict, used: torch.Tensor, points: torch.Tensor, closest: torch.Tensor,
+def _geometric_loss(pred: ImagePrediction, used: torch.Tensor, points: torch.Tensor, closest: torch.Tensor,
                     samples_per_cuboid: int, gen: torch.Generator) -> torch.Tensor:
     """Mean over the batch of coverage + consistency (:func:`primkit.model.losses.shape_losses`, the volume
     model's own terms) of the predicted cuboids against the true shapes, the parts in ``used (B, m)
     bool`` present."""
-    cuboids = PrimitivePrediction(pred["half_extents"], pred["quaternions"], pred["translations"], used.float())
+    cuboids = PrimitivePrediction(pred.half_extents, pred.quaternions, pred.translations, used.float())
     return shape_losses(cuboids, used.float(), points, closest, samples_per_cuboid=samples_per_cuboid,
                         generator=gen).total.mean()
 
@@ -144,7 +165,7 @@ class ImageTrainResult:
 
 
 @isolated_torch_state
-def train_image_model(images: np.ndarray, shape_index: np.ndarray, cameras: np.ndarray, teacher: dict,
+def train_image_model(images: np.ndarray, shape_index: np.ndarray, cameras: np.ndarray, teacher,
                       net_config: ImageNetConfig = ImageNetConfig(), config: ImageTrainConfig = ImageTrainConfig(),
                       *, progress: bool = False, network: ImageNet | None = None,
                       foreground: np.ndarray | None = None, alpha: np.ndarray | None = None,
@@ -156,7 +177,8 @@ def train_image_model(images: np.ndarray, shape_index: np.ndarray, cameras: np.n
     images : (k, S, S, 3) uint8
     shape_index : (k,) int, which teacher row each image shows
     cameras : (k, 4) float, camera arrays (:class:`primkit.image.camera.OrbitCamera`)
-    teacher : dict of (s, m, ...) arrays, :meth:`primkit.model.abstractor.Abstractor.predict_canonical`
+    teacher : primkit.model.abstractor.RawCuboids
+        The teacher's answer for each shape, :meth:`primkit.model.abstractor.Abstractor.predict_canonical`
     progress : a tqdm bar over the iterations, on stderr (off by default)
     network : continue training this network instead of a new one
     foreground : (k, S, S, 3) uint8, alpha : (k, S, S) uint8, optional
@@ -186,14 +208,13 @@ def train_image_model(images: np.ndarray, shape_index: np.ndarray, cameras: np.n
             raise ValueError(f"foreground {tuple(fgs.shape)} and alpha {tuple(alphas.shape)} do not match the images "
                              f"{tuple(imgs.shape)}")
     idx = torch.from_numpy(np.asarray(shape_index, np.int64))
-    teach = {k: torch.from_numpy(np.asarray(teacher[k], np.float32)) for k in
-             ("half_extents", "quaternions", "translations", "existence")}
+    teach = RawCuboids(**{k: torch.from_numpy(np.asarray(v, np.float32)) for k, v in teacher.arrays().items()})
     if config.geometric > 0:
         if surface_points is None or closest is None:
             raise ValueError("`geometric` > 0 needs the shapes' surface_points and closest grids")
         pts_all = torch.from_numpy(np.asarray(surface_points, np.float32))
         closest_all = torch.from_numpy(np.asarray(closest, np.float32))
-        rows = len(teach["existence"])
+        rows = len(teach.existence)
         if pts_all.dim() != 3 or pts_all.shape[0] != rows or pts_all.shape[-1] != 3:
             raise ValueError(f"`surface_points` must be ({rows}, n, 3), got {tuple(pts_all.shape)}")
         if closest_all.dim() != 5 or closest_all.shape[0] != rows or closest_all.shape[-1] != 3:
@@ -217,21 +238,20 @@ def train_image_model(images: np.ndarray, shape_index: np.ndarray, cameras: np.n
             a = alphas[batch[:k]].float()[:, None] / 255.0
             x[:k] = composite(images_to_float(fgs[batch[:k]]), a, training_backgrounds(k, x.shape[-1], gen))
         x = _augment(x, gen, config.shift_pixels, config.colour_shuffle)
-        target = {k: v[idx[batch]] for k, v in teach.items()}
+        target = teach.rows(idx[batch])
         pred = net(x)
         losses = distillation_loss(pred, target, view[batch], config.weights)
         if config.geometric > 0:
             shapes = idx[batch]
             pick = torch.randint(0, pts_all.shape[1], (len(batch), config.geometric_points), generator=gen)
             points = torch.gather(pts_all[shapes], 1, pick[..., None].expand(-1, -1, 3))
-            geo = _geometric_loss(pred, target["existence"] > 0.5, points, closest_all[shapes],
+            geo = _geometric_loss(pred, target.existence > 0.5, points, closest_all[shapes],
                                   config.geometric_samples, gen)
-            losses["geometric"] = geo
-            losses["total"] = losses["total"] + config.geometric * geo
+            losses = DistillationLoss(losses.total + config.geometric * geo, {**losses.terms, "geometric": geo})
         opt.zero_grad(set_to_none=True)
-        losses["total"].backward()
+        losses.total.backward()
         opt.step()
-        values, last = {k: float(v.detach()) for k, v in losses.items()}, it
+        values, last = losses.values(), it
         running = values if running is None else {k: 0.95 * running[k] + 0.05 * values[k] for k in values}
         if it % config.log_every == 0 or it == config.iterations - 1:
             history.append({"iteration": it, "lr": opt.param_groups[0]["lr"], **values})

@@ -17,7 +17,7 @@ from ..model.cuboids_file import cuboids_document
 from ..model.parts import default_part_names
 from ..primitives.palette import part_colors
 from .camera import OrbitCamera, project, ViewSettings
-from .network import ImageNet, ImageNetConfig, images_to_float, image_net_state_shapes
+from .network import ImageNet, ImageNetConfig, ImagePrediction, images_to_float, image_net_state_shapes
 
 __all__ = ["KIND", "read_image", "read_image_network", "ImageAbstraction", "ImageAbstractor", "draw_over_image"]
 
@@ -136,8 +136,9 @@ class ImageAbstractor:
         v = self.metadata.get("views")
         return ViewSettings.from_dict(v) if v else ViewSettings(size=self.size)
 
-    def predict_raw(self, images: np.ndarray, batch_size: int = 128) -> dict:
-        """Raw network output for ``(s, S, S, 3) uint8`` images, as NumPy arrays ``(s, m, ...)``."""
+    def predict_raw(self, images: np.ndarray, batch_size: int = 128) -> ImagePrediction:
+        """Raw network output for ``(s, S, S, 3) uint8`` images: an :class:`ImagePrediction` of
+        NumPy arrays ``(s, ...)``, float64."""
         images = np.asarray(images)
         s = self.size
         if images.ndim != 4 or images.shape[1:] != (s, s, 3):
@@ -146,9 +147,9 @@ class ImageAbstractor:
         with torch.no_grad():
             for i in range(0, len(images), batch_size):
                 pred = self.network(images_to_float(torch.from_numpy(images[i: i + batch_size])))
-                for k, v in pred.items():
+                for k, v in pred.arrays().items():
                     out.setdefault(k, []).append(v.double().numpy())
-        return {k: np.concatenate(v) for k, v in out.items()}
+        return ImagePrediction(**{k: np.concatenate(v) for k, v in out.items()})
 
     def predict(self, images: np.ndarray, names=None, sources=None, existence_threshold: float = 0.5,
                 prune_threshold: float | None = 0.6) -> list[ImageAbstraction]:
@@ -156,11 +157,11 @@ class ImageAbstractor:
         raw = self.predict_raw(images)
         results = []
         for i in range(len(images)):
-            cub = primitives.Cuboids(raw["half_extents"][i], raw["quaternions"][i], raw["translations"][i],
-                                     raw["existence"][i] > existence_threshold, probabilities=raw["existence"][i])
+            cub = primitives.Cuboids(raw.half_extents[i], raw.quaternions[i], raw.translations[i],
+                                     raw.existence[i] > existence_threshold, probabilities=raw.existence[i])
             if prune_threshold is not None and cub.existence.sum() > 1:
                 cub = primitives.prune_covered(cub, prune_threshold)
-            c, s_, el = raw["viewpoint"][i]
+            c, s_, el = raw.viewpoint[i]
             results.append(ImageAbstraction(
                 names[i] if names is not None else f"image{i}", cub, float(np.degrees(np.arctan2(s_, c)) % 360),
                 float(np.degrees(el)), np.asarray(images[i]), sources[i] if sources is not None else "",

@@ -6,11 +6,42 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass, fields
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
 
-__all__ = ["ImageNetConfig", "ImageNet", "images_to_float", "image_net_state_shapes"]
+__all__ = ["ImageNetConfig", "ImageNet", "ImagePrediction", "images_to_float", "image_net_state_shapes"]
+
+
+@dataclass(frozen=True, eq=False)
+class ImagePrediction:
+    """The image network's answer for ``B`` images: tensors from :meth:`ImageNet.forward`, NumPy
+    arrays (float64) from :meth:`primkit.image.inference.ImageAbstractor.predict_raw`.
+
+    Attributes
+    ----------
+    half_extents : (B, m, 3)
+    quaternions : (B, m, 4)
+        Unit, real part first.
+    translations : (B, m, 3)
+    existence : (B, m)
+        Probabilities; ``existence_logits`` (B, m) before the sigmoid.
+    existence_logits : (B, m)
+    viewpoint : (B, 3)
+        cos azimuth, sin azimuth, elevation in radians.
+    """
+
+    half_extents: object
+    quaternions: object
+    translations: object
+    existence: object
+    existence_logits: object
+    viewpoint: object
+
+    def arrays(self) -> dict[str, torch.Tensor | np.ndarray]:
+        """The six by field name, in field order."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
 
 
 @dataclass(frozen=True)
@@ -63,9 +94,9 @@ class ImageNetConfig:
 class ImageNet(nn.Module):
     """2D CNN from a ``(B, 3, S, S)`` image (floats in [0, 1]) to ``m`` cuboids and a viewpoint.
 
-    ``forward`` returns a dict of tensors: ``half_extents (B, m, 3)``, ``quaternions (B, m, 4)``,
-    ``translations (B, m, 3)``, ``existence (B, m)``, ``existence_logits (B, m)``,
-    ``viewpoint (B, 3)`` (cos azimuth, sin azimuth, elevation in radians).
+    ``forward`` returns an :class:`ImagePrediction` of tensors: ``half_extents (B, m, 3)``,
+    ``quaternions (B, m, 4)``, ``translations (B, m, 3)``, ``existence (B, m)``,
+    ``existence_logits (B, m)``, ``viewpoint (B, 3)`` (cos azimuth, sin azimuth, elevation in radians).
     """
 
     def __init__(self, config: ImageNetConfig = ImageNetConfig()):
@@ -89,19 +120,19 @@ class ImageNet(nn.Module):
             self.quaternion_head.bias.view(m, 4).copy_(torch.tensor([1.0, 0.0, 0.0, 0.0]))
             self.quaternion_head.weight.mul_(0.1)
 
-    def forward(self, images: torch.Tensor) -> dict:
+    def forward(self, images: torch.Tensor) -> ImagePrediction:
         x = (images - 0.5) / 0.25
         h = self.encoder(x)
         m = self.config.parts
         logits = self.existence_head(h)
-        return {
-            "half_extents": self.config.max_half_extent * torch.sigmoid(self.half_extent_head(h).unflatten(1, (m, 3))),
-            "quaternions": F.normalize(self.quaternion_head(h).unflatten(1, (m, 4)), dim=-1, eps=1e-12),
-            "translations": 0.5 * torch.tanh(self.translation_head(h).unflatten(1, (m, 3))),
-            "existence": torch.sigmoid(logits),
-            "existence_logits": logits,
-            "viewpoint": self.viewpoint_head(h),
-        }
+        return ImagePrediction(
+            half_extents=self.config.max_half_extent * torch.sigmoid(self.half_extent_head(h).unflatten(1, (m, 3))),
+            quaternions=F.normalize(self.quaternion_head(h).unflatten(1, (m, 4)), dim=-1, eps=1e-12),
+            translations=0.5 * torch.tanh(self.translation_head(h).unflatten(1, (m, 3))),
+            existence=torch.sigmoid(logits),
+            existence_logits=logits,
+            viewpoint=self.viewpoint_head(h),
+        )
 
 
 def image_net_state_shapes(config: ImageNetConfig) -> dict[str, tuple[tuple[int, ...], torch.dtype]]:

@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import data, io, parallel
-from ..io import objects as foreign
+from ..io.objects import from_pyvista, mesh_from_o3d, points_from_o3d
 from . import orientation
 from .abstractor import MIN_EXTENT, AbstractionResult, Abstractor
 
@@ -187,12 +187,12 @@ def as_shape(obj):
         return io.PointCloud(obj.vertices)
     if package == "open3d":
         if type(obj).__name__ == "TriangleMesh":
-            m = foreign.mesh_from_o3d(obj)
+            m = mesh_from_o3d(obj)
             return io.Mesh(m.vertices, m.faces)
         if type(obj).__name__ == "PointCloud":
-            return io.PointCloud(foreign.points_from_o3d(obj)[0])
+            return io.PointCloud(points_from_o3d(obj)[0])
     if package in ("pyvista", "vtkmodules", "vtk"):
-        vertices, faces = foreign.from_pyvista(obj)
+        vertices, faces = from_pyvista(obj)
         return io.Mesh(vertices, faces) if len(faces) else io.PointCloud(vertices)
     if isinstance(obj, tuple) and len(obj) == 2:
         return io.Mesh(*(x.detach().cpu().numpy() if _is_tensor(x) else x for x in obj))
@@ -245,6 +245,7 @@ def abstract_shapes(
     Parameters
     ----------
     inputs : one input or a list of them (see the module notes); folders expand to their files.
+        A :class:`primkit.data.RunPlan` gives its files and what it does of them (``shard`` then unused).
     model : a bundled model's name, a model file's path, or an :class:`Abstractor`.
     up, front : the inputs' up and front axes (``"+y"``, ``"-z"``, ...), when known. Undeclared
         (None or ``"auto"``), the shapes are taken as +Y up and their front is searched.
@@ -282,6 +283,8 @@ def abstract_shapes(
     """
     from tqdm.auto import tqdm  # tqdm: imported when the progress bar is drawn
 
+    if isinstance(inputs, data.RunPlan):  # a planned run: its files, named by it, what it does of them
+        inputs, shard = list(inputs.files), inputs.selection
     abstractor = load_model(model)
     mode = orientation.resolve_align(align, up, front)
     axes = {k: v for k, v in (("up", up), ("front", front)) if v not in (None, "auto")}

@@ -46,7 +46,7 @@ from .cuboids_file import cuboids_document, write_cuboids_file
 from .orientation import Alignment
 from .network import load_network
 
-__all__ = ["Abstractor", "AbstractionResult", "Refinement", "MIN_EXTENT", "ORIENTATION_POINTS", "ORIENTATION_SAMPLES",
+__all__ = ["Abstractor", "AbstractionResult", "Refinement", "RawCuboids", "MIN_EXTENT", "ORIENTATION_POINTS", "ORIENTATION_SAMPLES",
            "drop_unsized_parts"]
 
 #: Surface points of a shape and samples per cuboid with which orientations are scored.
@@ -108,6 +108,37 @@ def drop_unsized_parts(cuboids: primitives.Cuboids, points, min_extent: float = 
         owned[primitives.assign_points(points, c)] = True
         keep &= owned
     return c.with_existence(keep)
+
+
+@dataclass(frozen=True, eq=False)
+class RawCuboids:
+    """The network's answer for ``s`` occupancy grids, before any threshold or pruning
+    (:meth:`Abstractor.predict_canonical`): canonical frame, float64, ``m`` slots per shape.
+
+    Attributes
+    ----------
+    half_extents : (s, m, 3) float
+    quaternions : (s, m, 4) float
+        Unit, real part first.
+    translations : (s, m, 3) float
+    existence : (s, m) float
+        The probability that each part exists.
+    """
+
+    half_extents: np.ndarray
+    quaternions: np.ndarray
+    translations: np.ndarray
+    existence: np.ndarray
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The four arrays by field name (e.g. for ``np.savez``; ``RawCuboids(**arrays)`` is the inverse)."""
+        return {"half_extents": self.half_extents, "quaternions": self.quaternions,
+                "translations": self.translations, "existence": self.existence}
+
+    def rows(self, index) -> "RawCuboids":
+        """The shapes ``index`` (an int array, a slice or a boolean mask) of every array."""
+        return RawCuboids(self.half_extents[index], self.quaternions[index], self.translations[index],
+                          self.existence[index])
 
 
 @dataclass(frozen=True)
@@ -247,10 +278,8 @@ class Abstractor:
     def settings(self) -> data.PrepareSettings:
         return data.PrepareSettings(resolution=self.resolution)
 
-    def predict_canonical(self, occupancy: np.ndarray, batch_size: int = 64) -> dict:
-        """Raw network output for ``(s, R, R, R)`` occupancy grids, as NumPy arrays
-        (``half_extents (s, m, 3)``, ``quaternions (s, m, 4)``, ``translations (s, m, 3)``,
-        ``existence (s, m)``).
+    def predict_canonical(self, occupancy: np.ndarray, batch_size: int = 64) -> RawCuboids:
+        """Raw network output for ``(s, R, R, R)`` occupancy grids, as NumPy arrays (:class:`RawCuboids`).
 
         On the CPU each shape goes through the network on its own: oneDNN's convolutions choose
         their kernels by batch size, and on some CPUs a shape's output then changed with the batch
@@ -269,14 +298,14 @@ class Abstractor:
                 pred = self.network(x)
                 for key in out:
                     out[key].append(getattr(pred, key).double().cpu().numpy())
-        return {k: np.concatenate(v) for k, v in out.items()}
+        return RawCuboids(**{k: np.concatenate(v) for k, v in out.items()})
 
-    def _cuboids(self, raw: dict, i: int, existence_threshold: float) -> primitives.Cuboids:
+    def _cuboids(self, raw: RawCuboids, i: int, existence_threshold: float) -> primitives.Cuboids:
         # max_half_extent * sigmoid(x) is exactly 0 in float32 below x of about -104 (a part driven to
         # no size, as adaptation can): floored so that a Cuboids can hold it; drop_unsized_parts drops it
         return primitives.Cuboids(
-            np.maximum(raw["half_extents"][i], 1e-12), raw["quaternions"][i], raw["translations"][i],
-            raw["existence"][i] > existence_threshold, probabilities=raw["existence"][i],
+            np.maximum(raw.half_extents[i], 1e-12), raw.quaternions[i], raw.translations[i],
+            raw.existence[i] > existence_threshold, probabilities=raw.existence[i],
         )
 
     def align(self, shape, existence_threshold: float = 0.5, mode: str = "any"):

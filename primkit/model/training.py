@@ -43,7 +43,7 @@ from .network import AbstractionNet, NetworkConfig
 _logger = logging.getLogger(__name__)
 
 __all__ = ["TrainConfig", "ShapeTensors", "PreparedDataset", "TrainResult", "train", "isolated_torch_state",
-           "training_outputs", "check_training_outputs", "check_checkpoint", "claim_output"]
+           "TrainingOutputs", "training_outputs", "check_training_outputs", "check_checkpoint", "claim_output"]
 
 
 @dataclass(frozen=True)
@@ -247,29 +247,53 @@ class TrainResult:
     seconds: float = 0.0
 
 
-def training_outputs(output) -> dict:
-    """The files :func:`train` writes for the model file ``output``: ``model``, ``checkpoint``
-    (``<output>.checkpoint.safetensors``), ``history`` (``<stem>.history.json``) and ``plot``
-    (``<stem>.training.png``)."""
+@dataclass(frozen=True)
+class TrainingOutputs:
+    """The files :func:`train` writes for one model file.
+
+    Attributes
+    ----------
+    model : Path
+        The model file (``.safetensors``).
+    checkpoint : Path
+        ``<model>.checkpoint.safetensors``, while the run is unfinished.
+    history : Path
+        ``<stem>.history.json``, the losses.
+    plot : Path
+        ``<stem>.training.png``, the losses and the parts in use.
+    """
+
+    model: Path
+    checkpoint: Path
+    history: Path
+    plot: Path
+
+    def paths(self) -> list[Path]:
+        """The four paths, in the order above."""
+        return [self.model, self.checkpoint, self.history, self.plot]
+
+
+def training_outputs(output) -> TrainingOutputs:
+    """The files :func:`train` writes for the model file ``output`` (:class:`TrainingOutputs`)."""
     output = Path(output)
     stem = str(output.with_suffix(""))
-    return {"model": output, "checkpoint": output.with_name(output.name + ".checkpoint.safetensors"),
-            "history": Path(stem + ".history.json"), "plot": Path(stem + ".training.png")}
+    return TrainingOutputs(model=output, checkpoint=output.with_name(output.name + ".checkpoint.safetensors"),
+                           history=Path(stem + ".history.json"), plot=Path(stem + ".training.png"))
 
 
-def check_training_outputs(output, *, overwrite: bool = False, resume=None, inputs=()) -> dict:
+def check_training_outputs(output, *, overwrite: bool = False, resume=None, inputs=()) -> TrainingOutputs:
     """Check before any work that a training run can write all it will write
     (:func:`training_outputs`, :func:`primkit.io.check_outputs`): the model's suffix is
     ``.safetensors``, the folder can be written, nothing is an input (``resume`` and ``inputs``), and
     nothing exists without ``overwrite``, except the checkpoint being resumed. Returns the outputs."""
     paths = training_outputs(io.check_suffix(output, ".safetensors", "a model file"))
-    ckpt = paths["checkpoint"]
+    ckpt = paths.checkpoint
     resumed = resume is not None and os.path.realpath(resume) == os.path.realpath(ckpt)
     if os.path.lexists(ckpt) and not (overwrite or resumed):
         raise FileExistsError(f"{ckpt}: exists, the checkpoint of an unfinished run (go on with --resume {ckpt}, "
                               "or use --force to start afresh)")
     read = list(inputs) + ([resume] if resume is not None and not resumed else [])
-    io.check_outputs(paths.values(), inputs=read, overwrite=overwrite, resumed=[ckpt] if resumed else [])
+    io.check_outputs(paths.paths(), inputs=read, overwrite=overwrite, resumed=[ckpt] if resumed else [])
     return paths
 
 
@@ -596,7 +620,7 @@ def train(
 
 def _train(shapes, output, config, device, resume, progress, description, threads, rank, world) -> TrainResult:
     outputs = training_outputs(output) if output is not None else None
-    ckpt_path = outputs["checkpoint"] if output is not None else None
+    ckpt_path = outputs.checkpoint if output is not None else None
 
     # tiny N(0, 0.02) activations turn into denormal floats, which made CPU steps up to 5x slower
     torch.set_flush_denormal(True)
@@ -774,9 +798,9 @@ def _train(shapes, output, config, device, resume, progress, description, thread
             else:
                 kept = "no checkpoint could be written"
             raise OSError(exc.errno, f"{exc.strerror}; {kept}") from None
-        with io.atomic_output(outputs["history"], overwrite=True) as tmp:  # checked before the first iteration
+        with io.atomic_output(outputs.history, overwrite=True) as tmp:  # checked before the first iteration
             tmp.write_text(json.dumps(history))
-        _plot_history(history, outputs["plot"], stage1)
+        _plot_history(history, outputs.plot, stage1)
         if ckpt_path.exists():
             ckpt_path.unlink()
     return TrainResult(output if output is not None and not interrupted else None, net, history, interrupted, seconds)

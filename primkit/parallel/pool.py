@@ -95,9 +95,9 @@ def _one_thread_worker(parent: int | None = None) -> None:
         torch.set_num_threads(1)
 
 
-def parallel_map(func, jobs, *, workers: int | None = None, progress: bool = True, desc: str = "", unit: str = "shape",
+def parallel_map(func, jobs, *, workers: int | None = None, progress: bool = False, desc: str = "", unit: str = "shape",
                  executor=None):
-    """``func`` over ``jobs`` in worker processes, results in job order, with a progress bar.
+    """``func`` over ``jobs`` in worker processes, results in job order (a progress bar with ``progress``).
 
     ``workers``: processes (by default the cores free, :func:`primkit.parallel.free_cores`: a core
     another process keeps busy is not counted); 1, or a single job, runs in this process. Each

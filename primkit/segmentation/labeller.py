@@ -15,8 +15,10 @@ sits in the shape's abstraction, which means the same thing on every shape of a 
   elements (how flat, thin or round it is there, and which way).
 
 A gradient-boosted tree ensemble (scikit-learn's ``HistGradientBoostingClassifier``) learns the
-labels from a few labelled shapes; the class probabilities are then averaged over each element's
-nearest neighbours (``smooth`` rounds), and each element takes the most probable label.
+labels from a few labelled shapes; its class probabilities are blended with the index-naming
+prior (the shares of the labels on each cuboid index over the labelled shapes, ``prior_weight``),
+then averaged over each element's nearest neighbours (``smooth`` rounds), and each element takes
+the most probable label.
 
 Storage without code: the fitted trees are exported to plain arrays (:class:`TreeEnsemble`: per
 node the feature, threshold, children, leaf value and the side missing values go to) and saved as
@@ -677,7 +679,8 @@ class Labeller:
         if self.prior is not None:
             arrays[LABELLER_PREFIX + "prior"] = np.ascontiguousarray(self.prior, np.float64)
         description = {"format": LABELLER_FORMAT, "format_version": LABELLER_FORMAT_VERSION, "names": list(self.names),
-                       "parts": self.parts, "features": self.ensemble.features, "settings": self.settings.to_dict(),
+                       "parts": self.parts, "features": self.ensemble.features,
+                       "settings": {**self.settings.to_dict(), "prior_weight": self.settings.prior_weight or 0.0},
                        "classifier": "scikit-learn HistGradientBoostingClassifier, trees exported to arrays",
                        "info": self.info}
         return arrays, description

@@ -17,21 +17,11 @@ several cuboids) to the larger cuboid, then to the lower index: :func:`primkit.p
   area-weighted vote of points on the face, deterministic and exact for faces that lie in one
   part, and it costs four point projections per face (a million faces in about a second).
 
-Evaluation against ground-truth labels (:func:`evaluate`) reports accuracy by faces and by surface
-area and per-label IoU under stated label-mapping protocols:
-
-* ``"collection-majority"`` (the paper's): each primitive index is mapped to the ground-truth
-  label holding most of its area over the evaluated collection;
-* ``"leave-one-out"``: for each shape, the same majority mapping learned on the *other* shapes of
-  the collection, applied unchanged;
-* ``"model-names"``: the part names stored in the model file (:mod:`primkit.model.parts`, learned on
-  other shapes by ``primkit name-parts``), matched to the ground truth's label names, applied
-  unchanged. Indices whose name is not a ground-truth label count as wrong.
+Evaluation against ground-truth face labels: :mod:`primkit.segmentation.evaluation`.
 """
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -50,25 +40,7 @@ __all__ = [
     "segment_mesh",
     "surface_face_labels",
     "semantic_codes",
-    "GroundTruth",
-    "read_ground_truth",
-    "parse_label_names",
-    "majority_mapping",
-    "name_mapping",
-    "accuracy",
-    "label_iou",
-    "evaluate",
-    "PROTOCOLS",
 ]
-
-#: Label-mapping protocols of :func:`evaluate`, in the order they are reported.
-PROTOCOLS = {
-    "collection-majority": "each primitive index mapped to the ground-truth label holding most of its area over the "
-    "evaluated collection (the paper's protocol)",
-    "leave-one-out": "for each shape, the majority mapping learned on the other shapes of the collection, applied unchanged",
-    "model-names": "the part names stored in the model (learned on other shapes) matched to the ground-truth label "
-    "names, applied unchanged",
-}
 
 
 def point_labels(points, cuboids: primitives.Cuboids) -> np.ndarray:
@@ -233,183 +205,3 @@ def segment_mesh(vertices, faces, cuboids: primitives.Cuboids, *, name: str = "s
 
 
 # ---------------------------------------------------------------------------------------------
-# Ground truth and evaluation
-# ---------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class GroundTruth:
-    """Ground-truth face labels of one shape, as codes into a collection-wide list of names.
-
-    labels : (f,) int, index into ``names`` (-1: unlabelled)
-    names : list of str; a name may list aliases with ``/`` (``"legs/base"`` matches a model part
-        named ``legs`` or ``base``).
-    """
-
-    labels: np.ndarray
-    names: list
-
-
-def parse_label_names(text) -> dict:
-    """What label values mean, from a command line's text: ``"back,seat,legs"`` names label values 1, 2, 3; ``"0=seat,1=back"`` names values explicitly."""
-    items = [t.strip() for t in text.split(",") if t.strip()]
-    if all("=" in t for t in items):
-        return {int(k): v.strip() for k, v in (t.split("=", 1) for t in items)}
-    if any("=" in t for t in items):
-        raise ValueError(f"label names {text!r}: give either all values (1=back,2=seat) or none (back,seat)")
-    return {i + 1: name for i, name in enumerate(items)}
-
-
-def read_ground_truth(label_path, face_count: int, label_names=None, names=None) -> GroundTruth:
-    """Read a ``.seg`` file as a :class:`GroundTruth`.
-
-    Parameters
-    ----------
-    label_path : path of the ``.seg`` file (one integer per face).
-    face_count : the mesh's number of faces (checked).
-    label_names : str or dict or None
-        What each label value means: ``"back,seat,legs"`` (values 1, 2, 3, as in COSEG),
-        ``"1=back,2=seat"`` or ``{1: "back"}``. None: a ``.json`` written by
-        :func:`primkit.synthetic.write_collection` beside the labels gives the part groups
-        (``seat``, ``back``, ``legs``, ``arms``, ...); otherwise the values themselves are the names.
-    names : list of str, optional
-        A collection-wide list of names to extend (so codes agree across shapes).
-    """
-    label_path = Path(label_path)
-    raw = io.read_labels(label_path, face_count)
-    if isinstance(label_names, str):
-        label_names = parse_label_names(label_names)
-    if label_names is None:
-        meta = label_path.with_suffix(".json")
-        if meta.is_file():
-            info = json.loads(meta.read_text())
-            groups = info.get("part_groups") or {}
-            label_names = {i: groups.get(n, n) for i, n in enumerate(info.get("part_names", []))}
-    names = [] if names is None else names
-    codes = np.full(len(raw), -1, np.int64)
-    for value in np.unique(raw):
-        name = str(value) if label_names is None else label_names.get(int(value))
-        if name is None:
-            continue  # a value with no name: unlabelled
-        if name not in names:
-            names.append(name)
-        codes[raw == value] = names.index(name)
-    return GroundTruth(codes, names)
-
-
-def majority_mapping(assignments, truths, weights, count: int, label_count: int) -> np.ndarray:
-    """Each primitive index mapped to the ground-truth label holding most of its weight.
-
-    assignments : list of (f_i,) int, truths : list of (f_i,) int (-1 unlabelled),
-    weights : list of (f_i,) float  ->  (count,) int, -1 for an index that holds no labelled face.
-    """
-    table = np.zeros((count, max(label_count, 1)))
-    for a, t, w in zip(assignments, truths, weights):
-        ok = t >= 0
-        np.add.at(table, (a[ok], t[ok]), w[ok])
-    mapping = np.argmax(table, axis=1)
-    mapping[table.sum(axis=1) == 0] = -1
-    return mapping
-
-
-def accuracy(predicted, truth, weights=None) -> float:
-    """Fraction (weighted) of labelled elements whose predicted label equals the truth.
-
-    predicted, truth : (f,) int (truth -1: unlabelled, excluded); weights : (f,) float or None.
-    """
-    predicted, truth = np.asarray(predicted), np.asarray(truth)
-    w = np.ones(len(truth)) if weights is None else np.asarray(weights, float)
-    ok = truth >= 0
-    total = w[ok].sum()
-    return float(w[ok][predicted[ok] == truth[ok]].sum() / total) if total > 0 else float("nan")
-
-
-def label_iou(predicted_list, truth_list, weights_list, label_count: int) -> np.ndarray:
-    """Per-label IoU by area over a collection: ``sum_i |P_i ∩ T_i| / sum_i |P_i ∪ T_i|``
-    (areas summed over the shapes before dividing). Returns ``(label_count,) float`` (nan for a
-    label that appears in neither)."""
-    inter = np.zeros(label_count)
-    union = np.zeros(label_count)
-    for p, t, w in zip(predicted_list, truth_list, weights_list):
-        labelled = t >= 0
-        for lab in range(label_count):
-            ip, it = (p == lab) & labelled, t == lab
-            inter[lab] += w[ip & it].sum()
-            union[lab] += w[ip | it].sum()
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(union > 0, inter / union, np.nan)
-
-
-def name_mapping(part_names, label_names) -> np.ndarray:
-    """Each primitive index mapped to the ground-truth label its stored name matches.
-
-    part_names : (m,) str, the model's names; label_names : list of str, ground-truth names whose
-    ``/``-separated aliases are matched case-insensitively (``"legs/base"``)  ->  (m,) int code
-    into ``label_names``, -1 where the name is no label.
-    """
-    lookup = {}
-    for code, name in enumerate(label_names):
-        for alias in str(name).lower().split("/"):
-            lookup.setdefault(alias.strip(), code)
-    return np.array([lookup.get(str(n).lower(), -1) for n in part_names], dtype=np.int64)
-
-
-def evaluate(segmentations, truths, *, part_names=None) -> dict:
-    """Accuracy of co-segmentations against ground truth under the protocols of :data:`PROTOCOLS`.
-
-    Parameters
-    ----------
-    segmentations : list of Segmentation
-    truths : list of GroundTruth (same order; sharing one ``names`` list)
-    part_names : list of str, optional
-        The model's part names; the ``"model-names"`` protocol is reported only when some name
-        matches a ground-truth label.
-
-    Returns
-    -------
-    dict with ``labels`` (names), and per protocol: ``description``, ``mapping`` (index -> label
-    name or None), ``shapes`` ({name: {"faces": acc, "area": acc}}), ``mean_faces``, ``mean_area``,
-    ``iou`` ({label: IoU}), ``mean_iou``.
-    """
-    if len(segmentations) != len(truths):
-        raise ValueError(f"{len(segmentations)} segmentations but {len(truths)} ground truths")
-    if not segmentations:
-        raise ValueError("nothing to evaluate")
-    names = list(truths[0].names)
-    for t in truths:
-        if len(t.names) > len(names):
-            names = list(t.names)
-    count = segmentations[0].cuboids.count
-    assign = [s.face_labels for s in segmentations]
-    truth = [t.labels for t in truths]
-    weights = [s.face_areas for s in segmentations]
-    mappings = {"collection-majority": [majority_mapping(assign, truth, weights, count, len(names))] * len(assign)}
-    loo = []
-    for i in range(len(assign)):
-        others = [j for j in range(len(assign)) if j != i]
-        loo.append(majority_mapping([assign[j] for j in others], [truth[j] for j in others],
-                                    [weights[j] for j in others], count, len(names)))
-    mappings["leave-one-out"] = loo
-    if part_names is not None:
-        named = name_mapping(part_names, names)
-        if (named >= 0).any():
-            mappings["model-names"] = [named] * len(assign)
-    report = {"labels": names, "area_weighting": "face area", "protocols": {}}
-    for protocol, maps in mappings.items():
-        predicted = [m[a] for m, a in zip(maps, assign)]
-        shapes = {}
-        for s, p, t, w in zip(segmentations, predicted, truth, weights):
-            shapes[s.name] = {"faces": accuracy(p, t), "area": accuracy(p, t, w)}
-        iou = label_iou(predicted, truth, weights, len(names))
-        entry = {
-            "description": PROTOCOLS[protocol],
-            "shapes": shapes,
-            "mean_faces": float(np.mean([v["faces"] for v in shapes.values()])),
-            "mean_area": float(np.mean([v["area"] for v in shapes.values()])),
-            "iou": {n: float(x) for n, x in zip(names, iou)},
-            "mean_iou": float(np.nanmean(iou)) if np.isfinite(iou).any() else float("nan"),
-        }
-        if protocol != "leave-one-out":
-            entry["mapping"] = {str(k): (names[c] if c >= 0 else None) for k, c in enumerate(maps[0])}
-        report["protocols"][protocol] = entry
-    return report

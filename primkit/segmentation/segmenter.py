@@ -4,8 +4,9 @@ by default, or each to its nearest), in parallel processes."""
 
 from __future__ import annotations
 
-import csv
-from dataclasses import replace
+import json
+import warnings
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -15,12 +16,12 @@ from ..parallel import parallel_map
 from ..model.abstraction import abstract, abstract_shapes, load_model
 from .labeller import (Labeller, LabellerSettings, frame_features, grid_elements, label_elements, mesh_elements,
                        point_elements, read_labeller)
-from . import graphcut
+from . import evaluation, graphcut, outputs
 from .meshes import Segmentation, segment_mesh
 from .points import PointSegmentation, segment_points
 from .voxels import VoxelSegmentation, segment_voxels
 
-__all__ = ["Segmenter", "segment", "apply_labeller", "shape_elements", "fit_labeller", "write_summary", "read_summary", "summary_header"]
+__all__ = ["Segmenter", "SegmentationRun", "segment", "apply_labeller", "shape_elements", "fit_labeller"]
 
 
 def _segment_file(job):
@@ -123,6 +124,7 @@ class Segmenter:
     def __init__(self, model, *, up: str | None = None, front: str | None = None, align=None, refine: int = 0,
                  existence_threshold: float = 0.5, prune_threshold: float | None = 0.6, adapt=None,
                  labeller="auto", labelling=None):
+        self.model = model
         self.abstractor = load_model(model)
         if isinstance(labeller, str) and labeller == "auto":
             labeller = None if not isinstance(model, (str, Path)) else read_labeller(_model_path(model))
@@ -136,6 +138,110 @@ class Segmenter:
     def part_names(self) -> list:
         return self.abstractor.part_names
 
+    def plan(self, inputs, folder, *, shard=None, skip_done: bool = False, semantic: bool = False, ground_truth=(),
+             ground_truth_names=None, picture=None, overwrite: bool = False):
+        """The plan of a :meth:`run` over the shape files of ``inputs`` into ``folder``
+        (:func:`primkit.segmentation.outputs.plan_segmentation`), with the reads (the model file,
+        the ``ground_truth`` folders) whose files nothing may overwrite.
+
+        ``ground_truth`` (folders of ``.seg`` files or voxel label archives; ``ground_truth_names``
+        what their values mean, :func:`~primkit.segmentation.evaluation.ground_truth_sources`) and
+        ``picture`` need the whole collection: refused (ValueError) with ``shard`` or ``skip_done``."""
+        sources = evaluation.ground_truth_sources(ground_truth, ground_truth_names)
+        shard = parallel.parse_shard(shard) if isinstance(shard, str) else shard
+        if shard is not None and sources:
+            raise ValueError("--gt evaluates the whole collection (the paper's mapping is fitted over every shape): "
+                             "not with --shard")
+        if shard is not None and picture:
+            raise ValueError("--png draws the whole collection: not with --shard")
+        if skip_done and (sources or picture):
+            raise ValueError(f"{'--gt evaluates' if sources else '--png draws'} the whole collection: not with --skip-done")
+        folder = Path(folder)
+        codes = outputs.label_codes_text(self.part_names, self.labeller) if semantic else None
+        model = _model_path(self.model) if isinstance(self.model, (str, Path)) else None
+        evaluations = [folder / name for name in outputs.EVALUATIONS.values()] if sources else []
+        return outputs.plan_segmentation(inputs, folder, self.part_names, shard=shard, skip_done=skip_done, codes=codes,
+                                         evaluations=evaluations, picture=picture, overwrite=overwrite,
+                                         reads=[model, *(f for f, _ in sources)])
+
+    def run(self, inputs, folder=None, *, shard=None, skip_done: bool = False, semantic: bool = False, ground_truth=(),
+            ground_truth_names=None, mean_over=None, picture=None, overwrite: bool = False, cache_dir=None,
+            workers=None, executor=None, progress: bool = False):
+        """Co-segment a collection into ``folder`` and write every output: each shape's labels,
+        ``.parts.ply`` and ``.cuboids.json`` (last), the summaries (a shard's own; with ``skip_done``
+        rewritten with the rows of what was done), ``labels.csv`` (``semantic``), the ``picture``,
+        and the evaluations against ``ground_truth``. ``inputs``: files or folders, planned here
+        (:meth:`plan`, with ``shard``, ``skip_done``...), or a plan made by :meth:`plan`. The outputs
+        are checked before any work (:meth:`primkit.data.RunPlan.check`). Returns a
+        :class:`SegmentationRun` (nothing done when the plan has nothing to do)."""
+        from ..data import RunPlan
+        from ..model.abstraction import CardMismatchWarning
+
+        plan = inputs if isinstance(inputs, RunPlan) else self.plan(
+            inputs, folder, shard=shard, skip_done=skip_done, semantic=semantic, ground_truth=ground_truth,
+            ground_truth_names=ground_truth_names, picture=picture, overwrite=overwrite)
+        if not plan.todo:
+            return SegmentationRun(segmentations=[], errors=[], plan=plan)
+        ground_truth = evaluation.ground_truth_sources(ground_truth, ground_truth_names)
+        plan.check(overwrite)
+        folder = plan.folder
+        with parallel.executor_from(executor) as pool, warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", CardMismatchWarning)
+            segs, errors = self.segment_files(plan, cache_dir=cache_dir, workers=workers, executor=pool,
+                                              progress=progress)
+        run = SegmentationRun(segmentations=segs, errors=list(errors), plan=plan)
+        for w in caught:  # the model-card warning kept for the caller (and the summary); the others as they came
+            if issubclass(w.category, CardMismatchWarning):
+                run.mismatch = str(w.message)
+            else:
+                warnings.showwarning(w.message, w.category, w.filename, w.lineno)
+        if not segs:
+            return run
+        for s in segs:
+            run.written[s.name] = s.save(folder, semantic=semantic, overwrite=overwrite)
+        kinds = {"mesh": [], "voxels": [], "points": []}
+        for s in segs:
+            kinds["voxels" if isinstance(s, VoxelSegmentation) else "points" if isinstance(s, PointSegmentation)
+                  else "mesh"].append(s)
+        kept = _kept_rows(plan, self.part_names)
+        order = [plan.names[i] for i in sorted(plan.todo + plan.done)]
+        for kind, group in kinds.items():
+            if group:
+                path = folder / outputs.summary_name(kind, plan.shard)
+                outputs.write_summary(group, path, overwrite=overwrite or plan.skip_done,
+                                      keep=kept.get(kind), order=order)
+                run.summaries.append(path)
+        labels = folder / "labels.csv"
+        if labels in plan.extra:
+            codes = outputs.label_codes_text(self.part_names, self.labeller)
+            if not outputs.written_before(labels, codes, plan.shard is not None, overwrite):  # meanwhile
+                with io.atomic_output(labels, overwrite=overwrite) as tmp:
+                    Path(tmp).write_text(codes)
+        from ..model.cuboids_file import write_cuboids_file
+
+        for s in segs:  # the schema of every <name>.cuboids.json (its canonical_frame not known here)
+            write_cuboids_file(folder / f"{s.name}.cuboids.json", s.cuboids, name=s.name, source=s.source,
+                               model=self.abstractor.model or None, part_names=s.part_names or None,
+                               overwrite=overwrite)
+        if picture:
+            run.picture = outputs.write_picture(segs, picture)
+        if ground_truth and kinds["mesh"]:
+            run.evaluation, failed = evaluation.evaluate_meshes_against(kinds["mesh"], ground_truth, self.part_names)
+            run.errors += failed
+            if run.evaluation is not None:
+                run.evaluation_path = _write_json(folder / outputs.EVALUATIONS["meshes"], run.evaluation, overwrite)
+        if ground_truth and kinds["voxels"]:
+            run.voxel_evaluation, failed = evaluation.evaluate_grids_against(
+                kinds["voxels"], ground_truth, self.abstractor.parts, self.part_names, labeller=self.labeller,
+                mean_over=mean_over)
+            run.errors += failed
+            if run.voxel_evaluation is not None:
+                run.voxel_evaluation_path = _write_json(folder / outputs.EVALUATIONS["voxels"], run.voxel_evaluation,
+                                                        overwrite)
+        if ground_truth:
+            run.unevaluated_clouds = len(kinds["points"])
+        return run
+
     def abstract_files(self, paths, *, cache_dir=None, workers=None, progress=False, executor=None, shard=None):
         """Abstractions of shape files: ``(results, errors)`` (:func:`primkit.model.abstraction.abstract_shapes`;
         ``executor`` prepares there, ``shard`` abstracts only that shard of the files)."""
@@ -144,7 +250,7 @@ class Segmenter:
         return out.results, out.errors
 
     def segment_files(self, paths, *, cache_dir=None, workers=None, progress=False, executor=None, shard=None):
-        """Abstract and co-segment shape files.
+        """Abstract and co-segment shape files (or a :class:`primkit.data.RunPlan`'s: what it does of them).
 
         Returns ``(segmentations, errors)``: one :class:`Segmentation` (meshes),
         :class:`VoxelSegmentation` (voxel grids) or :class:`PointSegmentation` (point clouds) per usable file, in input order, and one line per
@@ -173,6 +279,67 @@ class Segmenter:
                 else:
                     segs.append(seg)
         return segs, errors
+
+
+@dataclass
+class SegmentationRun:
+    """What :meth:`Segmenter.run` did.
+
+    Attributes
+    ----------
+    segmentations : list
+        One segmentation per shape segmented (:class:`Segmentation`, :class:`VoxelSegmentation` or
+        :class:`PointSegmentation`), in input order.
+    errors : list of str
+        One line per input that could not be used (or had no ground truth).
+    written : dict
+        Each shape's files by name (:meth:`Segmentation.save`'s).
+    summaries : list of Path
+    picture : Path or None
+    evaluation, voxel_evaluation : dict or None
+        The reports of :func:`~primkit.segmentation.evaluation.evaluate` and
+        :func:`~primkit.segmentation.evaluation.evaluate_voxels`, written to ``evaluation_path``
+        and ``voxel_evaluation_path``.
+    unevaluated_clouds : int
+        Point clouds left out of the evaluation (their ground truth would be per point).
+    mismatch : str or None
+        The model-card warning (:class:`primkit.model.abstraction.CardMismatchWarning`), when given.
+    plan : primkit.data.RunPlan
+        What the run was to do (its shard, what a cut run had finished).
+    """
+
+    segmentations: list
+    errors: list
+    plan: object = None
+    written: dict = field(default_factory=dict)
+    summaries: list = field(default_factory=list)
+    picture: Path | None = None
+    evaluation: dict | None = None
+    evaluation_path: Path | None = None
+    voxel_evaluation: dict | None = None
+    voxel_evaluation_path: Path | None = None
+    unevaluated_clouds: int = 0
+    mismatch: str | None = None
+
+
+def _kept_rows(plan, part_names) -> dict:
+    """The summary rows of what a cut run finished (``plan.done``), by kind: ``{kind: {name: row}}``."""
+    kept: dict = {}
+    tables: dict = {}
+    for i in plan.done:
+        kind = outputs.shape_kind(plan.files[i])
+        if kind not in tables:
+            header, rows = outputs.read_summary(plan.folder / outputs.summary_name(kind, plan.shard))
+            tables[kind] = rows if header == outputs.summary_header(kind, part_names) else {}
+        if plan.names[i] in tables[kind]:
+            kept.setdefault(kind, {})[plan.names[i]] = tables[kind][plan.names[i]]
+    return kept
+
+
+def _write_json(path, report, overwrite) -> Path:
+    with io.atomic_output(path, overwrite=overwrite) as tmp:
+        Path(tmp).write_text(json.dumps(report, indent=1))
+    return Path(path)
 
 
 def _model_path(model):
@@ -209,67 +376,3 @@ def segment(shape, model="chair", *, labelling=None, **options) -> Segmentation 
         seg = segment_mesh(mesh.vertices, mesh.faces, a.cuboids, name=a.name, source=a.source,
                            part_names=abstractor.part_names, labelling=labelling)
     return seg if labeller is None else apply_labeller(seg, labeller, a.result)
-
-
-def summary_header(kind: str, part_names) -> list[str]:
-    """The columns of a summary (:func:`write_summary`) of shapes of ``kind`` (``"mesh"``,
-    ``"voxels"`` or ``"points"``) segmented by a model with these part names."""
-    element = {"mesh": "faces", "voxels": "voxels", "points": "points"}[kind]
-    unit = "area" if kind == "mesh" else element
-    return ["shape", element, "parts_present", f"{unit}_total"] + [f"{unit}_{k}_{n}" for k, n in enumerate(part_names)]
-
-
-def read_summary(path) -> tuple[list[str], dict[str, list[str]]]:
-    """A summary written by :func:`write_summary`: its header and its rows by shape name (the row
-    without the name). An absent or unreadable file reads as no columns and no rows."""
-    try:
-        with open(path, newline="", encoding="utf-8", errors="surrogateescape") as fh:  # names as written
-            table = list(csv.reader(fh))
-    except (OSError, UnicodeDecodeError, csv.Error):
-        return [], {}
-    if not table:
-        return [], {}
-    return table[0], {row[0]: row[1:] for row in table[1:] if row}
-
-
-def write_summary(segmentations, path, *, overwrite: bool = False, keep=None, order=None) -> Path:
-    """One CSV row per shape: its elements, the parts present (indices holding any), and how much
-    of the shape each part index holds, with the same columns for the whole collection.
-
-    Meshes (:class:`Segmentation`): ``faces``, then surface areas (``area_total``,
-    ``area_<k>_<name>``). Voxel grids (:class:`VoxelSegmentation`): ``voxels``, then voxel counts
-    (``voxels_<k>_<name>``). Point clouds (:class:`PointSegmentation`): ``points``, then point
-    counts. One kind per file.
-
-    ``keep``: rows of an earlier summary of the same columns (:func:`read_summary`), written with
-    these (``primkit segment --skip-done``: the shapes it left as they were); ``order``: shape
-    names in the order the rows are written (by default the kept rows, then the new ones).
-    """
-    if not segmentations:
-        raise ValueError("no segmentations to summarise")
-    kinds = {type(s) for s in segmentations}
-    if len(kinds) > 1:
-        raise ValueError("write meshes, voxel grids and point clouds into separate summaries")
-    voxels = isinstance(segmentations[0], (VoxelSegmentation, PointSegmentation))  # counted, not measured
-    names = segmentations[0].part_names
-    count = segmentations[0].cuboids.count
-    kind = {VoxelSegmentation: "voxels", PointSegmentation: "points"}.get(type(segmentations[0]), "mesh")
-    header = summary_header(kind, names[:count])
-    rows = dict(keep or {})
-    for s in segmentations:
-        amounts = s.part_sizes() if voxels else s.part_areas()
-        elements = len(s.points) if kind == "points" else int(np.count_nonzero(s.labels >= 0)) if voxels \
-            else len(s.faces)
-        present = " ".join(str(k) for k in np.flatnonzero(amounts > 0))
-        rows[s.name] = [elements, present, f"{amounts.sum():.6g}"] + [f"{a:.6g}" for a in amounts]
-    if order is not None:
-        position = {name: i for i, name in enumerate(order)}
-        rows = dict(sorted(rows.items(), key=lambda item: position.get(item[0], len(position))))
-    with io.atomic_output(path, overwrite=overwrite) as tmp:
-        # a name from a file name that is not UTF-8 keeps its bytes (surrogateescape), as the file's
-        with open(tmp, "w", newline="", encoding="utf-8", errors="surrogateescape") as fh:
-            writer = csv.writer(fh)
-            writer.writerow(header)
-            for name, row in rows.items():
-                writer.writerow([name] + row)
-    return Path(path)

@@ -36,7 +36,7 @@ from ..plugins.open3d_geometry import O3DSegmentation, segment
 from ..viz.camera import CAMERA
 from ..viz.palette import part_colors
 
-__all__ = ["Open3DViewer", "open3d_viewer"]
+__all__ = ["Open3DViewer", "ExportedFiles", "open3d_viewer"]
 
 SURFACE, CUBOIDS = "surface", "cuboids"
 
@@ -50,6 +50,16 @@ def _material(shader: str, color, *, line_width: float = 1.0, point_size: float 
     m.line_width = float(line_width)
     m.point_size = float(point_size)
     return m
+
+
+@dataclass(frozen=True)
+class ExportedFiles:
+    """What :meth:`Open3DViewer.export` wrote: ``<name>.cuboids.json``, the labels (``<name>.seg``
+    per face, or ``<name>.parts.npy`` per point) and the coloured parts (``<name>.parts.ply``)."""
+
+    cuboids: Path
+    labels: Path
+    parts: Path
 
 
 @dataclass
@@ -173,20 +183,21 @@ class Open3DViewer:
         self._tell(window, "refined", f"{self.name}: cuboids refined by {self.refined} steps")
         return self.refined
 
-    def export(self, window) -> dict:
+    def export(self, window) -> ExportedFiles | None:
         """Write the cuboids, labels and coloured parts into :attr:`export_folder` (refused, with a
-        message, when a file is there already). Returns ``{kind: path}`` (empty when refused)."""
+        message, when a file is there already). Returns the paths written (None when refused)."""
         folder = Path(self.export_folder)
         labelled = self.segmentation.labelled
         mesh = labelled.face_labels is not None
-        paths = {"cuboids": folder / f"{self.name}.cuboids.json",
-                 "labels": folder / (f"{self.name}.seg" if mesh else f"{self.name}.parts.npy"),
-                 "parts": folder / f"{self.name}.parts.ply"}
+        written = ExportedFiles(cuboids=folder / f"{self.name}.cuboids.json",
+                                labels=folder / (f"{self.name}.seg" if mesh else f"{self.name}.parts.npy"),
+                                parts=folder / f"{self.name}.parts.ply")
+        paths = {"cuboids": written.cuboids, "labels": written.labels, "parts": written.parts}
         there = [p for p in paths.values() if p.exists()]
         if there:
             self._tell(window, "not exported", f"{there[0]} exists: nothing written (remove it, or start the viewer "
                                                "with another --export folder)")
-            return {}
+            return None
         folder.mkdir(parents=True, exist_ok=True)
         palette = np.vstack([part_colors(max(labelled.cuboids.count, 1)), [[200, 200, 200]]]).astype(np.uint8)
         labelled.abstraction.result.save_json(paths["cuboids"])
@@ -200,7 +211,7 @@ class Open3DViewer:
             io.write_points(paths["parts"], self.shape, labels=labelled.point_labels,
                             colors=palette[labelled.point_labels])
         self._tell(window, "exported", "wrote " + ", ".join(str(p) for p in paths.values()))
-        return paths
+        return written
 
     def _tell(self, window, title: str, text: str) -> None:
         self.messages.append(text)

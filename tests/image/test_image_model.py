@@ -151,19 +151,24 @@ def test_distillation_loss_does_not_see_the_quaternion_sign():
     rng = np.random.default_rng(1)
     b, m = 3, 4
     q = torch.nn.functional.normalize(torch.tensor(rng.normal(size=(b, m, 4))), dim=-1)
-    teacher = {"half_extents": torch.rand(b, m, 3, dtype=torch.float64) * 0.3, "quaternions": q,
-               "translations": torch.rand(b, m, 3, dtype=torch.float64) - 0.5,
-               "existence": torch.rand(b, m, dtype=torch.float64)}
-    pred = {k: v.clone() for k, v in teacher.items()}
-    pred["quaternions"] = torch.nn.functional.normalize(q + 0.3 * torch.tensor(rng.normal(size=(b, m, 4))), dim=-1)
-    pred["existence_logits"] = torch.logit(teacher["existence"])
-    flipped = dict(pred, quaternions=-pred["quaternions"])
+    from dataclasses import replace
+
+    from primkit.model.abstractor import RawCuboids
+
+    teacher = RawCuboids(half_extents=torch.rand(b, m, 3, dtype=torch.float64) * 0.3, quaternions=q,
+                         translations=torch.rand(b, m, 3, dtype=torch.float64) - 0.5,
+                         existence=torch.rand(b, m, dtype=torch.float64))
+    same_as_teacher = im.ImagePrediction(teacher.half_extents, teacher.quaternions, teacher.translations,
+                                         teacher.existence, torch.logit(teacher.existence), torch.zeros(b, 3))
+    pred = replace(same_as_teacher, quaternions=torch.nn.functional.normalize(
+        q + 0.3 * torch.tensor(rng.normal(size=(b, m, 4))), dim=-1))
+    flipped = replace(pred, quaternions=-pred.quaternions)
     a, c = im.distillation_loss(pred, teacher), im.distillation_loss(flipped, teacher)
-    assert float(a["rotation"]) > 0.01
-    assert float(a["total"]) == pytest.approx(float(c["total"]), abs=1e-12)
+    assert float(a.terms["rotation"]) > 0.01
+    assert float(a.total) == pytest.approx(float(c.total), abs=1e-12)
     # the teacher's own output costs nothing but the entropy of its soft existence
-    same = im.distillation_loss(dict(teacher, existence_logits=torch.logit(teacher["existence"])), teacher)
-    assert float(same["rotation"]) == pytest.approx(0, abs=1e-12) and float(same["translations"]) == 0
+    same = im.distillation_loss(same_as_teacher, teacher)
+    assert float(same.terms["rotation"]) == pytest.approx(0, abs=1e-12) and float(same.terms["translations"]) == 0
 
 
 # the fast loop keeps the plain run, in 30 iterations (the loss falls to 0.32 of its start; 0.15 in 60);
@@ -202,7 +207,7 @@ def _pred(z, t):
     z, t = torch.tensor(np.array(z), dtype=torch.float32)[None], torch.tensor(np.array(t), dtype=torch.float32)[None]
     q = torch.zeros(1, len(z[0]), 4)
     q[..., 0] = 1.0
-    return {"half_extents": z, "quaternions": q, "translations": t}
+    return im.ImagePrediction(z, q, t, None, None, None)  # what the geometric loss reads
 
 
 def test_geometric_loss_against_brute_force_on_a_box():
@@ -236,8 +241,10 @@ def test_geometric_loss_against_brute_force_on_a_box():
 
 def test_geometric_training_needs_the_shapes(grids):
     v = views.render_views(grids[:1], 2, settings=SMALL, seed=0)
-    teacher = {"half_extents": np.full((1, 2, 3), 0.1), "quaternions": np.tile([1.0, 0, 0, 0], (1, 2, 1)),
-               "translations": np.zeros((1, 2, 3)), "existence": np.ones((1, 2))}
+    from primkit.model.abstractor import RawCuboids
+
+    teacher = RawCuboids(half_extents=np.full((1, 2, 3), 0.1), quaternions=np.tile([1.0, 0, 0, 0], (1, 2, 1)),
+                         translations=np.zeros((1, 2, 3)), existence=np.ones((1, 2)))
     config = im.ImageTrainConfig(iterations=1, batch_size=2, geometric=1.0)
     with pytest.raises(ValueError, match="surface_points"):
         im.train_image_model(v.images, v.shape_index, v.cameras, teacher, im.ImageNetConfig(size=32, parts=2), config,

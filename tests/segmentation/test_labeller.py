@@ -142,7 +142,7 @@ def test_labeller_learns_the_frame_and_round_trips_through_a_model_file(tmp_path
     back = lab.read_labeller(out)
     assert back.names == labeller.names and back.settings == labeller.settings
     np.testing.assert_array_equal(back.ensemble.predict_proba(X), labeller.ensemble.predict_proba(X))
-    assert lab.read_labeller(resolve_model("chair")) is None
+    assert lab.read_labeller(resolve_model("table")) is None  # the bundled table has none
     # the network still loads from the file that carries the labeller
     from primkit.model.abstractor import Abstractor
 
@@ -416,8 +416,8 @@ def test_the_pyvista_accessor_carries_a_label_array(chairs, tmp_path):
     want = lab.label_elements(labeller, lab.mesh_elements(s.vertices, s.faces, a.result.frame), a.result.canonical)
     assert np.array_equal(np.asarray(out.cell_data["label"]), want)
     assert list(out.field_data["label_names"]) == ["low", "high"]
-    plain = mesh.primkit.segment(model="chair", refine=0)
-    assert "label" not in plain.cell_data  # the bundled chair has no labeller
+    plain = mesh.primkit.segment(model="table", refine=0)
+    assert "label" not in plain.cell_data  # the bundled table has no labeller
 
 
 def test_the_vtk_filter_carries_a_label_array(chairs, tmp_path):
@@ -438,9 +438,11 @@ def test_the_vtk_filter_carries_a_label_array(chairs, tmp_path):
     want = lab.label_elements(labeller, lab.mesh_elements(s.vertices, s.faces, a.result.frame), a.result.canonical)
     assert np.array_equal(np.asarray(out.cell_data["label"]), want)
     assert list(out.field_data["label_names"]) == ["rear", "front"] and "part" in out.cell_data
-    f.SetModel("chair")
+    f.SetModel("chair")  # the bundled chair model carries a labeller (scripts/build_chair_labeller.py)
     f.Update()
-    assert "label" not in pv.wrap(f.GetOutputDataObject(0)).cell_data  # the bundled chair has no labeller
+    bundled = pv.wrap(f.GetOutputDataObject(0))
+    assert list(bundled.field_data["label_names"]) == ["back", "seat", "legs", "arms"]
+    assert len(bundled.cell_data["label"]) == len(s.faces) and np.all(np.asarray(bundled.cell_data["label"]) >= 0)
 
 
 @pytest.mark.integration  # two name-parts runs; scikit-learn bins weighted samples slowly

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from primkit import io, primitives
+from primkit.segmentation import evaluation
 from primkit.segmentation import voxels as voxel_labels
 
 
@@ -41,7 +42,7 @@ def test_label_voxels_is_the_nearest_present_cuboid_of_each_voxel_centre():
 
 
 def _truth(codes, names=("back", "seat", "leg", "arm")):
-    return voxel_labels.VoxelGroundTruth(np.asarray(codes), list(names))
+    return evaluation.VoxelGroundTruth(np.asarray(codes), list(names))
 
 
 def test_per_shape_iou_counts_a_label_absent_from_both_as_one_and_averages_over_shapes():
@@ -51,7 +52,7 @@ def test_per_shape_iou_counts_a_label_absent_from_both_as_one_and_averages_over_
     # primitive indices: 0 -> back, 1 -> seat, 2 -> leg, 3 -> arm by construction (majority)
     a1 = np.array([0, 0, 1, 1, 2, 1])    # one leg voxel taken by the seat
     a2 = np.array([0, 1, 1, 3, 1, -1])   # one arm voxel taken by the seat
-    rep = voxel_labels.evaluate_voxels([a1, a2], [t1, t2], 4, names=["one", "two"])
+    rep = evaluation.evaluate_voxels([a1, a2], [t1, t2], 4, names=["one", "two"])
     e = rep["protocols"]["collection-majority"]
     assert e["mapping"] == {"0": "back", "1": "seat", "2": "leg", "3": "arm"}
     # shape 1: back 1, seat 2/3, leg 1/2, arm absent from both -> 1
@@ -67,11 +68,11 @@ def test_per_shape_iou_counts_a_label_absent_from_both_as_one_and_averages_over_
 
 
 def test_detection_counts_false_arms_and_model_names_are_applied_unchanged():
-    partnet = list(voxel_labels.PARTNET_LABEL_NAMES.values())  # aliases: "legs/leg/base", "arms/arm"
+    partnet = list(evaluation.PARTNET_LABEL_NAMES.values())  # aliases: "legs/leg/base", "arms/arm"
     t = [_truth([0, 1, 2, 2], partnet), _truth([0, 1, 2, 3], partnet), _truth([0, 1, 1, 3], partnet)]
     a = [np.array([0, 1, 2, 3]), np.array([0, 1, 2, 3]), np.array([0, 1, 1, 2])]
     # names: index 2 called "arms" (wrong on purpose), 3 "legs"
-    rep = voxel_labels.evaluate_voxels(a, t, 4, part_names=["back", "seat", "arms", "legs"],
+    rep = evaluation.evaluate_voxels(a, t, 4, part_names=["back", "seat", "arms", "legs"],
                                        mean_over=["back", "seat", "legs"])
     named = rep["protocols"]["model-names"]
     assert named["mapping"] == {"0": "back", "1": "seat", "2": "arms", "3": "legs"}
@@ -89,18 +90,18 @@ def test_detection_counts_false_arms_and_model_names_are_applied_unchanged():
 
 def test_evaluation_refuses_mismatched_inputs():
     with pytest.raises(ValueError):
-        voxel_labels.evaluate_voxels([np.zeros(3, int)], [_truth([0, 1])], 2)
+        evaluation.evaluate_voxels([np.zeros(3, int)], [_truth([0, 1])], 2)
     with pytest.raises(ValueError, match="no primitive index"):
-        voxel_labels.evaluate_voxels([np.array([0, -1])], [_truth([0, 1])], 2)
+        evaluation.evaluate_voxels([np.array([0, -1])], [_truth([0, 1])], 2)
     with pytest.raises(ValueError, match="not labels"):
-        voxel_labels.evaluate_voxels([np.array([0, 1])], [_truth([0, 1])], 2, mean_over=["wing"])
+        evaluation.evaluate_voxels([np.array([0, 1])], [_truth([0, 1])], 2, mean_over=["wing"])
 
 
 def test_archive_reads_labels_as_codes_and_checks_the_grid(tmp_path):
     raw = np.full((4, 4, 4), -1, np.int8)
     raw[0, 0, 0], raw[1, 0, 0], raw[2, 0, 0], raw[3, 0, 0] = 0, 1, 2, 3
     np.savez_compressed(tmp_path / "voxlabels.npz", abc=raw)
-    arch = voxel_labels.VoxelLabelArchive(tmp_path)
+    arch = evaluation.VoxelLabelArchive(tmp_path)
     assert "abc" in arch and "xyz" not in arch and len(arch) == 1
     gt = arch.get("abc", (4, 4, 4))
     assert gt.names == ["back", "seat", "legs/leg/base", "arms/arm"]
@@ -109,9 +110,9 @@ def test_archive_reads_labels_as_codes_and_checks_the_grid(tmp_path):
         arch.get("abc", (8, 8, 8))
     (tmp_path / "bad.npz").write_bytes(b"not a zip")
     with pytest.raises(io.ShapeFileError, match="bad.npz"):
-        voxel_labels.VoxelLabelArchive(tmp_path / "bad.npz")
+        evaluation.VoxelLabelArchive(tmp_path / "bad.npz")
     with pytest.raises(FileNotFoundError):
-        voxel_labels.VoxelLabelArchive(tmp_path / "none.npz")
+        evaluation.VoxelLabelArchive(tmp_path / "none.npz")
 
 
 def _voxel_chairs(tmp_path, count=3):
@@ -155,7 +156,7 @@ def test_segment_command_labels_voxel_grids_and_scores_them_against_voxel_labels
     # the same numbers through the library, from the written cuboids and labels
     model = load_model("chair")
     assigns, truths = [], []
-    arch = voxel_labels.VoxelLabelArchive(tmp_path)
+    arch = evaluation.VoxelLabelArchive(tmp_path)
     for p in paths:
         grid = io.read_voxels(p)
         cub = primitives.Cuboids.load_json(out / f"{p.stem}.cuboids.json")
@@ -163,7 +164,7 @@ def test_segment_command_labels_voxel_grids_and_scores_them_against_voxel_labels
         assert np.array_equal(written, voxel_labels.label_voxels(grid, cub))
         assigns.append(written)
         truths.append(arch.get(p.stem, grid.occupancy.shape))
-    again = voxel_labels.evaluate_voxels(assigns, truths, model.parts, part_names=model.part_names,
+    again = evaluation.evaluate_voxels(assigns, truths, model.parts, part_names=model.part_names,
                                          names=[p.stem for p in paths], mean_over=["back", "seat", "legs"])
     for protocol, entry in again["protocols"].items():
         assert report["protocols"][protocol]["iou"] == pytest.approx(entry["iou"])

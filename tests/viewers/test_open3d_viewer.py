@@ -16,7 +16,7 @@ import pytest
 
 from primkit import io, synthetic
 from primkit.model.abstraction import load_model
-from primkit.primitives import Cuboids
+from primkit.model.cuboids_file import read_cuboids_file
 from primkit.segmentation.meshes import surface_face_labels
 from primkit.segmentation.points import segment_points
 from primkit.viewers.open3d_viewer import open3d_viewer
@@ -83,15 +83,16 @@ def test_parts_toggle_refine_and_export(chair, model, tmp_path):
     assert set(w.removed) == set(names) and viewer.segmentation.labelled.abstraction.result.refinement is not None
     assert not np.allclose(viewer.segmentation.cuboids.translations[cub.present], before[cub.present])
 
-    paths = viewer.export(w)
-    assert set(paths) == {"cuboids", "labels", "parts"}
-    saved = Cuboids.load_json(paths["cuboids"])
-    np.testing.assert_allclose(saved.translations, viewer.segmentation.cuboids.translations)
-    assert np.array_equal(io.read_labels(paths["labels"]), viewer.segmentation.labelled.face_labels)
-    assert io.read_mesh(paths["parts"]).faces.shape == mesh.faces.shape
-    stamp = {p: p.stat().st_mtime_ns for p in paths.values()}
-    assert viewer.export(w) == {} and "exists: nothing written" in w.boxes[-1][1]  # never over a file
-    assert {p: p.stat().st_mtime_ns for p in paths.values()} == stamp
+    written = viewer.export(w)
+    saved = read_cuboids_file(written.cuboids)
+    np.testing.assert_allclose(saved.cuboids.translations, viewer.segmentation.cuboids.translations)
+    assert saved.frame == "input" and saved.canonical_frame is not None and saved.extra["refinement"]["steps"] == 60
+    assert np.array_equal(io.read_labels(written.labels), viewer.segmentation.labelled.face_labels)
+    assert io.read_mesh(written.parts).faces.shape == mesh.faces.shape
+    paths = [written.cuboids, written.labels, written.parts]
+    stamp = {p: p.stat().st_mtime_ns for p in paths}
+    assert viewer.export(w) is None and "exists: nothing written" in w.boxes[-1][1]  # never over a file
+    assert {p: p.stat().st_mtime_ns for p in paths} == stamp
 
 
 def test_point_cloud_in_the_viewer(chair, model, tmp_path):
@@ -103,9 +104,9 @@ def test_point_cloud_in_the_viewer(chair, model, tmp_path):
         if g["name"].startswith("surface"):
             k = int(g["name"].split()[1])
             assert len(g["geometry"].point.positions) == int((labels == k).sum())
-    paths = viewer.export(RecordingWindow())
-    assert np.array_equal(np.load(paths["labels"]), labels)
-    assert paths["parts"].suffix == ".ply" and len(io.read_points(paths["parts"]).points) == len(points)
+    written = viewer.export(RecordingWindow())
+    assert np.array_equal(np.load(written.labels), labels)
+    assert written.parts.suffix == ".ply" and len(io.read_points(written.parts).points) == len(points)
 
 
 def _vulkan() -> bool:
