@@ -401,6 +401,7 @@ def _chair_with_a_labeller(tmp_path, *, seed, axis, names):
     return labeller, lab.write_labeller(resolve_model("chair"), tmp_path / "m.safetensors", labeller)
 
 
+@pytest.mark.integration  # a labeller fitted, then the accessor end to end
 def test_the_pyvista_accessor_carries_a_label_array(chairs, tmp_path):
     """A model file with a labeller (here learned from random 20-slot frames): the accessor's copy
     has cell_data["label"], the labeller's names of the faces (as the library computes them)."""
@@ -420,6 +421,7 @@ def test_the_pyvista_accessor_carries_a_label_array(chairs, tmp_path):
     assert "label" not in plain.cell_data  # the bundled table has no labeller
 
 
+@pytest.mark.integration  # a labeller fitted, then the VTK filter end to end
 def test_the_vtk_filter_carries_a_label_array(chairs, tmp_path):
     """The VTK filter on a model file with a labeller: port 0 has cell_data["label"] beside
     "part", the labeller's names of the faces as the library computes them; none without one."""
