@@ -189,7 +189,6 @@ def test_embed_and_similar_commands(tmp_path, capsys):
     assert "unknown part 'wings'" in capsys.readouterr().err
 
 
-@pytest.mark.integration  # two embed runs with refinement; embed stays in the fast loop
 def test_embed_refine_passes_through(tmp_path):
     """``--refine N`` gives the descriptors of the library's refined cuboids, which differ from the network's."""
     from primkit import data, synthetic

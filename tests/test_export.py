@@ -259,6 +259,7 @@ class _Quiet(http.server.SimpleHTTPRequestHandler):
         pass
 
 
+@pytest.mark.integration  # three.js in a node process
 def test_glb_opens_in_three_js_with_one_selectable_node_per_part(glb_dir, three_js, tmp_path):
     from PIL import Image
 

@@ -683,6 +683,8 @@ def _train(shapes, output, config, device, resume, progress, description, thread
         previous_handler = signal.signal(signal.SIGINT, _request_stop)
         # SIGTERM (SLURM, Kubernetes, timeout) as Ctrl-C: finish the iteration, checkpoint, stop
         previous_term = signal.signal(signal.SIGTERM, _request_stop)
+    if rank == 0:  # from here on Ctrl-C and SIGTERM stop after a checkpoint
+        _logger.info("training: iterations %d to %d on %d shapes (%s)", start + 1, total, len(shapes), device)
     try:
         for it in range(start, total):
             governor.update()

@@ -108,9 +108,19 @@ def test_local_shape_tells_a_line_from_a_plane():
     np.testing.assert_allclose(shape_plane[:, 8], 1, atol=1e-6)  # which faces z
 
 
+_TOY = {}  # (generator state, settings) -> (labeller, shapes, generator state after): a fit is seconds
+
+
 def _toy_labeller(rng, settings=None):
-    """Learned from shapes whose label is which side of cuboid 0 a point lies on, and cuboid 1."""
+    """Learned from shapes whose label is which side of cuboid 0 a point lies on, and cuboid 1.
+    The same generator state and settings give the same fit, so it is made once (the generator is
+    left where the fit would have left it)."""
     settings = settings or LabellerSettings(neighbours=8, smooth=1, smooth_neighbours=5)
+    key = (repr(rng.bit_generator.state), settings)
+    if key in _TOY:
+        labeller, shapes, after = _TOY[key]
+        rng.bit_generator.state = after
+        return labeller, shapes
     shapes = []
     for _ in range(4):
         c = _cuboids(rng, absent=())
@@ -118,7 +128,9 @@ def _toy_labeller(rng, settings=None):
         local = primitives.world_to_local(points, c)
         y = np.where(local[0, :, 0] > 0, 0, 1) + 2 * (primitives.assign_points(points, c) == 1)
         shapes.append((frame_features(points, c, None, settings), np.minimum(y, 2)))
-    return Labeller.fit(shapes, ["a", "b", "c"], 5, settings=settings, max_iter=20), shapes
+    labeller = Labeller.fit(shapes, ["a", "b", "c"], 5, settings=settings, max_iter=20)
+    _TOY[key] = (labeller, shapes, rng.bit_generator.state)
+    return labeller, shapes
 
 
 def test_labeller_learns_the_frame_and_round_trips_through_a_model_file(tmp_path):
@@ -389,6 +401,7 @@ def _chair_with_a_labeller(tmp_path, *, seed, axis, names):
     return labeller, lab.write_labeller(resolve_model("chair"), tmp_path / "m.safetensors", labeller)
 
 
+@pytest.mark.integration  # a labeller fitted, then the accessor end to end
 def test_the_pyvista_accessor_carries_a_label_array(chairs, tmp_path):
     """A model file with a labeller (here learned from random 20-slot frames): the accessor's copy
     has cell_data["label"], the labeller's names of the faces (as the library computes them)."""
@@ -408,6 +421,7 @@ def test_the_pyvista_accessor_carries_a_label_array(chairs, tmp_path):
     assert "label" not in plain.cell_data  # the bundled table has no labeller
 
 
+@pytest.mark.integration  # a labeller fitted, then the VTK filter end to end
 def test_the_vtk_filter_carries_a_label_array(chairs, tmp_path):
     """The VTK filter on a model file with a labeller: port 0 has cell_data["label"] beside
     "part", the labeller's names of the faces as the library computes them; none without one."""
