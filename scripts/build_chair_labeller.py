@@ -5,7 +5,8 @@ The labeller (:mod:`primkit.segmentation.labeller`) is learned from the first ``
 were learned from; never the test part), abstracted and segmented as ``primkit segment`` does
 with default flags, exactly as ``primkit name-parts CHAIRS --model chair --labels
 ../shared/data/partnet_chair_boxes`` learns one. Only the labeller and the card change: the
-network's weights, the part names and every other metadata key are copied unchanged (checked).
+network's weights, the part names and every other metadata key are copied unchanged (checked). Run again on a
+bundled file that has a labeller, it replaces it (and the card's part about it).
 
 Usage (from the repository root)::
 
@@ -22,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from primkit.model.bundled import bundled_models
-from primkit.model.modelfile import load_model, read_metadata
+from primkit.model.modelfile import load_model_file, read_metadata
 from primkit.segmentation import Segmenter
 from primkit.segmentation.labeller import LABELLER_KEY, read_labeller, write_labeller
 from primkit.segmentation.segmenter import fit_labeller
@@ -36,11 +37,16 @@ TERMS = ("the labeller was learned from PartNet's part annotations (Mo et al., C
          "only, as ShapeNet's; cite PartNet, ShapeNet and 3D-R2N2")
 
 
+#: where the card's text about the labeller starts (cut off when the labeller is built again)
+LABELLER_SECTION = "\n\nPart labeller "
+
+
 def build(output: Path, chairs: int = 100, cache=None, *, overwrite: bool = False) -> Path:
     source = bundled_models()["chair"]
     meta = read_metadata(source)
-    if LABELLER_KEY in meta:
-        raise SystemExit(f"{source} already carries a labeller")
+    meta.pop(LABELLER_KEY, None)  # built again: write_labeller replaces the labeller, the card's part is redone
+    meta["card"] = {k: v for k, v in meta["card"].items() if k != "labeller"}
+    meta["card"]["text"] = meta["card"]["text"].split(LABELLER_SECTION)[0]
     validation, _, archive = split()
     files = validation[:chairs]
     segmenter = Segmenter(source, labeller=None)
@@ -63,19 +69,21 @@ def build(output: Path, chairs: int = 100, cache=None, *, overwrite: bool = Fals
                         "terms": TERMS, "command": "python -m scripts.build_chair_labeller",
                         "settings": labeller.settings.to_dict()}
     card["text"] = card["text"].rstrip("\n") + (
-        f"\n\nPart labeller (`segment --semantic` names each voxel, face or point with it): learned from the first "
+        f"{LABELLER_SECTION}(`segment --semantic` names each voxel, face or point with it): learned from the first "
         f"{chairs} PartNet validation chairs (scripts/partnet_chairs.py's split; never the test part) with "
         f"`python -m scripts.build_chair_labeller`; docs/labeller.md gives its figures. Terms: {TERMS}.\n")
     out = write_labeller(source, output, labeller, {"card": card}, overwrite=overwrite)
     # the network and every other key unchanged
-    before, after = load_model(source)[0], load_model(out)[0]
-    assert all(np.array_equal(before[k].numpy(), after[k].numpy()) for k in before)
-    assert set(after) - set(before) == {k for k in after if k.startswith("labeller.")}
+    before, after = ({k: v for k, v in load_model_file(f)[0].items() if not k.startswith("labeller.")}
+                     for f in (source, out))
+    assert before.keys() == after.keys() and all(np.array_equal(before[k].numpy(), after[k].numpy()) for k in before)
     new = read_metadata(out)
     assert {k: v for k, v in new.items() if k not in ("card", LABELLER_KEY, "created")} == \
         {k: v for k, v in meta.items() if k not in ("card", "created")}
+    assert {k: v for k, v in new["card"].items() if k not in ("labeller", "text")} == \
+        {k: v for k, v in meta["card"].items() if k != "text"}
     back = read_labeller(out)
-    print(f"wrote {out}: {out.stat().st_size} bytes ({source.stat().st_size} without the labeller), "
+    print(f"wrote {out}: {out.stat().st_size} bytes (the file it started from: {source.stat().st_size}), "
           f"{len(back.ensemble.feature)} tree nodes, prior weight {back.settings.prior_weight}")
     return out
 
