@@ -127,7 +127,7 @@ def run_train_image(args) -> int:
                               colour_shuffle=True, swap_backgrounds=swap, geometric=args.geometric)
     result = train_image_model(rendered.images, rendered.shape_index, rendered.cameras, targets,
                                ImageNetConfig(size=args.size, parts=teacher.parts), config,
-                               foreground=rendered.foreground, alpha=rendered.alpha, **geometry)
+                               foreground=rendered.foreground, alpha=rendered.alpha, progress=progress_of(args), **geometry)
     teacher_card = teacher.metadata.get("card") or {}
     meta = {
         "teacher": str(args.teacher),
