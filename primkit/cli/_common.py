@@ -189,7 +189,8 @@ def abstraction_options(args) -> dict:
 
 
 def add_model(p) -> None:
-    p.add_argument("--model", required=True, help="a model file, or a bundled model's name (primkit models)")
+    p.add_argument("--model", default="chair", help="a model file, or a bundled model's name (primkit models); "
+                   "default: chair, as in the library and the plugins")
 
 
 def add_output(p, help: str, **kwargs) -> None:

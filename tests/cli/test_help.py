@@ -67,3 +67,21 @@ def test_help_prints_description_and_examples(capsys):
     out = capsys.readouterr().out
     assert "Co-segment a collection" in out
     assert "examples:\n  primkit segment chairs/" in out  # the epilog's lines are kept, not re-wrapped
+
+
+def test_model_defaults_to_the_librarys_default_everywhere():
+    """``--model`` left out means what ``model`` left out means in the library: one default."""
+    import inspect
+
+    import primkit
+
+    library = {inspect.signature(f).parameters["model"].default for f in (primkit.abstract, primkit.segment)}
+    assert len(library) == 1
+    seen = 0
+    for path, parser in SUBCOMMANDS:
+        for action in parser._actions:
+            if "--model" in action.option_strings:
+                seen += 1
+                assert not action.required, path
+                assert action.default in library, path
+    assert seen >= 8
