@@ -135,6 +135,7 @@ def test_voxel_iou_distances_against_sets():
             assert D[i, j] == pytest.approx(expected)
 
 
+@pytest.mark.integration  # a t-SNE map of forty shapes: several seconds, left to the default suite
 def test_tsne_map_of_two_separated_groups():
     rng = np.random.default_rng(3)
     X = np.concatenate([rng.normal(0, 0.1, (15, 4)), rng.normal(5, 0.1, (15, 4))])
@@ -146,6 +147,7 @@ def test_tsne_map_of_two_separated_groups():
     assert embedding.tsne_map(X, random_state=0, precomputed_below=10).shape == (30, 2)
 
 
+@pytest.mark.integration  # the embed and similar commands end to end: several seconds, left to the default suite
 def test_embed_and_similar_commands(tmp_path, capsys):
     from primkit import synthetic
     from primkit.cli import main

@@ -84,6 +84,7 @@ def test_distance_grid_matches_brute_force(meshes, name):
 @pytest.mark.parametrize("name", ["torus",  # the fast loop keeps the hardest shape; each is seconds of brute force
                                   pytest.param("box", marks=pytest.mark.integration),
                                   pytest.param("sphere", marks=pytest.mark.integration)])
+@pytest.mark.integration  # a brute-force distance grid: several seconds, left to the default suite
 def test_distance_grid_far_cells_within_the_declared_error(meshes, name):
     """The default: exact within 2 cells of a surface cell, beyond within 3e-3, never too small;
     every closest point on the surface, at the distance given."""

@@ -21,6 +21,7 @@ def shapes():
     return [data.prepare(io.Mesh(s.vertices, s.faces), name=f"c{i}") for i, s in enumerate(made)]
 
 
+@pytest.mark.integration  # two adaptation runs compared: several seconds, left to the default suite
 def test_adapting_is_deterministic_keeps_the_parent_and_records_itself(parent, shapes, tmp_path):
     before = {k: v.clone() for k, v in parent.network.state_dict().items()}
     config = AdaptConfig(steps=4, batch_size=4, seed=3)

@@ -135,6 +135,7 @@ def test_refine_improves_the_fit(chair_model, procedural_chairs):
         assert r.refinement.loss_after < r.refinement.loss_before
 
 
+@pytest.mark.integration  # turned chairs abstracted in every orientation: several seconds, left to the default suite
 def test_align_auto_finds_up_on_turned_chairs(chair_model, procedural_chairs):
     _, shapes = procedural_chairs
     found = 0

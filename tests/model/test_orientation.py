@@ -126,6 +126,7 @@ def test_auto_keeps_the_expected_up_unless_another_cuts_the_loss_by_the_margin()
     assert orientation.choose_orientation(losses, everything, "auto", up=(0.0, 0.0, 1.0)) == 0
 
 
+@pytest.mark.integration  # 24 turns scored over a collection: several seconds, left to the default suite
 def test_a_chair_lying_down_among_upright_ones_is_stood_up(chair_model_for_frames, procedural_prepared):
     """The collection's up axis is expected, not imposed: one chair of six on its side is found."""
     shapes = list(procedural_prepared)
@@ -187,6 +188,7 @@ def _stool(seed: int):
     return io.Mesh(m.vertices, m.faces)
 
 
+@pytest.mark.integration  # 24 turns scored over stools: several seconds, left to the default suite
 def test_stools_are_not_laid_on_their_side(chair_model_for_frames, procedural_prepared):
     from primkit import data
 

@@ -45,6 +45,7 @@ def model():
     return Abstractor.load("chair")
 
 
+@pytest.mark.integration  # the bundled models over generated collections: several seconds, left to the default suite
 def test_predicted_present_parts_have_a_size(model, chairs):
     before = model.predict(chairs, align="auto", min_extent=None)
     after = model.predict(chairs, align="auto")
