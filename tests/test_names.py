@@ -28,12 +28,6 @@ SHARED = {
                             "own VTK, so it cannot import vtk_filter (see its module notes)"),
     "AXES": ({"primkit.plugins.paraview_plugin", "primkit.plugins.vtk_filter"},
              "the same filter property's choices, for the same reason as PrimkitSegmentation"),
-    # left for other steps of issue 34 (see the report of this change)
-    "segment": ({"primkit.plugins.open3d_geometry", "primkit.segmentation.segmenter"},
-                "the Open3D plugin's `segment` is named in the README (the coordinator's file)"),
-    "read_points": ({"primkit.io.formats", "primkit.plugins.pyvista_readers"},
-                    "pyvista_readers.read_points is named by the pyvista.readers entry points of the "
-                    "installed package; renaming it needs a reinstall"),
 }
 
 
@@ -101,11 +95,8 @@ DOCUMENTS = {
     "primkit.data.cache.encode_row": "the arrays of a cache file, by array name",
 }
 
-#: Left for later steps of issue 34, with the reason (the report of this change lists them).
-PENDING = {
-    "primkit.cli._common.abstraction_options": "the command line is being rewritten (step 1)",
-    "primkit.cli.deform.parse_edit": "the command line is being rewritten (step 1)",
-}
+#: Left for later steps of issue 34, with the reason: none left (keep the mechanism for the next rename).
+PENDING: dict[str, str] = {}
 
 
 def _untyped_dict(annotation) -> bool:
