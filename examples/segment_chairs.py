@@ -26,7 +26,7 @@ for seg in segs:
 segmentation.write_summary(segs, out / "summary.csv", overwrite=True)
 
 report = segmentation.evaluate(segs, truths, part_names=segmenter.part_names)
-for protocol, entry in report["protocols"].items():
-    print(f"{protocol:20s} accuracy {entry['mean_area']:.1%} of the surface, mean IoU {entry['mean_iou']:.2f}")
+for protocol, entry in report.protocols.items():
+    print(f"{protocol:20s} accuracy {entry.mean_area:.1%} of the surface, mean IoU {entry.mean_iou:.2f}")
 print("part names:", {k: n for k, n in enumerate(segmenter.part_names) if not n.startswith("part")})
 print(f"wrote {out}/segmented/ and {out}/summary.csv")

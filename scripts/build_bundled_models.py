@@ -107,11 +107,11 @@ def coseg_chairs(abstractor, refine: int, pictures: Path | None, cache) -> dict:
         r["chamfer_l1_diagonal"] = round(summarize([score(x.canonical, x.canonical_shape(s), CONV_DIAGONAL)
                                                     for x, s in zip(results, shapes)]).chamfer.mean, 5)
         r["steps"] = steps
-        for protocol, e in report["protocols"].items():
-            r[f"faces_right_{protocol}"] = round(e["mean_faces"], 4)
-            r[f"area_right_{protocol}"] = round(e["mean_area"], 4)
-        r["per_shape_faces_right"] = {n: round(v["faces"], 4) for n, v in
-                                      report["protocols"]["collection-majority"]["shapes"].items()}
+        for protocol, e in report.protocols.items():
+            r[f"faces_right_{protocol}"] = round(e.mean_faces, 4)
+            r[f"area_right_{protocol}"] = round(e.mean_area, 4)
+        r["per_shape_faces_right"] = {n: round(v.faces, 4) for n, v in
+                                      report.protocols["collection-majority"].shapes.items()}
         r["part_index_agreement"] = dict(part_label_agreement(
             [x.canonical for x in results], [s.points for s in shapes],
             [_point_labels(s, p) for s, p in zip(shapes, files)], ["back", "seat", "legs"]).to_dict()["per_label"])

@@ -55,8 +55,8 @@ def face_accuracy(model) -> dict:
         if errors:
             raise RuntimeError("; ".join(errors))
         truths = [read_ground_truth(COSEG / folder / "gt" / f"{s.name}.seg", len(s.faces)) for s in segs]
-        shapes = evaluate(segs, truths)["protocols"]["collection-majority"]["shapes"]
-        out.update({s.name: shapes[s.name]["faces"] for s in segs})
+        shapes = evaluate(segs, truths).protocols["collection-majority"].shapes
+        out.update({s.name: shapes[s.name].faces for s in segs})
     return out
 
 

@@ -128,7 +128,7 @@ def score(chairs: Chairs, names, predictions) -> dict:
         has_p.append(np.count_nonzero(predictions[name] == 3) >= 0.01 * n)
     # each label code is its own "part", named after it: the model-names protocol is the identity
     report = evaluate_voxels(assigned, truths, len(NAMES) + 1, part_names=NAMES + ["unnamed"], names=list(names),
-                             mean_over=MEAN_OVER)
+                             mean_over=MEAN_OVER).to_dict()
     e = report["protocols"]["model-names"]
     has_t, has_p = np.array(has_t), np.array(has_p)
     tp, fp, fn = np.sum(has_t & has_p), np.sum(~has_t & has_p), np.sum(has_t & ~has_p)

@@ -54,7 +54,8 @@ def evaluate(model, files, archive, *, refine: int = 0, workers=None, progress: 
     seconds = time.perf_counter() - t0
     truths = [archive.get(s.name, s.grid.occupancy.shape) for s in segs]
     report = evaluate_voxels([s.labels for s in segs], truths, segmenter.abstractor.parts,
-                             part_names=segmenter.part_names, names=[s.name for s in segs], mean_over=MEAN_OVER)
+                             part_names=segmenter.part_names, names=[s.name for s in segs],
+                             mean_over=MEAN_OVER).to_dict()  # extended below with the run's figures
     present = np.array([s.cuboids.existence for s in segs], bool)
     counts = present.sum(axis=1)
     index_sets: dict = {}

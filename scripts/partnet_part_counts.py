@@ -71,8 +71,8 @@ def measure(model, files, archive, min_extent) -> dict:
         "present_parts": int(counts.sum()),
         f"present_longest_side_under_{MIN_EXTENT}": small,
         "present_nearest_to_no_surface_sample": empty,
-        "protocols": {p: {"mean_iou": e["mean_iou"], "accuracy": e["accuracy"], "iou": e["iou"],
-                          "arm_f1": e["detection"]["arms"]["f1"]} for p, e in report["protocols"].items()},
+        "protocols": {p: {"mean_iou": e.mean_iou, "accuracy": e.accuracy, "iou": e.iou,
+                          "arm_f1": e.detection["arms"].f1} for p, e in report.protocols.items()},
         "errors": list(out.errors),
     }
 

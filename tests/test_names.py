@@ -28,12 +28,6 @@ SHARED = {
                             "own VTK, so it cannot import vtk_filter (see its module notes)"),
     "AXES": ({"primkit.plugins.paraview_plugin", "primkit.plugins.vtk_filter"},
              "the same filter property's choices, for the same reason as PrimkitSegmentation"),
-    # left for other steps of issue 34 (see the report of this change)
-    "segment": ({"primkit.plugins.open3d_geometry", "primkit.segmentation.segmenter"},
-                "the Open3D plugin's `segment` is named in the README (the coordinator's file)"),
-    "read_points": ({"primkit.io.formats", "primkit.plugins.pyvista_readers"},
-                    "pyvista_readers.read_points is named by the pyvista.readers entry points of the "
-                    "installed package; renaming it needs a reinstall"),
 }
 
 
@@ -101,16 +95,8 @@ DOCUMENTS = {
     "primkit.data.cache.encode_row": "the arrays of a cache file, by array name",
 }
 
-#: Left for later steps of issue 34, with the reason (the report of this change lists them).
-PENDING = {
-    "primkit.cli._common.abstraction_options": "the command line is being rewritten (step 1)",
-    "primkit.cli.deform.parse_edit": "the command line is being rewritten (step 1)",
-    "primkit.segmentation.meshes.Segmentation.save": "paths by role; segmentation is being reworked",
-    "primkit.segmentation.points.PointSegmentation.save": "paths by role; segmentation is being reworked",
-    "primkit.segmentation.voxels.VoxelSegmentation.save": "paths by role; segmentation is being reworked",
-    "primkit.segmentation.evaluation.evaluate": "ground-truth evaluation: its own module now; its result type is next",
-    "primkit.segmentation.evaluation.evaluate_voxels": "ground-truth evaluation: its own module now; its result type is next",
-}
+#: Left for later steps of issue 34, with the reason: none left (keep the mechanism for the next rename).
+PENDING: dict[str, str] = {}
 
 
 def _untyped_dict(annotation) -> bool:
@@ -154,7 +140,8 @@ def test_the_dict_check_can_fail():
     assert _untyped_dict(ast.parse("dict", mode="eval").body)
     assert _untyped_dict(ast.parse("dict[str, Any]", mode="eval").body)
     assert not _untyped_dict(ast.parse("dict[str, Path]", mode="eval").body)
-    assert "primkit.segmentation.evaluation.evaluate" in dict_returning_functions()  # pending, so still found
+    assert "primkit.segmentation.evaluation.SegmentationEvaluation.to_dict" not in dict_returning_functions()
+    assert "primkit.model.modelfile.read_metadata" in dict_returning_functions()  # a document, so still found
 
 
 def test_no_public_function_returns_a_dict_of_results():

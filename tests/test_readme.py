@@ -96,7 +96,7 @@ def test_the_links_point_at_files():
 def test_the_sections_show_the_library_and_each_integration():
     joined = "\n".join(BLOCKS)
     for needle in ("primkit.abstract(", "primkit.segment(", ".primkit.segment(", "PrimkitSegmentation",
-                   "open3d_geometry.segment("):
+                   "open3d_geometry.segment_geometry("):
         assert needle in joined, needle
 
 

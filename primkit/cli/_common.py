@@ -16,6 +16,7 @@ import logging
 import re
 import sys
 from pathlib import Path
+from typing import TypedDict
 
 __all__ = [
     "err",
@@ -28,6 +29,7 @@ __all__ = [
     "model_file",
     "settings_from_args",
     "abstraction_options",
+    "AbstractionOptions",
     "add_model",
     "add_output",
     "add_force",
@@ -174,11 +176,26 @@ def settings_from_args(args, base=None):
     return replace(base, **{k: v for k, v in given.items() if v is not None})
 
 
-def abstraction_options(args) -> dict:
+class AbstractionOptions(TypedDict, total=False):
+    """Keyword arguments of :func:`primkit.model.abstraction.abstract_shapes` (and of
+    ``Abstractor.abstract``'s shared ones) that the shared options give; not a result."""
+
+    align: str | None
+    refine: int
+    cache: str | None
+    workers: int | None
+    progress: bool
+    executor: str
+    up: str
+    front: str
+    adapt: int | bool
+
+
+def abstraction_options(args) -> AbstractionOptions:
     """The keyword arguments of :func:`primkit.model.abstraction.abstract_shapes` that the shared
     options give (the inputs' axes only when given, so the library's defaults stand otherwise;
     ``progress``: :func:`progress_of`)."""
-    options = {"align": args.align, "refine": args.refine, "cache": args.cache, "workers": args.workers,
+    options: AbstractionOptions = {"align": args.align, "refine": args.refine, "cache": args.cache, "workers": args.workers,
                "progress": progress_of(args)}
     if getattr(args, "executor", None) is not None:
         options["executor"] = args.executor

@@ -22,7 +22,7 @@ from ._common import (abstraction_options, add_abstraction_options, add_force, a
 __all__ = ["register", "parse_edit"]
 
 
-def parse_edit(text: str, names, *, kind: str) -> dict:
+def parse_edit(text: str, names, *, kind: str) -> dict[int, float | np.ndarray]:
     """``"legs=1.3"`` / ``"back=15"`` / ``"seat=0,0.05,0"`` -> {slot: value} for every slot the
     part name or index selects (:func:`primkit.model.parts.resolve_parts`). ``kind`` is ``"scale"``
     (1 or 3 numbers), ``"rotate"`` (1 number), ``"move"`` (3 numbers) or ``"lengthen"`` (1

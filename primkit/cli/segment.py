@@ -16,46 +16,46 @@ __all__ = ["register"]
 
 
 def _print_evaluation(report) -> None:
-    shapes = list(next(iter(report["protocols"].values()))["shapes"]) if report["protocols"] else []
-    labels = report["labels"]
+    shapes = list(next(iter(report.protocols.values())).shapes) if report.protocols else []
+    labels = report.labels
     print(f"\nground-truth labels: {', '.join(labels)}; accuracy by faces and by surface area (face-area weighted)")
-    protocols = report["protocols"]
+    protocols = report.protocols
     header = f"{'shape':24s}" + "".join(f"  {p:>19s}" for p in protocols)
     print(header + "\n" + f"{'':24s}" + "".join(f"  {'faces     area':>19s}" for _ in protocols))
     for name in shapes:
         row = f"{name[:24]:24s}"
         for entry in protocols.values():
-            acc = entry["shapes"][name]
-            row += f"  {acc['faces']:8.3f} {acc['area']:8.3f} "
+            acc = entry.shapes[name]
+            row += f"  {acc.faces:8.3f} {acc.area:8.3f} "
         print(row)
     row = f"{'mean':24s}"
     for entry in protocols.values():
-        row += f"  {entry['mean_faces']:8.3f} {entry['mean_area']:8.3f} "
+        row += f"  {entry.mean_faces:8.3f} {entry.mean_area:8.3f} "
     print(row)
     for protocol, entry in protocols.items():
-        ious = ", ".join(f"{k} {v:.3f}" for k, v in entry["iou"].items())
-        print(f"\n{protocol}: {entry['description']}.\n  per-label IoU (area): {ious}; mean {entry['mean_iou']:.3f}")
-        if "mapping" in entry:
-            used = {k: v for k, v in entry["mapping"].items() if v is not None}
+        ious = ", ".join(f"{k} {v:.3f}" for k, v in entry.iou.items())
+        print(f"\n{protocol}: {entry.description}.\n  per-label IoU (area): {ious}; mean {entry.mean_iou:.3f}")
+        if entry.mapping is not None:
+            used = {k: v for k, v in entry.mapping.items() if v is not None}
             print("  mapping (index -> label): " + ", ".join(f"{k}->{v}" for k, v in used.items()))
 
 
 def _print_voxel_evaluation(report) -> None:
-    print(f"\nvoxel ground truth: {', '.join(report['labels'])}; {report['shapes_evaluated']} shapes, every occupied "
-          f"voxel to its nearest present cuboid; IoU {report['iou_rule']}")
-    for protocol, entry in report["protocols"].items():
-        ious = ", ".join(f"{k} {v:.3f}" for k, v in entry["iou"].items())
-        print(f"\n{protocol}: {entry['description']}.\n  per-label IoU: {ious}; mean over "
-              f"{', '.join(report['mean_over'])} {entry['mean_iou']:.3f}; voxel accuracy {entry['accuracy']:.3f}")
+    print(f"\nvoxel ground truth: {', '.join(report.labels)}; {report.shapes_evaluated} shapes, every occupied "
+          f"voxel to its nearest present cuboid; IoU {report.iou_rule}")
+    for protocol, entry in report.protocols.items():
+        ious = ", ".join(f"{k} {v:.3f}" for k, v in entry.iou.items())
+        print(f"\n{protocol}: {entry.description}.\n  per-label IoU: {ious}; mean over "
+              f"{', '.join(report.mean_over)} {entry.mean_iou:.3f}; voxel accuracy {entry.accuracy:.3f}")
         detection = []
-        for label, d in entry["detection"].items():
-            if d["shapes_without"] and d["shapes_with"]:
-                detection.append(f"{label} F1 {d['f1']:.3f} (precision {d['precision']:.2f}, recall {d['recall']:.2f}; "
-                                 f"absent from {d['shapes_without']} shapes, predicted absent on "
-                                 f"{d['absent_kept_absent']:.0%} of them)")
+        for label, d in entry.detection.items():
+            if d.shapes_without and d.shapes_with:
+                detection.append(f"{label} F1 {d.f1:.3f} (precision {d.precision:.2f}, recall {d.recall:.2f}; "
+                                 f"absent from {d.shapes_without} shapes, predicted absent on "
+                                 f"{d.absent_kept_absent:.0%} of them)")
         if detection:
             print("  detection (a label is present when one voxel carries it): " + "; ".join(detection))
-        used = {k: v for k, v in entry["mapping"].items() if v is not None}
+        used = {k: v for k, v in entry.mapping.items() if v is not None}
         print("  mapping (index -> label): " + ", ".join(f"{k}->{v}" for k, v in used.items()))
 
 
@@ -111,11 +111,11 @@ def _segmentation_line(s, paths) -> str:
 
     if isinstance(s, VoxelSegmentation):
         present = len(np.unique(s.labels[s.labels >= 0]))
-        return f"{s.name}: {int((s.labels >= 0).sum())} voxels in {present} parts -> {paths['labels']}"
+        return f"{s.name}: {int((s.labels >= 0).sum())} voxels in {present} parts -> {paths.labels}"
     if isinstance(s, PointSegmentation):
         present = len(np.unique(s.labels[s.labels >= 0]))
-        return f"{s.name}: {len(s.points)} points in {present} parts -> {paths['labels']}, {paths['mesh']}"
-    return f"{s.name}: {len(s.faces)} faces in {len(set(s.face_labels.tolist()))} parts -> {paths['labels']}"
+        return f"{s.name}: {len(s.points)} points in {present} parts -> {paths.labels}, {paths.mesh}"
+    return f"{s.name}: {len(s.faces)} faces in {len(set(s.face_labels.tolist()))} parts -> {paths.labels}"
 
 
 def _cmd_name_parts(args) -> int:

@@ -3,7 +3,7 @@
     import open3d as o3d
     from primkit.plugins import open3d_geometry as pk
     mesh = o3d.t.io.read_triangle_mesh("chair.ply")          # or o3d.io.read_triangle_mesh
-    seg = pk.segment(mesh, model="chair")
+    seg = pk.segment_geometry(mesh, model="chair")
     seg.geometry.triangle["part"]                             # (f,) int32: part index per face
     seat = seg.geometry.select_faces_by_mask(seg.geometry.triangle["part"] == 16)   # part kept
     o3d.visualization.draw([seg.geometry, seg.cuboid_edges])
@@ -53,7 +53,7 @@ from ..viz.interop import (cuboids_to_o3d_tensor, cuboids_to_o3d_tensor_lineset,
 from ..viz.palette import part_colors
 from .common import Labelled, label_shapes
 
-__all__ = ["O3DSegmentation", "segment", "segment_all", "write", "read", "KEEPS_PART"]
+__all__ = ["O3DSegmentation", "segment_geometry", "segment_all", "write", "read", "KEEPS_PART"]
 
 #: The suffixes whose ``o3d.t.io`` round trip keeps ``part`` (see the module notes): per kind of geometry.
 KEEPS_PART = {"TriangleMesh": (".npz",), "PointCloud": (".ply", ".pcd", ".npz")}
@@ -119,7 +119,7 @@ def _to_tensor(shape, labelled: Labelled):
 
 
 def segment_all(geometries, model="chair", **options) -> list[O3DSegmentation]:
-    """:func:`segment` of several geometries, abstracted in one batch."""
+    """:func:`segment_geometry` of several geometries, abstracted in one batch."""
     shapes = [_arrays(g) for g in geometries]
     out = []
     for shape, labelled in zip(shapes, label_shapes(shapes, model, **options)):
@@ -128,7 +128,7 @@ def segment_all(geometries, model="chair", **options) -> list[O3DSegmentation]:
     return out
 
 
-def segment(geometry, model="chair", **options) -> O3DSegmentation:
+def segment_geometry(geometry, model="chair", **options) -> O3DSegmentation:
     """Abstract and co-segment one Open3D mesh or point cloud (see the module notes)."""
     return segment_all([geometry], model, **options)[0]
 

@@ -31,7 +31,7 @@ from .. import io
 from ..viz.backend import pyvista_module
 from ..viz.interop import to_pyvista
 
-__all__ = ["read_off", "read_binvox", "read_points", "voxels_to_pyvista", "voxels_from_pyvista", "OCCUPANCY"]
+__all__ = ["read_off", "read_binvox", "read_point_dataset", "voxels_to_pyvista", "voxels_from_pyvista", "OCCUPANCY"]
 
 #: The cell array of a voxel grid read from ``.binvox``.
 OCCUPANCY = "occupancy"
@@ -79,7 +79,7 @@ def read_binvox(path, **kwargs):
     return voxels_to_pyvista(io.read_voxels(path))
 
 
-def read_points(path, **kwargs):
+def read_point_dataset(path, **kwargs):
     """An ``.xyz`` or ``.npy`` point cloud as ``pyvista.PolyData`` of points (``point_data["Normals"]``
     when the file has them)."""
     _no_options(path, kwargs)

@@ -22,10 +22,12 @@ points -> meshes -> graphcut.
 """
 
 from . import evaluation, graphcut, meshes, outputs, points, segmenter, voxels
-from .evaluation import (PARTNET_LABEL_NAMES, PROTOCOLS, VOXEL_PROTOCOLS, GroundTruth, VoxelGroundTruth, VoxelLabelArchive,
+from .evaluation import (PARTNET_LABEL_NAMES, PROTOCOLS, VOXEL_PROTOCOLS, Detection, GroundTruth, ProtocolScores,
+                         SegmentationEvaluation, ShapeAccuracy, VoxelEvaluation, VoxelGroundTruth, VoxelLabelArchive,
+                         VoxelProtocolScores, VoxelShapeScores,
                          accuracy, evaluate, evaluate_voxels, label_iou, majority_mapping, name_mapping, parse_label_names,
                          read_ground_truth)
-from .meshes import Segmentation, face_labels, point_labels, segment_mesh, vertex_labels
+from .meshes import Segmentation, SegmentationFiles, face_labels, point_labels, segment_mesh, vertex_labels
 from .outputs import plan_segmentation, read_summary, summary_header, write_summary
 from .points import PointSegmentation, segment_points
 from .segmenter import SegmentationRun, Segmenter, segment
@@ -34,5 +36,6 @@ from .voxels import VoxelSegmentation, label_voxels, segment_voxels, voxel_centr
 __all__ = (meshes.__all__ + voxels.__all__ + points.__all__ + segmenter.__all__
            + ["GroundTruth", "read_ground_truth", "parse_label_names", "majority_mapping", "name_mapping", "accuracy",
               "label_iou", "evaluate", "PROTOCOLS", "PARTNET_LABEL_NAMES", "VoxelGroundTruth", "VoxelLabelArchive",
-              "evaluate_voxels", "VOXEL_PROTOCOLS", "read_summary", "summary_header", "write_summary",
+              "evaluate_voxels", "VOXEL_PROTOCOLS", "SegmentationEvaluation", "ProtocolScores", "ShapeAccuracy",
+              "VoxelEvaluation", "VoxelProtocolScores", "VoxelShapeScores", "Detection", "read_summary", "summary_header", "write_summary",
               "plan_segmentation"])

@@ -30,7 +30,7 @@ and ``"model-names"``.
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -48,11 +48,18 @@ __all__ = [
     "accuracy",
     "label_iou",
     "evaluate",
+    "ShapeAccuracy",
+    "ProtocolScores",
+    "SegmentationEvaluation",
     "PROTOCOLS",
     "PARTNET_LABEL_NAMES",
     "VoxelGroundTruth",
     "VoxelLabelArchive",
     "evaluate_voxels",
+    "Detection",
+    "VoxelShapeScores",
+    "VoxelProtocolScores",
+    "VoxelEvaluation",
     "VOXEL_PROTOCOLS",
     "ground_truth_sources",
     "find_truth",
@@ -75,6 +82,56 @@ PROTOCOLS = {
     "names, applied unchanged",
 }
 
+
+
+@dataclass(frozen=True)
+class ShapeAccuracy:
+    """One shape's accuracy: the fraction of its labelled faces right, and of its labelled area."""
+
+    faces: float
+    area: float
+
+
+@dataclass(frozen=True)
+class ProtocolScores:
+    """The scores of mesh co-segmentations under one label-mapping protocol (:data:`PROTOCOLS`).
+
+    description : what the protocol does
+    shapes : {shape name: ShapeAccuracy}
+    mean_faces, mean_area : the shapes' accuracies averaged
+    iou : {label: per-label IoU by area over the collection}; ``mean_iou`` their mean (nan-skipping)
+    mapping : {primitive index as str: label name or None}; None for ``"leave-one-out"`` (one per shape)
+    """
+
+    description: str
+    shapes: dict[str, ShapeAccuracy]
+    mean_faces: float
+    mean_area: float
+    iou: dict[str, float]
+    mean_iou: float
+    mapping: dict[str, str | None] | None = None
+
+    def to_dict(self) -> dict:
+        """The protocol's entry of ``evaluation.json`` (no ``mapping`` key where there is none)."""
+        out = asdict(self)
+        if self.mapping is None:
+            del out["mapping"]
+        return out
+
+
+@dataclass(frozen=True)
+class SegmentationEvaluation:
+    """What :func:`evaluate` returns: the ground truth's label names and the scores per protocol
+    (``protocols``: {protocol name: ProtocolScores}, in the order of :data:`PROTOCOLS`)."""
+
+    labels: list[str]
+    protocols: dict[str, ProtocolScores]
+    area_weighting: str = "face area"
+
+    def to_dict(self) -> dict:
+        """The JSON document of ``evaluation.json``."""
+        return {"labels": list(self.labels), "area_weighting": self.area_weighting,
+                "protocols": {p: e.to_dict() for p, e in self.protocols.items()}}
 
 
 @dataclass(frozen=True)
@@ -194,7 +251,7 @@ def name_mapping(part_names, label_names) -> np.ndarray:
     return np.array([lookup.get(str(n).lower(), -1) for n in part_names], dtype=np.int64)
 
 
-def evaluate(segmentations, truths, *, part_names=None) -> dict:
+def evaluate(segmentations, truths, *, part_names=None) -> SegmentationEvaluation:
     """Accuracy of co-segmentations against ground truth under the protocols of :data:`PROTOCOLS`.
 
     Parameters
@@ -207,9 +264,9 @@ def evaluate(segmentations, truths, *, part_names=None) -> dict:
 
     Returns
     -------
-    dict with ``labels`` (names), and per protocol: ``description``, ``mapping`` (index -> label
-    name or None), ``shapes`` ({name: {"faces": acc, "area": acc}}), ``mean_faces``, ``mean_area``,
-    ``iou`` ({label: IoU}), ``mean_iou``.
+    SegmentationEvaluation: ``labels`` (names), and per protocol (:class:`ProtocolScores`):
+    ``description``, ``mapping`` (index -> label name or None), ``shapes`` ({name: ShapeAccuracy}),
+    ``mean_faces``, ``mean_area``, ``iou`` ({label: IoU}), ``mean_iou``; ``to_dict()`` is the JSON.
     """
     if len(segmentations) != len(truths):
         raise ValueError(f"{len(segmentations)} segmentations but {len(truths)} ground truths")
@@ -234,25 +291,24 @@ def evaluate(segmentations, truths, *, part_names=None) -> dict:
         named = name_mapping(part_names, names)
         if (named >= 0).any():
             mappings["model-names"] = [named] * len(assign)
-    report = {"labels": names, "area_weighting": "face area", "protocols": {}}
+    protocols = {}
     for protocol, maps in mappings.items():
         predicted = [m[a] for m, a in zip(maps, assign)]
         shapes = {}
         for s, p, t, w in zip(segmentations, predicted, truth, weights):
-            shapes[s.name] = {"faces": accuracy(p, t), "area": accuracy(p, t, w)}
+            shapes[s.name] = ShapeAccuracy(accuracy(p, t), accuracy(p, t, w))
         iou = label_iou(predicted, truth, weights, len(names))
-        entry = {
-            "description": PROTOCOLS[protocol],
-            "shapes": shapes,
-            "mean_faces": float(np.mean([v["faces"] for v in shapes.values()])),
-            "mean_area": float(np.mean([v["area"] for v in shapes.values()])),
-            "iou": {n: float(x) for n, x in zip(names, iou)},
-            "mean_iou": float(np.nanmean(iou)) if np.isfinite(iou).any() else float("nan"),
-        }
-        if protocol != "leave-one-out":
-            entry["mapping"] = {str(k): (names[c] if c >= 0 else None) for k, c in enumerate(maps[0])}
-        report["protocols"][protocol] = entry
-    return report
+        protocols[protocol] = ProtocolScores(
+            description=PROTOCOLS[protocol],
+            shapes=shapes,
+            mean_faces=float(np.mean([v.faces for v in shapes.values()])),
+            mean_area=float(np.mean([v.area for v in shapes.values()])),
+            iou={n: float(x) for n, x in zip(names, iou)},
+            mean_iou=float(np.nanmean(iou)) if np.isfinite(iou).any() else float("nan"),
+            mapping=None if protocol == "leave-one-out" else
+            {str(k): (names[c] if c >= 0 else None) for k, c in enumerate(maps[0])},
+        )
+    return SegmentationEvaluation(names, protocols)
 
 
 # Voxel grids
@@ -331,6 +387,67 @@ class VoxelLabelArchive:
         return VoxelGroundTruth(codes, list(self.names))
 
 
+@dataclass(frozen=True)
+class Detection:
+    """How well one label's presence on a shape is predicted (a shape *has* a label when one of its
+    voxels carries it): counts over the shapes, precision, recall, F1 (nan where undefined) and
+    the fraction of the shapes without the label that are predicted without it too."""
+
+    shapes_with: int
+    shapes_without: int
+    true_positive: int
+    false_positive: int
+    false_negative: int
+    precision: float
+    recall: float
+    f1: float
+    absent_kept_absent: float
+
+
+@dataclass(frozen=True)
+class VoxelShapeScores:
+    """One shape's voxel accuracy and per-label IoU ({label: IoU})."""
+
+    accuracy: float
+    iou: dict[str, float]
+
+
+@dataclass(frozen=True)
+class VoxelProtocolScores:
+    """The scores of voxel co-segmentations under one protocol (:data:`VOXEL_PROTOCOLS`, or
+    ``"labeller"``): ``mapping`` (index as str -> label or None), ``iou`` ({label: mean per-shape IoU}),
+    ``mean_iou`` (over the evaluation's ``mean_over``), ``accuracy`` (mean over shapes),
+    ``detection`` ({label: Detection}) and ``shapes`` ({name: VoxelShapeScores})."""
+
+    description: str
+    mapping: dict[str, str | None]
+    iou: dict[str, float]
+    mean_iou: float
+    accuracy: float
+    detection: dict[str, Detection]
+    shapes: dict[str, VoxelShapeScores]
+
+    def to_dict(self) -> dict:
+        """The protocol's entry of ``evaluation-voxels.json``."""
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class VoxelEvaluation:
+    """What :func:`evaluate_voxels` returns: the labels (first aliases), how IoU is counted, the
+    labels averaged into ``mean_iou``, the number of shapes, and ``protocols`` ({name: VoxelProtocolScores})."""
+
+    labels: list[str]
+    iou_rule: str
+    mean_over: list[str]
+    shapes_evaluated: int
+    protocols: dict[str, VoxelProtocolScores]
+
+    def to_dict(self) -> dict:
+        """The JSON document of ``evaluation-voxels.json``."""
+        return asdict(self)
+
+
 def _per_shape_iou(predicted, truth, label_count):
     """(label_count,) IoU of one shape's voxels, 1 where a label is absent from both."""
     iou = np.ones(label_count)
@@ -342,7 +459,7 @@ def _per_shape_iou(predicted, truth, label_count):
     return iou
 
 
-def _detection(predicted_has, truth_has) -> dict:
+def _detection(predicted_has, truth_has) -> Detection:
     predicted_has, truth_has = np.asarray(predicted_has, bool), np.asarray(truth_has, bool)
     tp = int(np.count_nonzero(predicted_has & truth_has))
     fp = int(np.count_nonzero(predicted_has & ~truth_has))
@@ -351,15 +468,15 @@ def _detection(predicted_has, truth_has) -> dict:
     precision = tp / (tp + fp) if tp + fp else float("nan")
     recall = tp / (tp + fn) if tp + fn else float("nan")
     f1 = 2 * tp / (2 * tp + fp + fn) if tp + fp + fn else float("nan")
-    return {
-        "shapes_with": int(truth_has.sum()), "shapes_without": absent, "true_positive": tp,
-        "false_positive": fp, "false_negative": fn, "precision": precision, "recall": recall, "f1": f1,
-        "absent_kept_absent": (absent - fp) / absent if absent else float("nan"),
-    }
+    return Detection(
+        shapes_with=int(truth_has.sum()), shapes_without=absent, true_positive=tp,
+        false_positive=fp, false_negative=fn, precision=precision, recall=recall, f1=f1,
+        absent_kept_absent=(absent - fp) / absent if absent else float("nan"),
+    )
 
 
 def evaluate_voxels(assignments, truths, part_count: int, *, part_names=None, names=None,
-                    mean_over=None) -> dict:
+                    mean_over=None) -> VoxelEvaluation:
     """Score voxel co-segmentations against voxel ground truth (see the module notes).
 
     Parameters
@@ -380,10 +497,10 @@ def evaluate_voxels(assignments, truths, part_count: int, *, part_names=None, na
 
     Returns
     -------
-    dict: ``labels`` (first aliases), ``iou_rule``, and per protocol ``description``, ``mapping``
-    (index -> label or None), ``iou`` ({label: mean per-shape IoU}), ``mean_iou``, ``accuracy``
-    (mean over shapes), ``detection`` ({label: precision, recall, F1, ...}) and ``shapes``
-    ({name: {"accuracy", "iou": {label: IoU}}}).
+    VoxelEvaluation: ``labels`` (first aliases), ``iou_rule``, and per protocol
+    (:class:`VoxelProtocolScores`) ``description``, ``mapping`` (index -> label or None), ``iou``
+    ({label: mean per-shape IoU}), ``mean_iou``, ``accuracy`` (mean over shapes), ``detection``
+    ({label: Detection}) and ``shapes`` ({name: VoxelShapeScores}); ``to_dict()`` is the JSON.
     """
     if len(assignments) != len(truths):
         raise ValueError(f"{len(assignments)} assignments but {len(truths)} ground truths")
@@ -416,14 +533,7 @@ def evaluate_voxels(assignments, truths, part_count: int, *, part_names=None, na
         if unknown:
             raise ValueError(f"mean_over names {unknown} are not labels ({', '.join(short)})")
         mean_idx = [short.index(n) for n in mean_over]
-    report = {
-        "labels": short,
-        "iou_rule": "per shape over its occupied voxels, 1 when a label is absent from both prediction and truth, "
-        "averaged over shapes",
-        "mean_over": [short[i] for i in mean_idx],
-        "shapes_evaluated": len(truths),
-        "protocols": {},
-    }
+    protocols = {}
     for protocol, mapping in mappings.items():
         per_shape, accuracies, has_p, has_t = [], [], [], []
         shapes = {}
@@ -435,20 +545,27 @@ def evaluate_voxels(assignments, truths, part_count: int, *, part_names=None, na
             accuracies.append(acc)
             has_p.append([np.any(p == lab) for lab in range(count)])
             has_t.append([np.any(t == lab) for lab in range(count)])
-            shapes[name] = {"accuracy": acc, "iou": {short[i]: float(iou[i]) for i in range(count)}}
+            shapes[name] = VoxelShapeScores(acc, {short[i]: float(iou[i]) for i in range(count)})
         per_shape = np.array(per_shape)
         has_p, has_t = np.array(has_p), np.array(has_t)
         iou = per_shape.mean(axis=0)
-        report["protocols"][protocol] = {
-            "description": VOXEL_PROTOCOLS[protocol],
-            "mapping": {str(k): (short[c] if c >= 0 else None) for k, c in enumerate(mapping)},
-            "iou": {short[i]: float(iou[i]) for i in range(count)},
-            "mean_iou": float(np.mean(iou[mean_idx])),
-            "accuracy": float(np.nanmean(accuracies)),
-            "detection": {short[i]: _detection(has_p[:, i], has_t[:, i]) for i in range(count)},
-            "shapes": shapes,
-        }
-    return report
+        protocols[protocol] = VoxelProtocolScores(
+            description=VOXEL_PROTOCOLS[protocol],
+            mapping={str(k): (short[c] if c >= 0 else None) for k, c in enumerate(mapping)},
+            iou={short[i]: float(iou[i]) for i in range(count)},
+            mean_iou=float(np.mean(iou[mean_idx])),
+            accuracy=float(np.nanmean(accuracies)),
+            detection={short[i]: _detection(has_p[:, i], has_t[:, i]) for i in range(count)},
+            shapes=shapes,
+        )
+    return VoxelEvaluation(
+        labels=short,
+        iou_rule="per shape over its occupied voxels, 1 when a label is absent from both prediction and truth, "
+        "averaged over shapes",
+        mean_over=[short[i] for i in mean_idx],
+        shapes_evaluated=len(truths),
+        protocols=protocols,
+    )
 
 
 # A collection's segmentations against the ground truth found for them
@@ -533,10 +650,10 @@ def evaluate_grids_against(grids, sources, part_count: int, part_names, *, label
         names = list(labeller.names)
         by_label = evaluate_voxels([p[0].named for p in pairs], [p[1] for p in pairs], len(names), part_names=names,
                                    names=[p[0].name for p in pairs], mean_over=mean_over)
-        if "model-names" in by_label["protocols"]:
-            report["protocols"]["labeller"] = {
-                **by_label["protocols"]["model-names"],
-                "description": "each voxel named by the model's labeller (learned on other shapes)"}
+        if "model-names" in by_label.protocols:
+            report.protocols["labeller"] = replace(
+                by_label.protocols["model-names"],
+                description="each voxel named by the model's labeller (learned on other shapes)")
     return report, errors
 
 

@@ -37,6 +37,7 @@ __all__ = [
     "vertex_labels",
     "face_labels",
     "Segmentation",
+    "SegmentationFiles",
     "segment_mesh",
     "surface_face_labels",
     "semantic_codes",
@@ -102,6 +103,16 @@ def face_labels(vertices, faces, cuboids: primitives.Cuboids) -> np.ndarray:
     return np.where(tie, centroid, winner)
 
 
+@dataclass(frozen=True)
+class SegmentationFiles:
+    """The files one segmentation's ``save`` wrote: its labels (``<name>.seg`` for a mesh,
+    ``<name>.parts.npy`` for points, ``<name>.voxlabels.npy`` for a voxel grid) and the coloured
+    ``<name>.parts.ply``."""
+
+    labels: Path
+    mesh: Path
+
+
 @dataclass(frozen=True, eq=False)
 class Segmentation:
     """The co-segmentation of one mesh by its abstraction.
@@ -151,23 +162,23 @@ class Segmentation:
         names, codes = parts.label_codes(self.part_names)
         return names, codes[self.face_labels]
 
-    def save(self, folder, *, semantic: bool = False, overwrite: bool = False) -> dict:
+    def save(self, folder, *, semantic: bool = False, overwrite: bool = False) -> SegmentationFiles:
         """Write ``<name>.seg`` (one label per face: the part index, or with ``semantic`` the
         1-based code of its name) and ``<name>.parts.ply`` (the mesh, faces coloured by part with
         the colour of :func:`primkit.viz.palette.part_colors`, the same on every shape).
-        Returns ``{"labels": path, "mesh": path}``."""
+        Returns the :class:`SegmentationFiles` written."""
         folder = Path(folder)
         folder.mkdir(parents=True, exist_ok=True)
-        paths = {"labels": folder / f"{self.name}.seg", "mesh": folder / f"{self.name}.parts.ply"}
-        io.refuse_existing(paths.values(), overwrite)
+        paths = SegmentationFiles(labels=folder / f"{self.name}.seg", mesh=folder / f"{self.name}.parts.ply")
+        io.refuse_existing([paths.labels, paths.mesh], overwrite)
         if semantic:
             names, labels = self.semantic_labels()
             colors = part_colors(len(names) + 1)[labels]
         else:
             labels = self.face_labels
             colors = part_colors(self.cuboids.count)[labels]
-        io.write_labels(paths["labels"], labels, overwrite=overwrite)
-        io.write_mesh(paths["mesh"], self.vertices, self.faces, face_colors=colors, overwrite=overwrite)
+        io.write_labels(paths.labels, labels, overwrite=overwrite)
+        io.write_mesh(paths.mesh, self.vertices, self.faces, face_colors=colors, overwrite=overwrite)
         return paths
 
 

@@ -12,7 +12,7 @@ from .. import io, primitives
 from ..model import parts
 from ..primitives.palette import part_colors
 from . import graphcut
-from .meshes import point_labels, semantic_codes
+from .meshes import SegmentationFiles, point_labels, semantic_codes
 
 __all__ = ["PointSegmentation", "segment_points"]
 
@@ -54,18 +54,18 @@ class PointSegmentation:
         (:func:`primkit.model.parts.label_codes`, the same codes on every shape of a model)."""
         return semantic_codes(self.labels, self.part_names, self.named, self.label_names)
 
-    def save(self, folder, *, semantic: bool = False, overwrite: bool = False) -> dict:
+    def save(self, folder, *, semantic: bool = False, overwrite: bool = False) -> SegmentationFiles:
         """Write ``<name>.parts.npy`` (``(n,) int16``: the part index of each point, in input order,
         or with ``semantic`` the 1-based code of its name) and ``<name>.parts.ply`` (the points with
-        the PLY property ``part`` and their part's colour). Returns ``{"labels": path, "mesh": path}``."""
+        the PLY property ``part`` and their part's colour). Returns the :class:`SegmentationFiles` written."""
         folder = Path(folder)
         folder.mkdir(parents=True, exist_ok=True)
-        paths = {"labels": folder / f"{self.name}.parts.npy", "mesh": folder / f"{self.name}.parts.ply"}
-        io.refuse_existing(paths.values(), overwrite)
+        paths = SegmentationFiles(labels=folder / f"{self.name}.parts.npy", mesh=folder / f"{self.name}.parts.ply")
+        io.refuse_existing([paths.labels, paths.mesh], overwrite)
         labels = self.semantic_labels()[1] if semantic else self.labels
-        io.write_array(paths["labels"], labels.astype(np.int16), overwrite=overwrite)
+        io.write_array(paths.labels, labels.astype(np.int16), overwrite=overwrite)
         palette = np.vstack([part_colors(max(self.cuboids.count, 1)), [[200, 200, 200]]]).astype(np.uint8)
-        io.write_points(paths["mesh"], self.points, labels=labels, colors=palette[np.where(self.labels < 0, -1, self.labels)],
+        io.write_points(paths.mesh, self.points, labels=labels, colors=palette[np.where(self.labels < 0, -1, self.labels)],
                         overwrite=overwrite)
         return paths
 

@@ -17,7 +17,7 @@ from ..model.abstraction import abstract, abstract_shapes, load_model
 from .labeller import (Labeller, LabellerSettings, frame_features, grid_elements, label_elements, mesh_elements,
                        point_elements, read_labeller)
 from . import evaluation, graphcut, outputs
-from .meshes import Segmentation, segment_mesh
+from .meshes import Segmentation, SegmentationFiles, segment_mesh
 from .points import PointSegmentation, segment_points
 from .voxels import VoxelSegmentation, segment_voxels
 
@@ -233,14 +233,15 @@ class Segmenter:
             run.evaluation, failed = evaluation.evaluate_meshes_against(kinds["mesh"], ground_truth, self.part_names)
             run.errors += failed
             if run.evaluation is not None:
-                run.evaluation_path = _write_json(folder / outputs.EVALUATIONS["meshes"], run.evaluation, overwrite)
+                run.evaluation_path = _write_json(folder / outputs.EVALUATIONS["meshes"], run.evaluation.to_dict(),
+                                                  overwrite)
         if ground_truth and kinds["voxels"]:
             run.voxel_evaluation, failed = evaluation.evaluate_grids_against(
                 kinds["voxels"], ground_truth, self.abstractor.parts, self.part_names, labeller=self.labeller,
                 mean_over=mean_over)
             run.errors += failed
             if run.voxel_evaluation is not None:
-                run.voxel_evaluation_path = _write_json(folder / outputs.EVALUATIONS["voxels"], run.voxel_evaluation,
+                run.voxel_evaluation_path = _write_json(folder / outputs.EVALUATIONS["voxels"], run.voxel_evaluation.to_dict(),
                                                         overwrite)
         if ground_truth:
             run.unevaluated_clouds = len(kinds["points"])
@@ -296,11 +297,11 @@ class SegmentationRun:
         :class:`PointSegmentation`), in input order.
     errors : list of str
         One line per input that could not be used (or had no ground truth).
-    written : dict
+    written : dict of str to SegmentationFiles
         Each shape's files by name (:meth:`Segmentation.save`'s).
     summaries : list of Path
     picture : Path or None
-    evaluation, voxel_evaluation : dict or None
+    evaluation, voxel_evaluation : SegmentationEvaluation, VoxelEvaluation or None
         The reports of :func:`~primkit.segmentation.evaluation.evaluate` and
         :func:`~primkit.segmentation.evaluation.evaluate_voxels`, written to ``evaluation_path``
         and ``voxel_evaluation_path``.
@@ -315,12 +316,12 @@ class SegmentationRun:
     segmentations: list
     errors: list
     plan: object = None
-    written: dict = field(default_factory=dict)
+    written: dict[str, SegmentationFiles] = field(default_factory=dict)
     summaries: list = field(default_factory=list)
     picture: Path | None = None
-    evaluation: dict | None = None
+    evaluation: evaluation.SegmentationEvaluation | None = None
     evaluation_path: Path | None = None
-    voxel_evaluation: dict | None = None
+    voxel_evaluation: evaluation.VoxelEvaluation | None = None
     voxel_evaluation_path: Path | None = None
     unevaluated_clouds: int = 0
     mismatch: str | None = None

@@ -22,6 +22,7 @@ from .. import geometry, io, primitives
 from ..model import parts
 from ..primitives.palette import part_colors
 from . import graphcut, meshes
+from .meshes import SegmentationFiles
 
 __all__ = [
     "VoxelSegmentation",
@@ -117,18 +118,18 @@ class VoxelSegmentation:
         (:func:`primkit.model.parts.label_codes`, the same codes on every shape of a model)."""
         return meshes.semantic_codes(self.labels, self.part_names, self.named, self.label_names)
 
-    def save(self, folder, *, semantic: bool = False, overwrite: bool = False) -> dict:
+    def save(self, folder, *, semantic: bool = False, overwrite: bool = False) -> SegmentationFiles:
         """Write ``<name>.voxlabels.npy`` (``(R, R, R) int16``: the part index of each occupied voxel,
         or with ``semantic`` the 1-based code of its name; -1 empty) and ``<name>.parts.ply`` (the
-        voxels' surface coloured by part). Returns ``{"labels": path, "mesh": path}``."""
+        voxels' surface coloured by part). Returns the :class:`SegmentationFiles` written."""
         folder = Path(folder)
         folder.mkdir(parents=True, exist_ok=True)
-        paths = {"labels": folder / f"{self.name}.voxlabels.npy", "mesh": folder / f"{self.name}.parts.ply"}
-        io.refuse_existing(paths.values(), overwrite)
+        paths = SegmentationFiles(labels=folder / f"{self.name}.voxlabels.npy", mesh=folder / f"{self.name}.parts.ply")
+        io.refuse_existing([paths.labels, paths.mesh], overwrite)
         labels = self.semantic_labels()[1] if semantic else self.labels
-        io.write_array(paths["labels"], labels.astype(np.int16), overwrite=overwrite)
+        io.write_array(paths.labels, labels.astype(np.int16), overwrite=overwrite)
         v, f, lab = self.boundary_mesh()
-        io.write_mesh(paths["mesh"], v, f, face_colors=part_colors(self.cuboids.count)[lab], overwrite=overwrite)
+        io.write_mesh(paths.mesh, v, f, face_colors=part_colors(self.cuboids.count)[lab], overwrite=overwrite)
         return paths
 
 

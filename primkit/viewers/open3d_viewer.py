@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import io
-from ..plugins.open3d_geometry import O3DSegmentation, segment
+from ..plugins.open3d_geometry import O3DSegmentation, segment_geometry
 from ..viz.camera import CAMERA
 from ..viz.palette import part_colors
 
@@ -176,7 +176,7 @@ class Open3DViewer:
         for name in self._names():
             window.remove_geometry(name)
         self.options = {**self.options, "refine": self.refined + self.refine_step}
-        self.segmentation = segment(self.source, self.model, **self.options)
+        self.segmentation = segment_geometry(self.source, self.model, **self.options)
         for g in self.geometries():
             window.add_geometry(g)
         window.post_redraw()
@@ -366,6 +366,6 @@ def open3d_viewer(shape, model="chair", *, name: str = "shape", refine_step: int
     else:
         shape = np.asarray(shape, float)
         source = points_to_o3d_tensor(shape)
-    seg = segment(source, abstractor, **options)
+    seg = segment_geometry(source, abstractor, **options)
     return Open3DViewer(name, shape, source, abstractor, seg, options=dict(options), refine_step=refine_step,
                         export_folder=Path(export_folder))

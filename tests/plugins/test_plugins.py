@@ -207,7 +207,7 @@ def test_open3d_tensor_mesh_carries_part_through_select_faces_by_mask(chair_file
 
     mesh, cuboids, labels = expected
     for given in (o3d.t.io.read_triangle_mesh(str(chair_file[0])), o3d.io.read_triangle_mesh(str(chair_file[0]))):
-        seg = open3d_geometry.segment(given, model=model)
+        seg = open3d_geometry.segment_geometry(given, model=model)
         part = seg.geometry.triangle["part"].numpy()
         assert np.array_equal(part, labels)
         seat = int(np.bincount(labels).argmax())
@@ -219,8 +219,8 @@ def test_open3d_tensor_mesh_carries_part_through_select_faces_by_mask(chair_file
 
     points = mesh.vertices[::3]
     cloud = o3d.t.geometry.PointCloud(o3d.core.Tensor(points.astype(np.float32)))
-    seg = open3d_geometry.segment(cloud, model=model)
+    seg = open3d_geometry.segment_geometry(cloud, model=model)
     a = abstract(points.astype(np.float32).astype(float), model)
     assert np.array_equal(seg.geometry.point["part"].numpy()[:, 0], segment_points(io.PointCloud(points), a.cuboids).labels)
     with pytest.raises(TypeError, match="TriangleMesh or PointCloud"):
-        open3d_geometry.segment(o3d.geometry.LineSet(), model=model)
+        open3d_geometry.segment_geometry(o3d.geometry.LineSet(), model=model)

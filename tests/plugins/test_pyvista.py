@@ -131,3 +131,18 @@ def test_segmented_copies_carry_primkits_colours_and_a_progress_bar(tmp_path, ca
         pl.close()
     drawn = (np.abs(images[1] - 255).sum(-1) > 30).mean()
     assert drawn > 0.05 and np.abs(images[0] - images[1]).max() <= 2
+
+
+def test_the_reader_entry_points_name_functions_of_this_checkout():
+    """setup.cfg's ``pyvista.readers`` entry points name functions that exist here (a rename that
+    forgets setup.cfg fails here, not only after a reinstall)."""
+    import configparser
+    import importlib
+
+    cfg = configparser.ConfigParser()
+    cfg.read(Path(__file__).resolve().parents[2] / "setup.cfg")
+    entries = [line.split("=", 1) for line in cfg["options.entry_points"]["pyvista.readers"].strip().splitlines()]
+    assert {suffix.strip() for suffix, _ in entries} == {"off", "binvox", "xyz", "npy"}
+    for _, target in entries:
+        module, name = target.strip().split(":")
+        assert callable(getattr(importlib.import_module(module), name)), target

@@ -95,8 +95,8 @@ def test_label_file_round_trip(tmp_path):
                              [[0, 0.45, 0], [-0.25, 0.8, 0], [0, 0.2, 0]], [True] * 3)
     seg = segmentation.segment_mesh(shape.vertices, shape.faces, cub, name="c", part_names=["seat", "back", "legs"])
     paths = seg.save(tmp_path)
-    np.testing.assert_array_equal(io.read_labels(paths["labels"], len(shape.faces)), seg.face_labels)
-    mesh = io.read_mesh(paths["mesh"])
+    np.testing.assert_array_equal(io.read_labels(paths.labels, len(shape.faces)), seg.face_labels)
+    mesh = io.read_mesh(paths.mesh)
     assert len(mesh.faces) == len(shape.faces)
     names, codes = seg.semantic_labels()
     assert names == ["seat", "back", "legs"]
@@ -125,28 +125,28 @@ def test_mapping_protocols_on_a_constructed_example():
     truth = [segmentation.GroundTruth(np.array(t), names)
              for t in ([0, 0, 0, 1, 1, 1, 1], [0, 0, 1, 1, 1, 1], [0, 1, 1, 0, 0])]
     report = segmentation.evaluate(segs, truth, part_names=["seat", "back", "arm", "part3"])
-    majority = report["protocols"]["collection-majority"]
+    majority = report.protocols["collection-majority"]
     # by hand: index 0 holds seat 7 times, back 1 -> seat; index 1: back 5, seat 0 -> back;
     # index 2: back 2 (shape a), seat 1 (shape c) -> back; index 3: nothing -> None
-    assert majority["mapping"] == {"0": "seat", "1": "back", "2": "back", "3": None}
-    acc = majority["shapes"]
-    assert acc["a"]["faces"] == pytest.approx(1.0)
-    assert acc["b"]["faces"] == pytest.approx(5 / 6)  # the last face: index 0 -> seat, truth back
-    assert acc["c"]["faces"] == pytest.approx(4 / 5)  # the last face: index 2 -> back, truth seat
+    assert majority.mapping == {"0": "seat", "1": "back", "2": "back", "3": None}
+    acc = majority.shapes
+    assert acc["a"].faces == pytest.approx(1.0)
+    assert acc["b"].faces == pytest.approx(5 / 6)  # the last face: index 0 -> seat, truth back
+    assert acc["c"].faces == pytest.approx(4 / 5)  # the last face: index 2 -> back, truth seat
     # leave-one-out for shape c: learned on a and b, index 2 -> back (a) -> the same 4/5;
     # for shape a: learned on b and c, index 2 -> seat (c) -> faces 5, 6 wrong -> 5/7
-    loo = report["protocols"]["leave-one-out"]["shapes"]
-    assert loo["a"]["faces"] == pytest.approx(5 / 7)
-    assert loo["c"]["faces"] == pytest.approx(4 / 5)
+    loo = report.protocols["leave-one-out"].shapes
+    assert loo["a"].faces == pytest.approx(5 / 7)
+    assert loo["c"].faces == pytest.approx(4 / 5)
     # model names: "arm" is not a ground-truth label, so index 2 counts as wrong everywhere
-    named = report["protocols"]["model-names"]
-    assert named["mapping"] == {"0": "seat", "1": "back", "2": None, "3": None}
-    assert named["shapes"]["a"]["faces"] == pytest.approx(5 / 7)
-    assert named["shapes"]["c"]["faces"] == pytest.approx(4 / 5)
+    named = report.protocols["model-names"]
+    assert named.mapping == {"0": "seat", "1": "back", "2": None, "3": None}
+    assert named.shapes["a"].faces == pytest.approx(5 / 7)
+    assert named.shapes["c"].faces == pytest.approx(4 / 5)
     # IoU of seat under the majority mapping (faces predicted seat / truly seat):
     # a: {0,1,2} / {0,1,2}; b: {0,1,5} / {0,1}; c: {0,3} / {0,3,4}
     inter, union = 3 + 2 + 2, 3 + 3 + 3
-    assert majority["iou"]["seat"] == pytest.approx(inter / union)
+    assert majority.iou["seat"] == pytest.approx(inter / union)
 
 
 def test_aliases_and_label_names(tmp_path):
@@ -272,6 +272,6 @@ def test_coseg_chairs_accuracy(shared_data, tmp_path):
         conv = "back,seat,legs/base" if p.parent.parent.name == "large_chairs" else "legs/base,seat,back"
         truths.append(segmentation.read_ground_truth(p.parent.parent / "gt" / f"{p.stem}.seg", len(s.faces), conv, names))
     report = segmentation.evaluate(segs, truths, part_names=seg.part_names)
-    paper = report["protocols"]["collection-majority"]
-    assert paper["mean_area"] >= 0.982 - 0.01 and paper["mean_faces"] >= 0.944 - 0.01
-    assert report["protocols"]["model-names"]["mean_faces"] >= 0.944 - 0.01
+    paper = report.protocols["collection-majority"]
+    assert paper.mean_area >= 0.982 - 0.01 and paper.mean_faces >= 0.944 - 0.01
+    assert report.protocols["model-names"].mean_faces >= 0.944 - 0.01

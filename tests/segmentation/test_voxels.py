@@ -53,18 +53,18 @@ def test_per_shape_iou_counts_a_label_absent_from_both_as_one_and_averages_over_
     a1 = np.array([0, 0, 1, 1, 2, 1])    # one leg voxel taken by the seat
     a2 = np.array([0, 1, 1, 3, 1, -1])   # one arm voxel taken by the seat
     rep = evaluation.evaluate_voxels([a1, a2], [t1, t2], 4, names=["one", "two"])
-    e = rep["protocols"]["collection-majority"]
-    assert e["mapping"] == {"0": "back", "1": "seat", "2": "leg", "3": "arm"}
+    e = rep.protocols["collection-majority"]
+    assert e.mapping == {"0": "back", "1": "seat", "2": "leg", "3": "arm"}
     # shape 1: back 1, seat 2/3, leg 1/2, arm absent from both -> 1
     # shape 2: back 1, seat 2/3, leg absent from both -> 1, arm 1/2
-    assert e["shapes"]["one"]["iou"] == pytest.approx({"back": 1, "seat": 2 / 3, "leg": 0.5, "arm": 1})
-    assert e["shapes"]["two"]["iou"] == pytest.approx({"back": 1, "seat": 2 / 3, "leg": 1, "arm": 0.5})
-    assert e["iou"] == pytest.approx({"back": 1, "seat": 2 / 3, "leg": 0.75, "arm": 0.75})
-    assert e["mean_iou"] == pytest.approx(np.mean([1, 2 / 3, 0.75, 0.75]))
-    assert e["accuracy"] == pytest.approx(np.mean([5 / 6, 4 / 5]))
+    assert e.shapes["one"].iou == pytest.approx({"back": 1, "seat": 2 / 3, "leg": 0.5, "arm": 1})
+    assert e.shapes["two"].iou == pytest.approx({"back": 1, "seat": 2 / 3, "leg": 1, "arm": 0.5})
+    assert e.iou == pytest.approx({"back": 1, "seat": 2 / 3, "leg": 0.75, "arm": 0.75})
+    assert e.mean_iou == pytest.approx(np.mean([1, 2 / 3, 0.75, 0.75]))
+    assert e.accuracy == pytest.approx(np.mean([5 / 6, 4 / 5]))
     # detection: arm predicted and true on shape 2 only; leg predicted on shape 1 only, true on shape 1
-    assert e["detection"]["arm"]["f1"] == 1.0 and e["detection"]["arm"]["absent_kept_absent"] == 1.0
-    assert e["detection"]["leg"]["shapes_with"] == 1 and e["detection"]["leg"]["true_positive"] == 1
+    assert e.detection["arm"].f1 == 1.0 and e.detection["arm"].absent_kept_absent == 1.0
+    assert e.detection["leg"].shapes_with == 1 and e.detection["leg"].true_positive == 1
 
 
 def test_detection_counts_false_arms_and_model_names_are_applied_unchanged():
@@ -74,18 +74,18 @@ def test_detection_counts_false_arms_and_model_names_are_applied_unchanged():
     # names: index 2 called "arms" (wrong on purpose), 3 "legs"
     rep = evaluation.evaluate_voxels(a, t, 4, part_names=["back", "seat", "arms", "legs"],
                                        mean_over=["back", "seat", "legs"])
-    named = rep["protocols"]["model-names"]
-    assert named["mapping"] == {"0": "back", "1": "seat", "2": "arms", "3": "legs"}
+    named = rep.protocols["model-names"]
+    assert named.mapping == {"0": "back", "1": "seat", "2": "arms", "3": "legs"}
     # shape 0: predicted arm on voxel 2 (truth leg), leg on voxel 3 (truth leg) -> leg IoU 1/2,
     # arm IoU 0 (predicted, not true)
-    assert named["shapes"]["shape0"]["iou"]["arms"] == 0.0
-    assert named["shapes"]["shape0"]["iou"]["legs"] == 0.5
-    det = named["detection"]["arms"]  # arm predicted on shapes 0, 1, 2 (index 2 present); true on 1, 2
-    assert (det["true_positive"], det["false_positive"], det["false_negative"]) == (2, 1, 0)
-    assert det["f1"] == pytest.approx(2 * 2 / (2 * 2 + 1))
-    assert det["absent_kept_absent"] == 0.0
-    assert rep["mean_over"] == ["back", "seat", "legs"]
-    assert named["mean_iou"] == pytest.approx(np.mean([named["iou"][k] for k in ("back", "seat", "legs")]))
+    assert named.shapes["shape0"].iou["arms"] == 0.0
+    assert named.shapes["shape0"].iou["legs"] == 0.5
+    det = named.detection["arms"]  # arm predicted on shapes 0, 1, 2 (index 2 present); true on 1, 2
+    assert (det.true_positive, det.false_positive, det.false_negative) == (2, 1, 0)
+    assert det.f1 == pytest.approx(2 * 2 / (2 * 2 + 1))
+    assert det.absent_kept_absent == 0.0
+    assert rep.mean_over == ["back", "seat", "legs"]
+    assert named.mean_iou == pytest.approx(np.mean([named.iou[k] for k in ("back", "seat", "legs")]))
 
 
 def test_evaluation_refuses_mismatched_inputs():
@@ -166,8 +166,8 @@ def test_segment_command_labels_voxel_grids_and_scores_them_against_voxel_labels
         truths.append(arch.get(p.stem, grid.occupancy.shape))
     again = evaluation.evaluate_voxels(assigns, truths, model.parts, part_names=model.part_names,
                                          names=[p.stem for p in paths], mean_over=["back", "seat", "legs"])
-    for protocol, entry in again["protocols"].items():
-        assert report["protocols"][protocol]["iou"] == pytest.approx(entry["iou"])
+    for protocol, entry in again.protocols.items():
+        assert report["protocols"][protocol]["iou"] == pytest.approx(entry.iou)
     assert (out / "summary-voxels.csv").read_text().splitlines()[0].startswith("shape,voxels,parts_present,voxels_total")
     # nothing is replaced without --force
     assert main(["segment", str(tmp_path / "grids"), "--model", "chair", "-o", str(out), "--gt", str(tmp_path)]) == 2
@@ -216,6 +216,6 @@ def test_partnet_validation_chairs_get_their_parts(shared_data):
     report = evaluate_voxels([s.labels for s in segs], truths, segmenter.abstractor.parts,
                              part_names=segmenter.part_names, names=[s.name for s in segs],
                              mean_over=["back", "seat", "legs"])
-    named = report["protocols"]["model-names"]
-    assert named["iou"]["back"] >= 0.794 - 0.03 and named["iou"]["seat"] >= 0.773 - 0.03
-    assert named["iou"]["legs"] >= 0.653 - 0.03 and named["mean_iou"] >= 0.740 - 0.03
+    named = report.protocols["model-names"]
+    assert named.iou["back"] >= 0.794 - 0.03 and named.iou["seat"] >= 0.773 - 0.03
+    assert named.iou["legs"] >= 0.653 - 0.03 and named.mean_iou >= 0.740 - 0.03
