@@ -288,6 +288,7 @@ def test_part_descriptor_clone_and_params():
     assert len(set(shared)) == len(shared) and shared[0] == "legs0.size.x"
 
 
+@pytest.mark.integration  # a scikit-learn pipeline over chairs: seconds, left to the default suite
 @pytest.mark.parametrize("form", ["arrays", "paths"])
 def test_abstraction_pipeline_on_procedural_chairs(tmp_path, form):
     """make_pipeline(AbstractionTransformer("chair"), PartDescriptor(parts="back"), TSNE()) on a few

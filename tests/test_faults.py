@@ -314,6 +314,7 @@ def test_hostile_model_files_fail_in_one_line(case, shapes, tmp_path, capsys, ca
     assert not (tmp_path / "o").exists()
 
 
+@pytest.mark.integration  # a child process watched for its memory: seconds, left to the default suite
 @pytest.mark.skipif(not Path("/proc/self/clear_refs").exists(), reason="needs Linux's /proc/self/clear_refs")
 def test_a_hostile_width_allocates_nothing(tmp_path):
     """fc_width 8000 is within the bounds; its 8000 x 8000 layer alone would be 256 MB: the header's

@@ -64,6 +64,7 @@ def sandbox():
 
 @pytest.mark.parametrize("case, entry", [(c, "primkit.abstract") for c in CASES]
                          + [(c, "primkit.segment") for c in SEGMENT_CASES])  # segment abstracts first
+@pytest.mark.integration  # each hostile input in a child process: seconds, left to the default suite
 def test_in_memory_input_gives_a_result_or_one_line_naming_it(sandbox, entry, case):
     shape, expected, words = CASES[case]
     answer = sandbox.call(entry, shape, model="chair")

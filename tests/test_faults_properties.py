@@ -75,6 +75,7 @@ def check(answer, name: str, what: str):
         assert name in message, f"{what}: the message does not name the input: {message}"
 
 
+@pytest.mark.integration  # hypothesis examples, each in a child process: seconds, left to the default suite
 @settings(max_examples=12, **SETTINGS)
 @given(shape=shapes)
 def test_abstract_gives_a_result_or_one_line(sandbox, shape):

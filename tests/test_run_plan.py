@@ -69,6 +69,7 @@ def test_prepare_collection_takes_the_plan(collection, tmp_path):
     assert [coll.name(i) for i in range(len(coll))] == [plan.names[i] for i in plan.todo]
 
 
+@pytest.mark.integration  # shards and an executor run in full: seconds, left to the default suite
 def test_shards_skip_done_and_an_executor_from_the_library(collection, tmp_path):
     """Segmenter.run and abstract_shapes given a plan: a shard writes its shapes' outputs only; a
     rerun with skip_done redoes only the shape whose files were lost; an executor runs the work."""

@@ -64,6 +64,7 @@ def segmented(tmp_path_factory):
     return root, stops
 
 
+@pytest.mark.integration  # the whole segment run traced: seconds, left to the default suite
 def test_segment_climbs_back_into_the_command_line_at_most_three_times(segmented):
     _, stops = segmented
     climbs = _climbs(stops)
@@ -80,6 +81,7 @@ def test_the_climb_counter_sees_a_command_that_calls_the_library_piecewise():
     assert len(_climbs([s.replace("/", os.sep) for s in stops])) == 4
 
 
+@pytest.mark.integration  # segment run twice and drawn twice: seconds, left to the default suite
 def test_the_segment_picture_is_the_librarys(segmented):
     """The PNG of ``primkit segment --png`` against one drawn by the library from shapes segmented
     one by one (:func:`primkit.segmentation.segment`, not the command's batch): the same tiles, the

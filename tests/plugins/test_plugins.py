@@ -81,6 +81,7 @@ def test_accessor_segment_abstract_and_cuboids_agree_with_primkit(chair_file, ex
     assert all(np.allclose(x.points, y.points) for x, y in zip(again, blocks))
 
 
+@pytest.mark.integration  # three kinds of dataset segmented: seconds, left to the default suite
 def test_accessor_on_point_clouds_quads_and_multiblocks(chair_file, expected, model):
     import pyvista as pv
 
@@ -108,6 +109,7 @@ def test_accessor_on_point_clouds_quads_and_multiblocks(chair_file, expected, mo
 # ---------------------------------------------------------------------------------------------
 
 
+@pytest.mark.integration  # a VTK pipeline re-run: seconds, left to the default suite
 def test_vtk_filter_in_a_pipeline_follows_its_input(chair_file, expected, model):
     import pyvista as pv
     from vtkmodules.vtkCommonTransforms import vtkTransform

@@ -133,6 +133,7 @@ def _toy_labeller(rng, settings=None):
     return labeller, shapes
 
 
+@pytest.mark.integration  # a labeller fitted and written: seconds, left to the default suite
 def test_labeller_learns_the_frame_and_round_trips_through_a_model_file(tmp_path):
     rng = np.random.default_rng(3)
     labeller, shapes = _toy_labeller(rng)
@@ -303,6 +304,7 @@ def test_grid_neighbours_are_the_27_nearest_voxels_of_a_full_block():
     np.testing.assert_allclose(d[[1, 6, 7, 18, 19, 26]], [1, 1, 2**0.5, 2**0.5, 3**0.5, 3**0.5])
 
 
+@pytest.mark.integration  # every grid step classified in full: seconds, left to the default suite
 @pytest.mark.parametrize("step", [2, 8])
 def test_grid_sampling_classifies_one_voxel_in_step_and_fills_the_rest(step):
     from dataclasses import replace
@@ -331,6 +333,7 @@ def test_grid_sampling_classifies_one_voxel_in_step_and_fills_the_rest(step):
     assert np.all(lab.decide(got) >= 0)
 
 
+@pytest.mark.integration  # a brute-force smoothing: seconds, left to the default suite
 def test_smoothing_is_the_mean_over_the_neighbours_repeated():
     rng = np.random.default_rng(7)
     labeller, _ = _toy_labeller(rng, LabellerSettings(neighbours=8, smooth=2, smooth_neighbours=4))
@@ -498,6 +501,7 @@ def test_names_by_index_is_each_index_majority_label():
         assert got[k] == want
 
 
+@pytest.mark.integration  # a labeller fitted for one edit: seconds, left to the default suite
 def test_edit_scales_the_cuboids_a_label_names(chairs, tmp_path, capsys):
     """edit --scale NAME=... with a labelled model: NAME is a label of the labeller (not of the
     model's index names); the cuboids edited are those whose faces mostly carry it."""
@@ -529,6 +533,7 @@ def test_edit_scales_the_cuboids_a_label_names(chairs, tmp_path, capsys):
     assert rc != 0 and "unknown part 'seat'" in capsys.readouterr().err  # index names give way to labels
 
 
+@pytest.mark.integration  # a labeller fitted against brute force: seconds, left to the default suite
 def test_the_prior_is_each_index_share_of_the_labels_and_is_blended_in(tmp_path):
     rng = np.random.default_rng(8)
     labeller, shapes = _toy_labeller(rng)
