@@ -11,6 +11,8 @@ library when its command runs (the model layer imports torch, the drawing kit VT
 
 from __future__ import annotations
 
+import argparse
+
 import contextlib
 import logging
 import re
@@ -203,6 +205,13 @@ def abstraction_options(args) -> AbstractionOptions:
     if getattr(args, "adapt", None):
         options["adapt"] = args.adapt
     return options
+
+
+def add_command(subparsers, name: str, *, examples, **kwargs):
+    """A subcommand whose ``--help`` ends with its ``examples`` (one command line each, shown as
+    written: argparse's raw description formatter keeps their line breaks)."""
+    epilog = "examples:\n" + "".join(f"  {line}\n" for line in examples)
+    return subparsers.add_parser(name, epilog=epilog, formatter_class=argparse.RawDescriptionHelpFormatter, **kwargs)
 
 
 def add_model(p) -> None:

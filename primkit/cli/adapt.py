@@ -3,23 +3,21 @@
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
+from ._common import add_command
 from ._common import (add_align, add_axes, add_cache, add_force, add_model, add_output, add_quiet, add_refine, add_workers,
                       check_command_outputs, collect, err, input_paths, model_file, progress_of, report_errors,
                       settings_from_args)
 
 
 def register(sub) -> None:
-    p = sub.add_parser(
+    p = add_command(sub, 
         "adapt", help="continue a model's training on your own shapes, without labels",
         description="Fit a model to your own collection without labels: its unsupervised stage-2 training goes on "
         "over the given shapes (found in the model's frame first), pulled toward the parent's answer so that part "
         "indices and names stay. The new model's metadata names its parent, the collection and the settings.",
-        epilog="examples:\n  primkit adapt mine/ --model chair -o chair-mine.safetensors\n"
-        "  primkit adapt scans/ --model chair --steps 200 --seed 1 -o chair-scans.safetensors\n",
-        formatter_class=argparse.RawDescriptionHelpFormatter)
+        examples=["primkit adapt mine/ --model chair -o chair-mine.safetensors", "primkit adapt scans/ --model chair --steps 200 --seed 1 -o chair-scans.safetensors"])
     p.add_argument("inputs", nargs="+", help="shape files or folders (meshes, point clouds, voxel grids)")
     add_model(p)
     add_output(p, "the adapted model file (.safetensors)")

@@ -3,11 +3,11 @@
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from pathlib import Path
 
+from ._common import add_command
 from ._common import (
     abstraction_options,
     add_abstraction_options,
@@ -283,18 +283,18 @@ def _cmd_demo(args) -> int:
 
 
 def register(sub) -> None:
-    p = sub.add_parser("demo", help="the main job: generate procedural chairs, train, abstract, draw a picture",
+    p = add_command(sub, "demo", help="the main job: generate procedural chairs, train, abstract, draw a picture",
         description="The main job: generate part-labelled procedural chairs, abstract the held-out ones with the bundled chair model, train an abstractor from scratch, and run the applications into one folder (report/index.html, pictures, cuboids, report.json).",
-        epilog="examples:\n  primkit demo\n  primkit demo -o /tmp/demo --quick --force\n", formatter_class=argparse.RawDescriptionHelpFormatter)
+        examples=["primkit demo", "primkit demo -o /tmp/demo --quick --force"])
     add_output(p, "output folder (default primkit-demo)", default="primkit-demo", required=False)
     p.add_argument("--quick", action="store_true", help="a much shorter run (for tests)")
     add_quiet(p)
     add_force(p)
     p.set_defaults(func=_cmd_demo)
 
-    p = sub.add_parser("generate", help="write procedural part-labelled shapes",
+    p = add_command(sub, "generate", help="write procedural part-labelled shapes",
         description="Write procedural part-labelled shapes: for each shape a mesh (.ply), a part label per face (.seg) and its attributes (.json).",
-        epilog="examples:\n  primkit generate chair -n 200 -o chairs/\n  primkit generate chair -n 200 -o chairs/ --rate has_arms=0.5\n", formatter_class=argparse.RawDescriptionHelpFormatter)
+        examples=["primkit generate chair -n 200 -o chairs/", "primkit generate chair -n 200 -o chairs/ --rate has_arms=0.5"])
     p.add_argument("category", choices=["chair", "table", "airplane", "animal"], help="the kind of shape to generate")
     p.add_argument("-n", "--count", type=int, default=10, help="how many shapes (default 10)")
     add_output(p, "output folder")
@@ -304,17 +304,17 @@ def register(sub) -> None:
     add_force(p)
     p.set_defaults(func=_cmd_generate)
 
-    p = sub.add_parser("prepare", help="prepare shapes into the cache (grids, samples, distances)",
+    p = add_command(sub, "prepare", help="prepare shapes into the cache (grids, samples, distances)",
         description="Prepare shapes into the cache (occupancy grids, surface samples, distance fields), so that train, abstract and the applications start at once.",
-        epilog="examples:\n  primkit prepare chairs/\n  primkit prepare chairs/ --cache /shared/cache --shard 3/16\n", formatter_class=argparse.RawDescriptionHelpFormatter)
+        examples=["primkit prepare chairs/", "primkit prepare chairs/ --cache /shared/cache --shard 3/16"])
     p.add_argument("inputs", nargs="+", help="shape files or folders (searched recursively)")
     add_prepare_options(p)
     add_scale_out(p)
     p.set_defaults(func=_cmd_prepare)
 
-    p = sub.add_parser("train", help="train an abstractor on a folder of shapes",
+    p = add_command(sub, "train", help="train an abstractor on a folder of shapes",
         description="Train a cuboid abstractor on a collection of shapes (unsupervised). Writes the model file, a checkpoint beside it (Ctrl-C saves and stops; --resume goes on) and a plot of the losses.",
-        epilog="examples:\n  primkit train chairs/ -o chair.safetensors\n  primkit train ../shared/data/shapenetvox32/03001627 --preset chair -o chair.safetensors\n", formatter_class=argparse.RawDescriptionHelpFormatter)
+        examples=["primkit train chairs/ -o chair.safetensors", "primkit train ../shared/data/shapenetvox32/03001627 --preset chair -o chair.safetensors"])
     p.add_argument("inputs", nargs="+", help="folders or files of shapes")
     add_output(p, "model file to write (.safetensors)")
     p.add_argument("--preset", default=None, help="a bundled model's recipe (chair, table, airplane): schedule, "
@@ -337,11 +337,11 @@ def register(sub) -> None:
     add_prepare_options(p)
     p.set_defaults(func=_cmd_train)
 
-    p = sub.add_parser("abstract", help="abstract shapes (or pictures, with an image model) with a trained model: JSON + "
+    p = add_command(sub, "abstract", help="abstract shapes (or pictures, with an image model) with a trained model: JSON + "
                        "coloured cuboid mesh per shape; --png: the shapes beside their cuboids (for an image model, each "
                        "picture with its cuboids drawn over it)",
         description="Abstract shapes (or pictures, with an image model) with a trained model: for each input <name>.cuboids.json (the indexed cuboids) and <name>.cuboids.ply (a mesh coloured by part).",
-        epilog="examples:\n  primkit abstract chairs/ --model chair -o out/\n  primkit abstract chairs/ --model chair -o out/ --align auto --refine 200 --png out.png\n  primkit abstract photo.png --model chair-image -o out/ --png over.png\n", formatter_class=argparse.RawDescriptionHelpFormatter)
+        examples=["primkit abstract chairs/ --model chair -o out/", "primkit abstract chairs/ --model chair -o out/ --align auto --refine 200 --png out.png", "primkit abstract photo.png --model chair-image -o out/ --png over.png"])
     p.add_argument("inputs", nargs="+", help="shape files or folders (searched recursively)")
     add_output(p, "output folder")
     add_abstraction_options(p)
@@ -359,9 +359,9 @@ def register(sub) -> None:
     add_force(p)
     p.set_defaults(func=_cmd_abstract)
 
-    p = sub.add_parser("eval", help="Chamfer, IoU, coverage, consistency and parts of a model's abstractions",
+    p = add_command(sub, "eval", help="Chamfer, IoU, coverage, consistency and parts of a model's abstractions",
         description="Score a model's abstractions: Chamfer-L1, IoU, coverage, consistency and parts per shape, printed with their convention.",
-        epilog="examples:\n  primkit eval chairs/ --model chair\n  primkit eval FOLDER --model chair --split held-out --json scores.json\n", formatter_class=argparse.RawDescriptionHelpFormatter)
+        examples=["primkit eval chairs/ --model chair", "primkit eval FOLDER --model chair --split held-out --json scores.json"])
     p.add_argument("inputs", nargs="+", help="shape files or folders (searched recursively)")
     add_abstraction_options(p)
     p.add_argument("--split", choices=["all", "held-out", "train"], default="all",
@@ -372,15 +372,15 @@ def register(sub) -> None:
     add_force(p)
     p.set_defaults(func=_cmd_eval)
 
-    p = sub.add_parser("models", help="list the bundled models with their model cards",
+    p = add_command(sub, "models", help="list the bundled models with their model cards",
         description="List the bundled models with their model cards (data, terms, schedule, training time, held-out metrics, part names).",
-        epilog="examples:\n  primkit models\n  primkit models chair -v\n", formatter_class=argparse.RawDescriptionHelpFormatter)
+        examples=["primkit models", "primkit models chair -v"])
     p.add_argument("name", nargs="*", help="only these models")
     p.add_argument("-v", "--verbose", action="store_true", help="print the whole card")
     p.set_defaults(func=_cmd_models)
 
-    p = sub.add_parser("info", help="print a model file's metadata (without loading its weights)",
+    p = add_command(sub, "info", help="print a model file's metadata (without loading its weights)",
         description="Print a model file's metadata as JSON, after the checks loading makes (architecture against the tensors), without loading its weights.",
-        epilog="examples:\n  primkit info chair.safetensors\n  primkit info chair\n", formatter_class=argparse.RawDescriptionHelpFormatter)
+        examples=["primkit info chair.safetensors", "primkit info chair"])
     p.add_argument("model", help="a model file (.safetensors) or a bundled model's name")
     p.set_defaults(func=_cmd_info)

@@ -9,13 +9,13 @@ keeps, such as vertex colours), a PNG and a JSON file of quality measures beside
 
 from __future__ import annotations
 
-import argparse
 import json
 from pathlib import Path
 
 import numpy as np
 
 from ..model.parts import resolve_parts
+from ._common import add_command
 from ._common import (abstraction_options, add_abstraction_options, add_force, add_output, add_png, check_command_outputs, err,
                       input_paths, model_file, report_errors)
 
@@ -323,17 +323,17 @@ def _common_options(p) -> None:
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("deform", help="deform a source mesh or point cloud into a target shape's part configuration",
+    p = add_command(subparsers, "deform", help="deform a source mesh or point cloud into a target shape's part configuration",
         description="Deform a source mesh or point cloud into a target shape's part configuration: both are abstracted, each source vertex is bound to its cuboid and follows the target's cuboid of the same index. Writes the result, a JSON of quality measures and, with --png, a picture.",
-        epilog="examples:\n  primkit deform src.off tgt.off --model chair -o out.off\n  primkit deform src.xyz tgt.off --model chair -o out.xyz\n", formatter_class=argparse.RawDescriptionHelpFormatter)
+        examples=["primkit deform src.off tgt.off --model chair -o out.off", "primkit deform src.xyz tgt.off --model chair -o out.xyz"])
     p.add_argument("source", help="the mesh (or point cloud) to deform")
     p.add_argument("target", help="the shape whose configuration it takes (mesh, points or voxels)")
     _common_options(p)
     p.set_defaults(func=_cmd_deform)
 
-    p = subparsers.add_parser("edit", help="scale, turn or move parts of a mesh (by part name or index)",
+    p = add_command(subparsers, "edit", help="scale, turn or move parts of a mesh (by part name or index)",
         description="Edit a mesh part by part: scale, turn, move or lengthen parts named by the model (or by index), in each part's own frame.",
-        epilog="examples:\n  primkit edit chair.off --model chair --lengthen legs=1.3 -o taller.off\n  primkit edit chair.off --model chair --scale seat=1.2,1,1.2 --rotate back=15 -o edited.off\n", formatter_class=argparse.RawDescriptionHelpFormatter)
+        examples=["primkit edit chair.off --model chair --lengthen legs=1.3 -o taller.off", "primkit edit chair.off --model chair --scale seat=1.2,1,1.2 --rotate back=15 -o edited.off"])
     p.add_argument("mesh", help="the mesh to edit (never modified; the result goes to -o)")
     p.add_argument("--scale", action="append", metavar="PART=S|F,U,S",
                    help="scale a part: one factor (uniform) or three along its front, up, side axes (legs=1,1.3,1)")

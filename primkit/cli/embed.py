@@ -7,12 +7,12 @@ compares the prepared occupancy grids instead (the paper's baseline).
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
 import numpy as np
 
+from ._common import add_command
 from ._common import (abstraction_options, add_abstraction_options, add_scale_out, add_force, add_output, add_png, check_command_outputs, collect,
                       err, input_paths, model_file, output_names, progress_of, report_errors)
 
@@ -218,9 +218,9 @@ def _common_options(p) -> None:
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("embed", help="distances between shapes by chosen parts, and a t-SNE map with thumbnails",
+    p = add_command(subparsers, "embed", help="distances between shapes by chosen parts, and a t-SNE map with thumbnails",
         description="Describe each shape by the chosen properties of the chosen parts, and write the distances, the t-SNE coordinates and a map drawn with thumbnails.",
-        epilog="examples:\n  primkit embed chairs/ --model chair -o emb/ --png map.png\n  primkit embed chairs/ --model chair --parts back --what orientation --refine 100 -o emb-tilt/\n", formatter_class=argparse.RawDescriptionHelpFormatter)
+        examples=["primkit embed chairs/ --model chair -o emb/ --png map.png", "primkit embed chairs/ --model chair --parts back --what orientation --refine 100 -o emb-tilt/"])
     p.add_argument("inputs", nargs="+", help="shape files or folders")
     _common_options(p)
     p.add_argument("--distances", choices=["auto", "yes", "no"], default="auto",
@@ -231,9 +231,9 @@ def register(subparsers) -> None:
     p.add_argument("--thumb-size", type=int, default=96, help="thumbnail size in pixels")
     p.set_defaults(func=_cmd_embed)
 
-    p = subparsers.add_parser("similar", help="rank a collection by similarity to a query shape, by chosen parts",
+    p = add_command(subparsers, "similar", help="rank a collection by similarity to a query shape, by chosen parts",
         description="Rank a collection by similarity to a query shape, by the chosen parts and properties; prints the matches and can draw them.",
-        epilog="examples:\n  primkit similar query.off chairs/ --model chair --parts back,seat -k 5 -o sim/ --png sim.png\n", formatter_class=argparse.RawDescriptionHelpFormatter)
+        examples=["primkit similar query.off chairs/ --model chair --parts back,seat -k 5 -o sim/ --png sim.png"])
     p.add_argument("query", help="the query shape file")
     p.add_argument("inputs", nargs="+", help="shape files or folders to rank (the query itself is left out)")
     p.add_argument("-k", type=int, default=5, help="matches to report (default 5)")

@@ -7,12 +7,12 @@ inference, pictures).
 
 from __future__ import annotations
 
-import argparse
 import json
 from pathlib import Path
 
 import numpy as np
 
+from ._common import add_command
 from ._common import (add_force, add_output, add_prepare_options, check_command_outputs, collect, err, input_paths, model_file,
                       output_names, progress_of, report_errors, settings_from_args)
 
@@ -159,9 +159,9 @@ def _teacher_arrays(coll, geometric: bool):
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("train-image", help="distil a volume model into an image model (rendered views)",
+    p = add_command(subparsers, "train-image", help="distil a volume model into an image model (rendered views)",
         description="Distil a volume model into an image model: render views of the teacher's training shapes and train a network to predict the teacher's cuboids (same indices and names) and the viewpoint from one picture.",
-        epilog="examples:\n  primkit train-image ../shared/data/shapenetvox32/03001627 --teacher chair -o chair-image.safetensors\n", formatter_class=argparse.RawDescriptionHelpFormatter)
+        examples=["primkit train-image ../shared/data/shapenetvox32/03001627 --teacher chair -o chair-image.safetensors"])
     p.add_argument("inputs", nargs="+", help="shape files or folders (the teacher's category)")
     add_output(p, "the image model file to write (.safetensors)")
     p.add_argument("--teacher", default="chair", help="the volume model to distil (a file or a bundled name)")

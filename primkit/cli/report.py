@@ -3,8 +3,8 @@ deform) on a collection, into a static HTML page (:func:`primkit.report.build_re
 
 from __future__ import annotations
 
-import argparse
 
+from ._common import add_command
 from ._common import add_abstraction_options, add_force, add_output, model_file, progress_of, report_errors, settings_from_args
 
 __all__ = ["register"]
@@ -29,10 +29,10 @@ def _run(args) -> int:
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("report", help="a static HTML report of a collection: thumbnails, segmentation, "
+    p = add_command(subparsers, "report", help="a static HTML report of a collection: thumbnails, segmentation, "
                               "similarity map, deformation, metrics, interactive 3D scene",
         description="Run the whole chain (abstract, segment, embed, deform) on a collection and write one static HTML page that opens offline: thumbnails, co-segmentation, the similarity map, a deformation, a metrics table and a 3D scene.",
-        epilog="examples:\n  primkit report chairs/ --model chair -o report/\n", formatter_class=argparse.RawDescriptionHelpFormatter)
+        examples=["primkit report chairs/ --model chair -o report/"])
     p.add_argument("inputs", nargs="+", help="folders or files of shapes")
     add_abstraction_options(p)
     add_output(p, "output folder (index.html, report.json, images/)")

@@ -3,12 +3,12 @@ and ``primkit name-parts`` (name a model's part indices from a few labelled shap
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 
 import numpy as np
 
+from ._common import add_command
 from ._common import (add_abstraction_options, add_force, add_output, add_png, add_scale_out, check_command_outputs, collect, err,
                       input_paths, progress_of, report_errors)
 
@@ -196,7 +196,7 @@ def _labelling(args):
 
 
 def register(sub) -> None:
-    p = sub.add_parser(
+    p = add_command(sub, 
         "segment", help="co-segment a collection: each face to its primitive, the same part index on every shape",
         description="Co-segment a collection: each face (voxel, point) to its primitive, the same part index on every "
         "shape. With --shard K/N (job arrays) a shard writes its shapes' outputs, named as one run over all the inputs "
@@ -205,7 +205,7 @@ def register(sub) -> None:
         "(the paper's mapping is fitted over every shape) and are refused with --shard: run once over all the inputs "
         "for them. A shard killed half-way keeps each output it wrote whole; run it again with --skip-done to do only "
         "what it left, or with --force to redo it all.",
-        epilog="examples:\n  primkit segment chairs/ --model chair -o seg/ --refine 200 --png seg.png\n  primkit segment clouds/ --model chair -o seg/ --semantic\n  primkit segment CHAIRS --model chair -o seg/ --gt ../shared/data/partnet_chair_boxes\n", formatter_class=argparse.RawDescriptionHelpFormatter)
+        examples=["primkit segment chairs/ --model chair -o seg/ --refine 200 --png seg.png", "primkit segment clouds/ --model chair -o seg/ --semantic", "primkit segment CHAIRS --model chair -o seg/ --gt ../shared/data/partnet_chair_boxes"])
     p.add_argument("inputs", nargs="+", help="mesh, voxel (.binvox) or point-cloud (.xyz, .npy, .ply) files, or folders")
     add_output(p, "output folder")
     add_abstraction_options(p)
@@ -235,9 +235,9 @@ def register(sub) -> None:
     add_force(p)
     p.set_defaults(func=_cmd_segment)
 
-    p = sub.add_parser("name-parts", help="name a model's part indices from labelled shapes; writes a copy of the model",
+    p = add_command(sub, "name-parts", help="name a model's part indices from labelled shapes; writes a copy of the model",
         description="Name a model's parts from labelled shapes: learn a labeller that names each face, voxel or point from where it sits in the shape's cuboids (stored in the model file, no code), and name each part index by the label holding most of its area (or voxels). Writes a copy of the model; the input model is never modified.",
-        epilog="examples:\n  primkit name-parts labelled/ --model chair -o chair-named.safetensors\n  primkit name-parts CHAIRS --model chair --labels ../shared/data/partnet_chair_boxes -o named.safetensors\n", formatter_class=argparse.RawDescriptionHelpFormatter)
+        examples=["primkit name-parts labelled/ --model chair -o chair-named.safetensors", "primkit name-parts CHAIRS --model chair --labels ../shared/data/partnet_chair_boxes -o named.safetensors"])
     p.add_argument("inputs", nargs="+", help="labelled mesh, voxel (.binvox) or point-cloud files, or folders (a "
                    "cloud's labels: <stem>.labels.npy beside it, one integer per point)")
     add_output(p, "model file to write (the input model is never modified)")

@@ -13,10 +13,10 @@ e.g. ``xvfb-run -a``) which then closes. The viewers are part of the installed p
 
 from __future__ import annotations
 
-import argparse
 import os
 from pathlib import Path
 
+from ._common import add_command
 from ._common import (
     abstraction_options,
     progress_of,
@@ -203,44 +203,44 @@ def _options(p) -> None:
 
 
 def register(subparsers) -> None:
-    p = subparsers.add_parser("view", help="interactive viewers (pyvista windows): abstraction, collection, embedding, "
+    p = add_command(subparsers, "view", help="interactive viewers (pyvista windows): abstraction, collection, embedding, "
                               "deformation; --png: the first frame into a PNG instead of a window",
         description="Interactive viewers: pyvista windows (abstraction, collection, embedding, deformation) and Open3D's window (open3d). --png PATH draws the first frame into a picture instead of opening a window.",
-        epilog="examples:\n  primkit view abstraction chair.off --model chair\n  primkit view collection chairs/ --model chair --png grid.png\n", formatter_class=argparse.RawDescriptionHelpFormatter)
+        examples=["primkit view abstraction chair.off --model chair", "primkit view collection chairs/ --model chair --png grid.png"])
     sub = p.add_subparsers(dest="viewer", required=True)
-    q = sub.add_parser("abstraction", help="one shape and its cuboids: toggle parts, opacity, click a cuboid",
+    q = add_command(sub, "abstraction", help="one shape and its cuboids: toggle parts, opacity, click a cuboid",
         description="One shape and its cuboids: a toggle per part, the mesh's opacity, click a cuboid to select it.",
-        epilog="examples:\n  primkit view abstraction chair.off --model chair\n  primkit view abstraction chair.off --model chair --png view.png\n", formatter_class=argparse.RawDescriptionHelpFormatter)
+        examples=["primkit view abstraction chair.off --model chair", "primkit view abstraction chair.off --model chair --png view.png"])
     q.add_argument("shape", help="a mesh, point cloud or voxel file")
     q.add_argument("--select", type=int, default=None, help="part index selected at start (default: the largest)")
     _options(q)
-    q = sub.add_parser("collection", help="a grid of shapes, parts coloured alike; mesh / cuboids / segmentation",
+    q = add_command(sub, "collection", help="a grid of shapes, parts coloured alike; mesh / cuboids / segmentation",
         description="A grid of shapes with parts coloured alike on every shape; switch between the mesh, the cuboids and the segmentation.",
-        epilog="examples:\n  primkit view collection chairs/ --model chair --mode segmentation\n", formatter_class=argparse.RawDescriptionHelpFormatter)
+        examples=["primkit view collection chairs/ --model chair --mode segmentation"])
     q.add_argument("folder", nargs="+", help="folders or files of shapes")
     q.add_argument("--mode", choices=["mesh", "cuboids", "segmentation"], default="cuboids",
                    help="what each shape shows at start (default cuboids)")
     q.add_argument("--limit", type=int, default=0, help="at most this many shapes (0: all)")
     _options(q)
-    q = sub.add_parser("embedding", help="the t-SNE map of a collection; click a shape for its nearest neighbours",
+    q = add_command(sub, "embedding", help="the t-SNE map of a collection; click a shape for its nearest neighbours",
         description="The t-SNE map of a collection by the chosen parts; click a shape to see its nearest neighbours.",
-        epilog="examples:\n  primkit view embedding chairs/ --model chair --parts back,seat\n", formatter_class=argparse.RawDescriptionHelpFormatter)
+        examples=["primkit view embedding chairs/ --model chair --parts back,seat"])
     q.add_argument("folder", nargs="+", help="folders or files of shapes")
     q.add_argument("--parts", default="all", help="parts the similarity looks at (names or indices, e.g. back,seat)")
     q.add_argument("--neighbors", type=int, default=4, help="neighbours shown beside the chosen shape")
     q.add_argument("--select", type=int, default=0, help="shape chosen at start (its position in the collection)")
     q.add_argument("--limit", type=int, default=0, help="at most this many shapes (0: all)")
     _options(q)
-    q = sub.add_parser("deformation", help="source, target and result; blend slider; move, scale, turn a part",
+    q = add_command(sub, "deformation", help="source, target and result; blend slider; move, scale, turn a part",
         description="Source, target and the deformed result side by side; a slider blends source to target, widgets move, scale and turn a part live.",
-        epilog="examples:\n  primkit view deformation src.off tgt.off --model chair\n", formatter_class=argparse.RawDescriptionHelpFormatter)
+        examples=["primkit view deformation src.off tgt.off --model chair"])
     q.add_argument("source", help="the shape to deform")
     q.add_argument("target", help="the shape whose part configuration it takes")
     q.add_argument("--part", default=None, help="part edited by the widgets (name or index; default: the largest)")
     _options(q)
-    q = sub.add_parser("open3d", help="one mesh or point cloud in Open3D's window: toggle parts, refine, export",
+    q = add_command(sub, "open3d", help="one mesh or point cloud in Open3D's window: toggle parts, refine, export",
         description="One mesh or point cloud in Open3D's window, part by part: toggle parts, the surface and the cuboids, refine, export (never over an existing file).",
-        epilog="examples:\n  primkit view open3d chair.ply --model chair\n  primkit view open3d cloud.xyz --model chair --export out/\n", formatter_class=argparse.RawDescriptionHelpFormatter)
+        examples=["primkit view open3d chair.ply --model chair", "primkit view open3d cloud.xyz --model chair --export out/"])
     q.add_argument("shape", help="a mesh or point cloud file")
     q.add_argument("--export", default="primkit-export", help="folder the export button writes into (default "
                    "primkit-export; nothing is overwritten)")
