@@ -40,13 +40,13 @@ from . import orientation
 from .parts import default_part_names
 from .bundled import resolve_model
 from ..primitives.palette import part_colors
-from .fitting import fit_losses
+from .fitting import fit_losses_of_sets
 from .fitting import refine as refine_cuboids
 from .cuboids_file import cuboids_document, write_cuboids_file
 from .orientation import Alignment
 from .network import load_network
 
-__all__ = ["Abstractor", "AbstractionResult", "Refinement", "RawCuboids", "MIN_EXTENT", "ORIENTATION_POINTS", "ORIENTATION_SAMPLES",
+__all__ = ["Abstractor", "AbstractionResult", "OrientationSearch", "Refinement", "RawCuboids", "MIN_EXTENT", "ORIENTATION_POINTS", "ORIENTATION_SAMPLES",
            "drop_unsized_parts"]
 
 #: Surface points of a shape and samples per cuboid with which orientations are scored.
@@ -155,6 +155,27 @@ class Refinement:
         return {"steps": self.steps, "loss_before": self.loss_before, "loss_after": self.loss_after}
 
 
+@dataclass(frozen=True, eq=False)
+class OrientationSearch:
+    """What :meth:`Abstractor.search_orientations` found for ``s`` shapes (nothing turned yet).
+
+    Attributes
+    ----------
+    choice : (s,) int
+        Each shape's orientation, an index into :data:`primkit.model.orientation.AXIS_ROTATIONS`.
+    reports : list of orientation.Alignment
+        As :meth:`Abstractor.orient` returns them.
+    answers : RawCuboids or None
+        When asked: the network's raw answer for each shape turned by its choice, from the
+        search's own forward pass of that turn (the turned occupancy is the network's input, so it
+        is the answer :meth:`Abstractor.predict_canonical` gives the turned shape).
+    """
+
+    choice: np.ndarray
+    reports: list
+    answers: RawCuboids | None = None
+
+
 @dataclass(frozen=True)
 class AbstractionResult:
     """The cuboids a model gives one prepared shape: a value, with no geometry of the shape
@@ -231,6 +252,21 @@ class AbstractionResult:
         return write_cuboids_file(path, self.cuboids, overwrite=overwrite, **self._file_fields())
 
 
+@dataclass(frozen=True, eq=False)
+class _Scored:
+    """What the frame search's losses read of a shape: its distance grid and the chosen surface samples."""
+
+    closest: np.ndarray
+    points: np.ndarray
+
+
+def _unit_rows(q: np.ndarray) -> np.ndarray:
+    """Quaternion rows normalised as :class:`primkit.primitives.Cuboids` does on construction
+    (rows already unit to 1e-12 are kept bit for bit)."""
+    norm = np.linalg.norm(q, axis=-1, keepdims=True)
+    return np.where(np.abs(norm - 1.0) > 1e-12, q / norm, q)
+
+
 class Abstractor:
     """A trained model, loaded once: the network, its part names and its model-file metadata;
     :meth:`predict` turns prepared shapes into :class:`AbstractionResult` values.
@@ -289,10 +325,15 @@ class Abstractor:
         at a time."""
         import torch
 
+        return self._raw(occupancy, batch_size if torch.device(self.device).type == "cuda" else 1)
+
+    def _raw(self, occupancy: np.ndarray, step: int) -> RawCuboids:
+        """:meth:`predict_canonical`'s answer, ``step`` shapes at a time on any device."""
+        import torch
+
         occupancy = np.asarray(occupancy)
         out = {"half_extents": [], "quaternions": [], "translations": [], "existence": []}
-        step = batch_size if torch.device(self.device).type == "cuda" else 1
-        with torch.no_grad():
+        with torch.inference_mode():
             for i in range(0, len(occupancy), step):
                 x = torch.from_numpy(occupancy[i : i + step].astype(np.float32)).to(self.device)
                 pred = self.network(x)
@@ -316,29 +357,66 @@ class Abstractor:
 
     def _candidate_losses(self, shapes, candidates, existence_threshold: float, chunk: int, *,
                           points: int = ORIENTATION_POINTS, samples_per_cuboid: int = ORIENTATION_SAMPLES):
-        """(s, k) fit losses of every shape turned by every candidate rotation.
+        """(s, k) fit losses of every shape turned by every candidate rotation (:meth:`_score_candidates`)."""
+        return self._score_candidates(shapes, candidates, existence_threshold, chunk, points=points,
+                                      samples_per_cuboid=samples_per_cuboid)[0]
+
+    def _score_candidates(self, shapes, candidates, existence_threshold: float, chunk: int, *,
+                          points: int = ORIENTATION_POINTS, samples_per_cuboid: int = ORIENTATION_SAMPLES,
+                          keep_raw: bool = False):
+        """``(losses, raw)``: (s, k) fit losses of every shape turned by every candidate rotation,
+        and (with ``keep_raw``, else None) the network's raw answers, (s, k, m, ...) arrays.
 
         Only the occupancy grid is turned (the network's input); the predicted cuboids are turned
         back into the shape's own canonical frame and scored there, which is exact (axis
         rotations map cells onto cells) and spares turning the distance grids and samples. Every
-        candidate of a shape is scored on the same ``points`` surface samples.
+        candidate of a shape is scored on the same ``points`` surface samples, and each shape's
+        distance grid is read once for its ``k`` turns (:func:`primkit.model.fitting.fit_losses_of_sets`).
+
+        The straightforward way (each turned grid, each answer turned back as a
+        :class:`~primkit.primitives.Cuboids`, and :func:`~primkit.model.fitting.fit_losses` on the
+        list, ``chunk`` shapes at a time) gives the same losses bit for bit: the same network
+        passes, the same arithmetic per part, the same random samples
+        (``tests/model/test_orientation.py`` compares the two). Written as arrays because that
+        way spent most of the frame search copying each distance grid ``k`` times and building
+        ``s k`` cuboid objects (docs/adaptation.md).
         """
-        out = np.empty((len(shapes), len(candidates)))
-        rotations = orientation.AXIS_ROTATIONS[candidates]
+        import torch
+
+        candidates = np.asarray(candidates)
+        k = len(candidates)
+        rotations = orientation.AXIS_ROTATIONS[candidates]  # A: the turn; its cuboids come back by A^T
+        out = np.empty((len(shapes), k))
+        kept = []
         rng = np.random.default_rng(0)
         for start in range(0, len(shapes), chunk):
             block = shapes[start : start + chunk]
-            grids = np.stack([orientation.rotate_grid(s.occupancy, a) for s in block for a in rotations])
-            raw = self.predict_canonical(grids)
-            cubs = [self._cuboids(raw, i, existence_threshold).transformed(rotations[i % len(candidates)].T)
-                    for i in range(len(grids))]
+            b, res = len(block), block[0].occupancy.shape[0]
+            flat = np.stack([np.asarray(s.occupancy).reshape(-1) for s in block])  # (b, R^3)
+            cells = np.stack([orientation.source_index(res, a) for a in rotations])  # (k, R^3)
+            grids = flat[:, cells].reshape(b * k, res, res, res)  # shape-major, as rotate_grid turns each
+            raw = self._raw(grids, k if torch.device(self.device).type == "cpu" else len(grids))
+            m = raw.half_extents.shape[1]
+            # each answer back in its shape's frame, as Cuboids(...).transformed(A^T) does it, on arrays
+            half = np.maximum(raw.half_extents, 1e-12).reshape(b, k, m, 3)
+            q = _unit_rows(raw.quaternions)
+            turned_back = np.swapaxes(rotations, 1, 2)[None, :, None] @ primitives.quaternion_to_matrix(q).reshape(
+                b, k, m, 3, 3)
+            quats = _unit_rows(primitives.matrix_to_quaternion(turned_back))
+            trans = (raw.translations.reshape(b, k, m, 1, 3) @ rotations[None, :, None])[..., 0, :] + 0.0
+            exist = raw.existence.reshape(b, k, m) > existence_threshold
             scored = []
             for s in block:
                 pick = rng.choice(len(s.points), min(points, len(s.points)), replace=False)
-                scored.extend([replace(s, points=s.points[pick])] * len(candidates))
-            out[start : start + len(block)] = fit_losses(cubs, scored, points=0, samples_per_cuboid=samples_per_cuboid,
-                                                         ).total.reshape(len(block), len(candidates))
-        return out
+                scored.append(_Scored(s.closest, s.points[pick]))
+            out[start : start + b] = fit_losses_of_sets(half, quats, trans, exist, scored,
+                                                        samples_per_cuboid=samples_per_cuboid).total
+            if keep_raw:
+                kept.append(RawCuboids(**{key: v.reshape((b, k) + v.shape[1:]) for key, v in raw.arrays().items()}))
+        raw = None
+        if keep_raw:
+            raw = RawCuboids(**{key: np.concatenate([r.arrays()[key] for r in kept]) for key in RawCuboids.__dataclass_fields__})
+        return out, raw
 
     def orient(self, shapes, mode: str = "auto", existence_threshold: float = 0.5, *, up_margin: float | None = None,
                chunk: int = 16, vote_shapes: int = 24) -> tuple[list, list[Alignment]]:
@@ -361,7 +439,21 @@ class Abstractor:
         gives the ``mode``, the chosen ``rotation``
         of the canonical frame, the input axes taken as ``up`` and ``front``, the loss of the
         chosen orientation and of the shape as given, and how the up axis was decided.
+        :meth:`search_orientations` finds the same without turning the shapes.
         """
+        shapes = list(shapes)
+        found = self.search_orientations(shapes, mode, existence_threshold, up_margin=up_margin, chunk=chunk,
+                                         vote_shapes=vote_shapes)
+        turned = [orientation.rotate_prepared(s, orientation.AXIS_ROTATIONS[c]) for s, c in zip(shapes, found.choice)]
+        return turned, found.reports
+
+    def search_orientations(self, shapes, mode: str = "auto", existence_threshold: float = 0.5, *,
+                            up_margin: float | None = None, chunk: int = 16, vote_shapes: int = 24,
+                            answers: bool = False) -> OrientationSearch:
+        """The orientation :meth:`orient` finds for each shape, without turning the shapes
+        (:class:`OrientationSearch`; the same arguments). With ``answers``, also the network's raw
+        answer for each shape in its chosen orientation, taken from the search's own forward pass
+        (what :func:`primkit.model.adaptation.adapt` pulls toward): nothing is run twice."""
         shapes = list(shapes)
         margin = orientation.UP_MARGIN if up_margin is None else float(up_margin)
         rotations = orientation.AXIS_ROTATIONS
@@ -369,7 +461,9 @@ class Abstractor:
         if mode == "auto":
             sample = np.unique(np.linspace(0, len(shapes) - 1, min(vote_shapes, len(shapes))).round().astype(int))
             everything = np.arange(len(rotations))
-            sample_losses = self._candidate_losses([shapes[i] for i in sample], everything, existence_threshold, chunk)
+            candidates = everything
+            sample_losses, sample_raw = self._score_candidates([shapes[i] for i in sample], everything,
+                                                               existence_threshold, chunk, keep_raw=answers)
             picks = [orientation.choose_orientation(row, everything, "auto", margin) for row in sample_losses]
             ups = [tuple(rotations[k][1]) for k in picks]
             common = max(set(ups), key=ups.count)
@@ -379,8 +473,13 @@ class Abstractor:
             losses = np.empty((len(shapes), len(everything)))
             losses[sample] = sample_losses
             rest = np.setdiff1d(np.arange(len(shapes)), sample)
+            order = sample
+            raw = [sample_raw]
             if len(rest):
-                losses[rest] = self._candidate_losses([shapes[i] for i in rest], everything, existence_threshold, chunk)
+                losses[rest], rest_raw = self._score_candidates([shapes[i] for i in rest], everything,
+                                                                existence_threshold, chunk, keep_raw=answers)
+                order = np.concatenate([sample, rest])
+                raw.append(rest_raw)
             choice = [orientation.choose_orientation(row, everything, "auto", margin, up=expected) for row in losses]
             loss = [float(losses[i, c]) for i, c in enumerate(choice)]
             as_given = [float(row[0]) for row in losses]
@@ -393,19 +492,26 @@ class Abstractor:
                     up_decided[i] = f"shape: lying down against the collection's ({agree} of {len(ups)} sampled shapes)"
         else:
             candidates = orientation.candidate_rotations(mode)
-            losses = self._candidate_losses(shapes, candidates, existence_threshold, chunk)
+            losses, raw = self._score_candidates(shapes, candidates, existence_threshold, chunk, keep_raw=answers)
+            raw, order = [raw], np.arange(len(shapes))
             choice = [orientation.choose_orientation(row, candidates, mode, margin) for row in losses]
             rows = {int(c): i for i, c in enumerate(candidates)}
             loss = [float(losses[i, rows[c]]) for i, c in enumerate(choice)]
             as_given = [float(row[0]) for row in losses]
-        turned_out, reports = [], []
+        reports = []
         for i, s in enumerate(shapes):
-            chosen = orientation.rotate_prepared(s, rotations[choice[i]])
-            turned_out.append(chosen)
-            axes = orientation.describe_rotation(chosen.frame.rotation)
+            axes = orientation.describe_rotation(rotations[choice[i]] @ s.frame.rotation)
             reports.append(Alignment(mode, rotations[choice[i]].copy(), axes.up, axes.front, up_decided[i], loss[i],
                                      as_given[i]))
-        return turned_out, reports
+        chosen = None
+        if answers:  # each shape's row of its chosen candidate, in the shapes' order
+            column = {int(c): j for j, c in enumerate(candidates)}
+            where = np.empty(len(shapes), int)
+            where[order] = np.arange(len(order))
+            pick = (where, np.array([column[int(c)] for c in choice], int))
+            chosen = RawCuboids(**{key: np.concatenate([r.arrays()[key] for r in raw])[pick]
+                                   for key in RawCuboids.__dataclass_fields__})
+        return OrientationSearch(np.asarray(choice, int), reports, chosen)
 
     def predict(
         self,

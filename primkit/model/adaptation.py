@@ -251,7 +251,10 @@ def _steps(net, data, optimizer, generator, baseline, weights, parsimony, parent
 def _frames_and_answers(model, shapes, align, chunk: int, want_answers: bool):
     """The rotation :meth:`Abstractor.orient` chooses for each shape (``chunk`` shapes decoded at a
     time; ``"auto"`` votes its expected up axis within each chunk), the parent's answers on the
-    turned shapes (one forward pass each, evaluation mode) and the collection's digest."""
+    turned shapes and the collection's digest. The answers are the search's own forward pass of
+    each chosen turn (:meth:`Abstractor.search_orientations` with ``answers``: the turned grid is
+    the network's input, so running it again gave the same answer); with no search, one forward
+    pass per shape, in evaluation mode."""
     count = len(shapes)
     rotations = np.empty((count, 3, 3))
     digest = hashlib.sha256()
@@ -266,19 +269,21 @@ def _frames_and_answers(model, shapes, align, chunk: int, want_answers: bool):
                 digest.update(np.packbits(np.asarray(s.occupancy, bool)).tobytes())
             if align in (None, "none"):
                 rotations[lo:lo + len(block)] = np.eye(3)
-                turned = block
+                if want_answers:
+                    occ = torch.from_numpy(np.stack([s.occupancy for s in block]).astype(np.float32)).unsqueeze(1)
+                    with torch.no_grad():
+                        ref = net(occ.to(next(net.parameters()).device))
+                    t.append(ref.translations.cpu())
+                    z.append(ref.half_extents.cpu())
+                    p.append(ref.existence.cpu())
             else:
-                turned, reports = model.orient(block, align)
-                rotations[lo:lo + len(block)] = [np.asarray(r.rotation, float) for r in reports]
-            if want_answers:
-                occ = torch.from_numpy(np.stack([s.occupancy for s in turned]).astype(np.float32)).unsqueeze(1)
-                device = next(net.parameters()).device
-                with torch.no_grad():
-                    ref = net(occ.to(device))
-                t.append(ref.translations.cpu())
-                z.append(ref.half_extents.cpu())
-                p.append(ref.existence.cpu())
-            del block, turned
+                found = model.search_orientations(block, align, answers=want_answers)
+                rotations[lo:lo + len(block)] = orientation.AXIS_ROTATIONS[found.choice]
+                if want_answers:  # float32 network outputs held as float64: exact both ways
+                    t.append(torch.from_numpy(found.answers.translations.astype(np.float32)))
+                    z.append(torch.from_numpy(found.answers.half_extents.astype(np.float32)))
+                    p.append(torch.from_numpy(found.answers.existence.astype(np.float32)))
+            del block
     finally:
         net.train(was_training)
     answers = _ParentAnswers(torch.cat(t), torch.cat(z), torch.cat(p)) if want_answers else None

@@ -201,6 +201,25 @@ def _source_cells_cached(res: int, rotation: tuple) -> tuple:
     return out
 
 
+def source_index(res: int, rotation) -> np.ndarray:
+    """(R^3,) int: the flat (C-order) index of the old cell whose value lands in each new cell
+    under an axis rotation (:func:`_source_cells` flattened; cached, read-only): ``grids.reshape(s,
+    -1)[:, source_index(R, a)]`` turns ``s`` grids at once, as :func:`rotate_grid` turns one."""
+    a = np.asarray(rotation, float)
+    if not np.array_equal(a, np.rint(a)):
+        i, j, k = _cells(int(res), a)
+        return (i * res + j) * res + k
+    return _source_index_cached(int(res), tuple(a.astype(int).ravel()))
+
+
+@functools.lru_cache(maxsize=64)
+def _source_index_cached(res: int, rotation: tuple) -> np.ndarray:
+    i, j, k = _source_cells_cached(res, rotation)
+    out = (i * res + j) * res + k
+    out.flags.writeable = False
+    return out
+
+
 def rotate_grid(grid: np.ndarray, rotation) -> np.ndarray:
     """A cubic ``(R, R, R, ...)`` grid turned by an axis rotation of the canonical frame (cell values
     move with their cell centres, exactly): what :func:`rotate_prepared` does to the occupancy."""
