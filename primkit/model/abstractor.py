@@ -363,7 +363,7 @@ class Abstractor:
 
     def _score_candidates(self, shapes, candidates, existence_threshold: float, chunk: int, *,
                           points: int = ORIENTATION_POINTS, samples_per_cuboid: int = ORIENTATION_SAMPLES,
-                          keep_raw: bool = False):
+                          keep_raw: bool = False, draws: dict | None = None):
         """``(losses, raw)``: (s, k) fit losses of every shape turned by every candidate rotation,
         and (with ``keep_raw``, else None) the network's raw answers, (s, k, m, ...) arrays.
 
@@ -379,7 +379,8 @@ class Abstractor:
         passes, the same arithmetic per part, the same random samples
         (``tests/model/test_orientation.py`` compares the two). Written as arrays because that
         way spent most of the frame search copying each distance grid ``k`` times and building
-        ``s k`` cuboid objects (docs/adaptation.md).
+        ``s k`` cuboid objects (docs/adaptation.md). ``draws``: a dict kept across calls for the
+        losses' random samples (:func:`~primkit.model.fitting.fit_losses_of_sets`).
         """
         import torch
 
@@ -388,6 +389,7 @@ class Abstractor:
         rotations = orientation.AXIS_ROTATIONS[candidates]  # A: the turn; its cuboids come back by A^T
         out = np.empty((len(shapes), k))
         kept = []
+        draws = {} if draws is None else draws  # the losses' random samples: the same for every chunk
         rng = np.random.default_rng(0)
         for start in range(0, len(shapes), chunk):
             block = shapes[start : start + chunk]
@@ -410,7 +412,7 @@ class Abstractor:
                 pick = rng.choice(len(s.points), min(points, len(s.points)), replace=False)
                 scored.append(_Scored(s.closest, s.points[pick]))
             out[start : start + b] = fit_losses_of_sets(half, quats, trans, exist, scored,
-                                                        samples_per_cuboid=samples_per_cuboid).total
+                                                        samples_per_cuboid=samples_per_cuboid, draws=draws).total
             if keep_raw:
                 kept.append(RawCuboids(**{key: v.reshape((b, k) + v.shape[1:]) for key, v in raw.arrays().items()}))
         raw = None
@@ -462,8 +464,10 @@ class Abstractor:
             sample = np.unique(np.linspace(0, len(shapes) - 1, min(vote_shapes, len(shapes))).round().astype(int))
             everything = np.arange(len(rotations))
             candidates = everything
+            draws: dict = {}
             sample_losses, sample_raw = self._score_candidates([shapes[i] for i in sample], everything,
-                                                               existence_threshold, chunk, keep_raw=answers)
+                                                               existence_threshold, chunk, keep_raw=answers,
+                                                               draws=draws)
             picks = [orientation.choose_orientation(row, everything, "auto", margin) for row in sample_losses]
             ups = [tuple(rotations[k][1]) for k in picks]
             common = max(set(ups), key=ups.count)
@@ -477,7 +481,8 @@ class Abstractor:
             raw = [sample_raw]
             if len(rest):
                 losses[rest], rest_raw = self._score_candidates([shapes[i] for i in rest], everything,
-                                                                existence_threshold, chunk, keep_raw=answers)
+                                                                existence_threshold, chunk, keep_raw=answers,
+                                                                draws=draws)
                 order = np.concatenate([sample, rest])
                 raw.append(rest_raw)
             choice = [orientation.choose_orientation(row, everything, "auto", margin, up=expected) for row in losses]

@@ -16,7 +16,6 @@ Inputs and outputs are NumPy (:class:`primkit.primitives.Cuboids`); torch stays 
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -110,15 +109,20 @@ def fit_losses(cuboids, shapes, *, samples_per_cuboid: int = 300, points: int = 
     return FitLosses(cov, cons, cov + cons)
 
 
-@functools.lru_cache(maxsize=2)
-def _coefficients(seed: int, sets: int, m: int, samples: int) -> torch.Tensor:
+def _coefficients(seed: int, sets: int, m: int, samples: int, draws: dict | None) -> torch.Tensor:
     """The cuboid surface coefficients :func:`fit_losses` draws for ``sets`` cuboid sets of ``m``
-    parts (:func:`primkit.primitives.surface_coefficients_torch` on a generator seeded ``seed``):
-    the same for every call of that size, so drawn once (the frame search scores every 16
-    shapes' 24 turns with the same draw; drawing it took a tenth of the search)."""
+    parts (:func:`primkit.primitives.surface_coefficients_torch` on a generator seeded ``seed``),
+    read from ``draws`` when as many sets or more were drawn before (torch's CPU generator fills
+    a tensor in order, so a smaller draw is the first rows of a larger one; tested), else drawn
+    and kept there."""
+    key = (int(seed), int(m), int(samples))
+    if draws is not None and key in draws and len(draws[key]) >= sets:
+        return draws[key][:sets]
     g = torch.Generator().manual_seed(int(seed))
-    uv = torch.rand((sets, m, samples, 2), generator=g, dtype=torch.float32)
-    return 2.0 * uv - 1.0
+    uv = 2.0 * torch.rand((sets, m, samples, 2), generator=g, dtype=torch.float32) - 1.0
+    if draws is not None:
+        draws[key] = uv
+    return uv
 
 
 def _present_first(present: np.ndarray) -> np.ndarray:
@@ -175,7 +179,7 @@ def _present_losses(z, q, t, present, closest, pts, uv, s: int, k: int):
 
 
 def fit_losses_of_sets(half_extents, quaternions, translations, existence, shapes, *,
-                       samples_per_cuboid: int = 300, seed: int = 0) -> FitLosses:
+                       samples_per_cuboid: int = 300, seed: int = 0, draws: dict | None = None) -> FitLosses:
     """:func:`fit_losses` of ``k`` cuboid sets on each of ``s`` shapes, from arrays, each shape's
     distance grid read once for all its sets (what ``align`` scores: a shape's 24 turns).
 
@@ -189,6 +193,11 @@ def fit_losses_of_sets(half_extents, quaternions, translations, existence, shape
         All their surface points are used (the first ``n``, the fewest any of them has).
     samples_per_cuboid, seed : int
         As :func:`fit_losses`.
+    draws : dict, optional
+        Kept by a caller across calls: the random coefficients already drawn for as many sets or
+        more are read from it (they depend on the seed and the sizes only). The frame search
+        scores every 16 shapes' turns with the same draw; drawing it each time took a tenth of the
+        search.
 
     Returns
     -------
@@ -215,7 +224,7 @@ def fit_losses_of_sets(half_extents, quaternions, translations, existence, shape
         closest = torch.from_numpy(np.stack([np.asarray(sh.closest, np.float32) for sh in shapes]))
         pts = torch.from_numpy(np.stack([np.asarray(sh.points[:n], np.float32) for sh in shapes]))
         if kernels("_union_kernels", zt) and kernels("_field_kernels", zt):
-            uv = _coefficients(seed, s * k, m, int(samples_per_cuboid))
+            uv = _coefficients(seed, s * k, m, int(samples_per_cuboid), draws)
             cov, cons = _present_losses(zt, qt, tt, present, closest, pts, uv, s, k)
         else:  # the torch forms (fit_losses's own calls), on the sets as parts of their shape
             g = torch.Generator().manual_seed(seed)

@@ -88,4 +88,14 @@ def test_losses_of_sets_are_fit_losses_of_the_list_bit_for_bit():
                 fitting.kernels = saved
         for name in ("coverage", "consistency", "total"):
             np.testing.assert_array_equal(getattr(got, name), getattr(ref, name).reshape(s, k), err_msg=name)
+    draws = {}  # the random coefficients kept by the caller: read back, a smaller call's as the first rows
+    for _ in range(2):
+        got = fitting.fit_losses_of_sets(z, unit, t, e, shapes, samples_per_cuboid=60, seed=3, draws=draws)
+        np.testing.assert_array_equal(got.total, ref.total.reshape(s, k))
+    small = fit_losses(cubs[:2 * k], [sh for sh in shapes[:2] for _ in range(k)], points=0, samples_per_cuboid=60,
+                       seed=3)
+    got = fitting.fit_losses_of_sets(z[:2], unit[:2], t[:2], e[:2], shapes[:2], samples_per_cuboid=60, seed=3,
+                                     draws=draws)
+    np.testing.assert_array_equal(got.total, small.total.reshape(2, k))
+    assert len(draws) == 1 and len(next(iter(draws.values()))) == s * k
     assert np.all(ref.total.reshape(s, k)[2] > 50)  # no part at all: the absence term, as fit_losses has it
