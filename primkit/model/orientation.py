@@ -51,7 +51,7 @@ ALIGN_MODES = {
     "front": "the 4 turns about the up axis; the one the model explains best",
     "auto": "the 4 turns about the up axis (+Y, or the collection's when two thirds of it agree), and another "
     "up axis only when the shape is clearly lying down (the best orientation with another up axis explained "
-    "with under `up_margin` of the best upright loss)",
+    "with under `up_margin` of the best upright loss; so all 24 are scored)",
     "any": "all 24 axis-aligned orientations; the one the model explains best",
 }
 
