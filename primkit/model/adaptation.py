@@ -591,6 +591,10 @@ def adapt(model, shapes, config: AdaptConfig = AdaptConfig(), *, align: str | No
     finally:
         model.network.train(was_training)
     meta = copy.deepcopy(model.metadata)
+    # the parent's semantic labeller (its tensors live in the parent's file, fitted on the parent's
+    # features) does not come along: without this, a saved child named a labeller it lacked and
+    # Segmenter(path) refused the file
+    meta.pop("labeller", None)
     meta["adaptation"] = {
         "parent": parent_name or meta.get("name") or "unnamed",
         "parent_adaptation": model.metadata.get("adaptation"),

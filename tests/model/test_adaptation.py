@@ -277,5 +277,8 @@ def test_the_command_writes_an_adapted_model_and_never_overwrites(parent, tmp_pa
     assert main(args) == 0
     info = Abstractor.load(out).metadata["adaptation"]
     assert info["shapes"] == 2 and info["config"]["steps"] == 2 and info["parent"] == "chair"
+    from primkit.segmentation import Segmenter
+
+    assert Segmenter(out).abstractor.metadata["adaptation"]["digest"] == info["digest"]  # the file segments
     assert main(args) != 0  # the output exists: refused without --force
     assert "exists" in capsys.readouterr().err
