@@ -324,7 +324,7 @@ def _refit(z, q, t, present, pts, closest, weights, config):
 #: Adam's rate for the re-fits of :func:`_leave_one_out` (units: the shape's longest side is 1).
 LEAVE_ONE_OUT_RATE = 0.01
 #: A part is re-fitted without it only when the hand-over alone costs less than this many times the
-#: shape's fit loss; above, it is kept (a chair's legs cost 2.6-4.2 times, its back 10-15 times,
+#: shape's fit loss; above, it is kept (a chair's legs cost 2.6-4.2 times, its back 7-15 times,
 #: a stool's back-slab 0.06-1.05 times, on the procedural shapes of the test).
 LEAVE_ONE_OUT_DOUBT = 2.0
 
@@ -343,8 +343,9 @@ def _leave_one_out(answers, data, weights, config) -> tuple[_ParentAnswers, np.n
        as they do the answer with it). Only parts whose worth after the hand-over alone is below
        :data:`LEAVE_ONE_OUT_DOUBT` times the shape's fit loss are re-fitted (the others are kept: a
        chair's back or legs cost several times the shape's loss to hand over);
-    3. of the parts worth less than ``config.leave_one_out``, the one nearest to the fewest samples is
-       removed, and the others are judged again, at most ``leave_one_out_rounds`` times.
+    3. of the parts worth less than ``config.leave_one_out`` times the shape's re-fitted loss, the
+       one nearest to the fewest samples is removed (with its heirs' re-fitted cuboids), and the
+       others are judged again, at most ``leave_one_out_rounds`` times.
 
     In the returned targets a removed part has existence 0 and the shape's cuboids are the re-fitted
     ones; shapes without a removal are untouched. Also returns (s,) the parts removed a shape.
