@@ -40,7 +40,7 @@ def parse_setting(text: str) -> AdaptConfig:
         key, _, value = item.partition("=")
         if key not in fields:
             raise ValueError(f"{key!r} is not a setting of AdaptConfig ({', '.join(fields)})")
-        kind = {"int": int, "float": float, "str": str}[str(fields[key])]
+        kind = {"int": int, "float": float, "str": str}[str(fields[key]).split(" | ")[0]]
         values[key] = kind(value)
     return AdaptConfig(**values)
 
