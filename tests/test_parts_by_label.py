@@ -136,3 +136,36 @@ def test_embed_parts_by_label_and_by_index(armed_chairs, tmp_path):
     results = abstract_shapes(paths, "chair").results
     want = PartDescriptor("12", "presence").fit(results).transform(results)
     np.testing.assert_allclose(np.load(out2 / "descriptors.npy"), want)
+
+
+def test_edit_scale_by_label_edits_the_cuboids_mostly_of_that_label(armed_chairs, tmp_path, capsys):
+    """``edit --scale seat=1.2`` with the chair model's labeller: the cuboids edited are those whose
+    faces (nearest cuboid) are mostly seat by the procedural chair's own labels."""
+    from primkit import io
+    from primkit.model.abstraction import abstract_shapes
+
+    folder, paths = armed_chairs
+    path = paths[0]
+    info = json.loads(path.with_suffix(".json").read_text())
+    mesh = io.read_mesh(path)
+    faces = io.read_labels(path.with_suffix(".seg"), len(mesh.faces))
+    groups = np.array([info["part_groups"][n] for n in info["part_names"]])[faces]
+    a = abstract_shapes([path], "chair")[0]
+    centroids = a.result.frame.to_canonical(mesh.vertices[mesh.faces].mean(axis=1))
+    index = primitives.assign_points(centroids, a.result.canonical)
+    seat = set()
+    for k in np.unique(index):
+        g, c = np.unique(groups[index == k], return_counts=True)
+        if g[np.argmax(c)] == "seat":
+            seat.add(int(k))
+    assert seat
+    out = tmp_path / "edited.ply"
+    assert main(["edit", str(path), "--model", "chair", "--scale", "seat=1.2", "-o", str(out)]) == 0
+    report = json.loads(out.with_suffix(".json").read_text())
+    edited = {int(key.split("[")[1].rstrip("]")) for key in report["edits"]["scale"]}
+    assert edited == seat
+    # an index still selects that index
+    out2 = tmp_path / "edited2.ply"
+    k = min(seat)
+    assert main(["edit", str(path), "--model", "chair", "--scale", f"{k}=1.2", "-o", str(out2)]) == 0
+    assert [int(key.split("[")[1].rstrip("]")) for key in json.loads(out2.with_suffix(".json").read_text())["edits"]["scale"]] == [k]
