@@ -158,3 +158,24 @@ def test_brush_paints_where_the_mouse_presses(chair):
     assert np.allclose(p.camera.position, camera)
     ctl.key("Tab")
     assert not ctl.brush_on
+
+
+def test_typing_a_name_runs_no_single_key_command(chair):
+    """In labelling mode the window's keys type: q, e, w, s, r, v (quit, exit, wireframe, surface,
+    reset camera, isometric in VTK and pyvista) only add to the name."""
+    folder, path, a, model, groups = chair
+    viewer = abstraction_viewer(a.vertices, a.faces, a.cuboids, model.part_names, off_screen=True,
+                                window_size=(320, 240), label_to=folder / "unused.seg")
+    p = viewer.plotter
+    p.render()
+    inter = p.iren.interactor
+    camera = p.camera.position
+    for ch in "qewsrv3":
+        inter.SetEventInformation(5, 5, 0, 0, ch, 0, ch)
+        inter.InvokeEvent("KeyPressEvent")
+        inter.InvokeEvent("CharEvent")
+    inter.SetEventInformation(5, 5, 0, 0, "\b", 0, "BackSpace")
+    inter.InvokeEvent("KeyPressEvent")
+    assert viewer.labelling.typed == "qewsrv"
+    assert not p._closed and np.allclose(p.camera.position, camera)
+    assert all(a.GetProperty().GetRepresentation() == 2 for a in viewer.part_actors.values())  # still surfaces
