@@ -46,7 +46,7 @@ def labelled_voxels(labeller, occupancy, canonical) -> tuple[np.ndarray, np.ndar
     labeller : :class:`primkit.segmentation.labeller.Labeller`
     occupancy : (R, R, R) bool
         The grid in the canonical frame (:meth:`primkit.model.abstraction.Abstraction.canonical_shape`'s
-        ``occupancy``: cell centres at :func:`primkit.geometry.grid_centres`).
+        ``occupancy``: cell centres at :func:`primkit.geometry.grids.grid_centres`).
     canonical : primkit.primitives.Cuboids, the shape's canonical cuboids
 
     Returns
