@@ -91,6 +91,9 @@ def _view_abstraction(args, off, size) -> int:
         return 2
     s = shapes[0]
     label_to = getattr(args, "label_to", None)
+    if getattr(args, "label_from", None) is not None and label_to is None:
+        err("--label-from starts a labelling: give --label-to as well (it may be the same file, with --force)")
+        return 2
     if label_to is not None:
         from ..segmentation.handlabels import label_suffix
 
@@ -100,7 +103,8 @@ def _view_abstraction(args, off, size) -> int:
                 f"<stem>{want}")
             return 2
     viewer = abstraction_viewer(s.vertices, s.faces, s.cuboids, model.part_names, title=s.name, off_screen=off,
-                                window_size=size, label_to=label_to, overwrite=args.force, source=args.shape)
+                                window_size=size, label_to=label_to, overwrite=args.force, source=args.shape,
+                                label_from=getattr(args, "label_from", None))
     if args.select is not None:
         viewer.select(args.select)
     elif viewer.part_actors:
@@ -235,6 +239,9 @@ def register(subparsers) -> None:
                    help="label by hand (docs/labeller.md): click a cuboid, type a name, Enter; Tab paints with a brush; "
                    "Ctrl+Z undoes, Ctrl+S writes PATH (a mesh: <stem>.seg, a point cloud: <stem>.labels.npy) and "
                    "<stem>.names.json beside it, which name-parts reads")
+    q.add_argument("--label-from", default=None, metavar="PATH",
+                   help="with --label-to: start from this label file (and its <stem>.names.json), e.g. to go on "
+                   "with an earlier labelling (--label-to the same file needs --force)")
     _options(q)
     q = add_command(sub, "collection", help="a grid of shapes, parts coloured alike; mesh / cuboids / segmentation",
         description="A grid of shapes with parts coloured alike on every shape; switch between the mesh, the cuboids and the segmentation.",

@@ -139,6 +139,33 @@ class HandLabels:
         mesh = trimesh.Trimesh(np.asarray(vertices, float), np.asarray(faces, np.int64), process=False)
         return cls(mesh.triangles_center, parts, mesh.face_adjacency)
 
+    def load(self, path) -> "HandLabels":
+        """Start from a label file (a ``.seg`` or ``.labels.npy`` with one integer per element): its
+        names from the names file beside it (:func:`read_label_names`), else each value its own
+        name; 0 and values the names file leaves out stay unlabelled. One undoable step; returns
+        ``self``. Raises ValueError (naming the file) when it does not fit the elements."""
+        path = Path(path)
+        if label_suffix(path) == ".seg":
+            raw = io.read_labels(path, len(self.codes))
+        else:
+            try:
+                raw = np.load(path, allow_pickle=False)
+            except (OSError, ValueError) as exc:
+                raise ValueError(f"{path}: not a NumPy label array ({exc})") from None
+            if raw.shape != self.codes.shape or raw.dtype.kind not in "iu":
+                raise ValueError(f"{path}: expected ({len(self.codes)},) integers, got {raw.dtype} {raw.shape}")
+        meaning = read_label_names(path)
+        codes = np.zeros(len(self.codes), np.int64)
+        for value in np.unique(raw):
+            name = meaning.get(int(value)) if meaning is not None else (str(value) if value != 0 else None)
+            if name is not None:
+                codes[raw == value] = self._code(name)
+        changed = np.flatnonzero(codes != self.codes)
+        if len(changed):
+            self._history.append(_Step(changed, self.codes[changed].copy()))
+            self.codes[changed] = codes[changed]
+        return self
+
     # ---- naming ---------------------------------------------------------------------------------
 
     def _code(self, name: str) -> int:

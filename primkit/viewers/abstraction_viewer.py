@@ -379,7 +379,7 @@ def _wire_labelling_events(p, ctl: LabellingControls) -> None:
 
 def abstraction_viewer(vertices, faces, cuboids, names=None, *, title: str = "", opacity: float = 0.6,
                        off_screen: bool = False, window_size=(1024, 768), label_to=None, overwrite: bool = False,
-                       source=None) -> AbstractionViewer:
+                       source=None, label_from=None) -> AbstractionViewer:
     """Build the viewer for one shape.
 
     Parameters
@@ -391,7 +391,8 @@ def abstraction_viewer(vertices, faces, cuboids, names=None, *, title: str = "",
         Labelling mode (:class:`LabellingControls`, ``viewer.labelling``): the label file saving
         writes, ``<stem>.seg`` for a mesh, ``<stem>.labels.npy`` for a point cloud (``faces``
         empty), with ``<stem>.names.json`` beside it; ``overwrite`` lets it replace existing files;
-        ``source`` (the shape's file) is recorded in the names file.
+        ``source`` (the shape's file) is recorded in the names file; ``label_from``: a label file
+        to start from (:meth:`primkit.segmentation.handlabels.HandLabels.load`).
     """
     names = list(names) if names is not None else default_part_names(cuboids.count)
     p = common.new_plotter(off_screen, window_size, f"primkit - {title or 'abstraction'}")
@@ -427,7 +428,12 @@ def abstraction_viewer(vertices, faces, cuboids, names=None, *, title: str = "",
     apply_camera(p, bounds.mean(0), 0.5 * np.linalg.norm(bounds[1] - bounds[0]))
     common.on_click(p, viewer.pick_at)
     if label_to is not None:
-        _add_labelling(viewer, vertices, faces, window_size, label_to=Path(label_to), overwrite=overwrite,
-                       source=source)
+        ctl = _add_labelling(viewer, vertices, faces, window_size, label_to=Path(label_to), overwrite=overwrite,
+                             source=source)
+        if label_from is not None:
+            ctl.labels.load(label_from)
+            ctl.current = ctl.labels.names[-1] if ctl.labels.names else None
+            ctl.message = f"started from {Path(label_from).name}"
+            ctl.refresh()
     return viewer
 

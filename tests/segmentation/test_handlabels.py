@@ -114,3 +114,21 @@ def test_point_labels_and_bad_names_file(tmp_path):
         read_label_names(path)
     with pytest.raises(ValueError, match="<stem>.seg"):
         h.save(tmp_path / "cloud.txt")
+
+
+def test_load_goes_on_from_a_saved_file(tmp_path, plates):
+    v, f, parts = plates
+    h = HandLabels.for_mesh(v, f, parts)
+    h.assign_part(1, "top")
+    h.paint([0.5, 0.5, 0.0], 0.2, "middle", start=int(np.argmin(np.linalg.norm(h.points - [0.5, 0.5, 0], axis=1))))
+    seg, _ = h.save(tmp_path / "plates.seg")
+    again = HandLabels.for_mesh(v, f, parts).load(seg)
+    assert again.names == h.used_names()
+    np.testing.assert_array_equal(again.saved_codes()[0], h.saved_codes()[0])
+    assert again.undo() and not again.codes.any()  # loading is one step
+    # without a names file each value is its own name; 0 stays unlabelled
+    io.write_labels(tmp_path / "raw.seg", np.where(parts == 1, 7, 0))
+    raw = HandLabels.for_mesh(v, f, parts).load(tmp_path / "raw.seg")
+    assert raw.names == ["7"] and raw.counts() == {"7": int((parts == 1).sum())}
+    with pytest.raises(ValueError, match="faces"):
+        HandLabels.for_mesh(v[:-3], f[:10], parts[:10]).load(seg)

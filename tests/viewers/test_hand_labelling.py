@@ -121,6 +121,10 @@ def test_view_abstraction_label_to_cli(chair, tmp_path, capsys):
     label.write_text("1\n")
     assert main(args + ["--label-to", str(label), "--png", str(tmp_path / "v2.png")]) != 0  # never over a file
     assert "exists" in capsys.readouterr().err and label.read_text() == "1\n"
+    # starting from a label file that does not fit the mesh: one line naming it
+    assert main(args + ["--label-to", str(label), "--label-from", str(label), "--force", "--png", str(png)]) != 0
+    assert f"{label}" in capsys.readouterr().err
+    assert main(args + ["--label-from", str(label), "--png", str(png), "--force"]) == 2
 
 
 def test_brush_paints_where_the_mouse_presses(chair):
