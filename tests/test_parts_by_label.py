@@ -127,6 +127,16 @@ def test_embed_parts_by_label_and_by_index(armed_chairs, tmp_path):
     X = np.load(out / "descriptors.npy")
     assert X.shape == (len(paths), 1)
     assert ((X[:, 0] > 0) == has).mean() >= 0.8
+    # similar: from a chair whose arms are found, the nearest by arms are chairs with arms
+    query = next(p for p, x, h in zip(paths, X[:, 0], has) if x > 0 and h)
+    sim = tmp_path / "sim"
+    assert main(["similar", str(query), str(folder), "--model", "chair", "--parts", "arms", "--what", "presence",
+                 "-k", "3", "-o", str(sim), "-q"]) == 0
+    import csv
+
+    rows = list(csv.DictReader((sim / "similar.csv").open()))
+    by_name = {p.stem: h for p, h in zip(paths, has)}
+    assert len(rows) == 3 and all(by_name[r["name"]] for r in rows)
     # an index keeps the index-based descriptor: the same numbers as PartDescriptor on index 12
     out2 = tmp_path / "index"
     assert main(["embed", str(folder), "--model", "chair", "--parts", "12", "--what", "presence", "-o", str(out2),
