@@ -104,6 +104,7 @@ def _view_abstraction(args, off, size) -> int:
             return 2
     viewer = abstraction_viewer(s.vertices, s.faces, s.cuboids, model.part_names, title=s.name, off_screen=off,
                                 window_size=size, label_to=label_to, overwrite=args.force, source=args.shape,
+                                opacity=0.6 if label_to is None else 0.35,  # labelling: the names show through
                                 label_from=getattr(args, "label_from", None))
     if args.select is not None:
         viewer.select(args.select)
