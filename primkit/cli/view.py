@@ -91,9 +91,23 @@ def _view_abstraction(args, off, size) -> int:
         return 2
     s = shapes[0]
     label_to = getattr(args, "label_to", None)
-    if getattr(args, "label_from", None) is not None and label_to is None:
-        err("--label-from starts a labelling: give --label-to as well (it may be the same file, with --force)")
+    if (getattr(args, "label_from", None) is not None or getattr(args, "label_guess", False)) and label_to is None:
+        err("--label-from and --label-guess start a labelling: give --label-to as well")
         return 2
+    guess = None
+    if getattr(args, "label_guess", False):
+        if args.label_from is not None:
+            err("--label-from or --label-guess: one start, not both")
+            return 2
+        from ..model.bundled import resolve_model
+        from ..segmentation.bylabel import labelled_surface
+        from ..segmentation.labeller import read_labeller
+
+        labeller = read_labeller(resolve_model(args.model))
+        if labeller is None:
+            err(f"--label-guess: the model {args.model} has no labeller (primkit name-parts learns one)")
+            return 2
+        guess = (labelled_surface(labeller, s.vertices, s.faces, s.result), list(labeller.names))
     if label_to is not None:
         from ..segmentation.handlabels import label_suffix
 
@@ -105,7 +119,7 @@ def _view_abstraction(args, off, size) -> int:
     viewer = abstraction_viewer(s.vertices, s.faces, s.cuboids, model.part_names, title=s.name, off_screen=off,
                                 window_size=size, label_to=label_to, overwrite=args.force, source=args.shape,
                                 opacity=0.6 if label_to is None else 0.35,  # labelling: the names show through
-                                label_from=getattr(args, "label_from", None))
+                                label_from=getattr(args, "label_from", None), label_guess=guess)
     if args.select is not None:
         viewer.select(args.select)
     elif viewer.part_actors:
@@ -243,6 +257,8 @@ def register(subparsers) -> None:
     q.add_argument("--label-from", default=None, metavar="PATH",
                    help="with --label-to: start from this label file (and its <stem>.names.json), e.g. to go on "
                    "with an earlier labelling (--label-to the same file needs --force)")
+    q.add_argument("--label-guess", action="store_true",
+                   help="with --label-to: start from the model's labeller's labels, to correct them")
     _options(q)
     q = add_command(sub, "collection", help="a grid of shapes, parts coloured alike; mesh / cuboids / segmentation",
         description="A grid of shapes with parts coloured alike on every shape; switch between the mesh, the cuboids and the segmentation.",

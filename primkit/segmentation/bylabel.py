@@ -19,9 +19,9 @@ from __future__ import annotations
 import numpy as np
 
 from .. import geometry, io
-from .labeller import grid_elements, label_elements
+from .labeller import grid_elements, label_elements, mesh_elements, point_elements
 
-__all__ = ["by_label", "labelled_voxels"]
+__all__ = ["by_label", "labelled_voxels", "labelled_surface"]
 
 
 def by_label(spec, label_names) -> list | None:
@@ -61,3 +61,15 @@ def labelled_voxels(labeller, occupancy, canonical) -> tuple[np.ndarray, np.ndar
     identity = geometry.CanonicalFrame(np.eye(3), np.zeros(3), 1.0)
     elements, _ = grid_elements(grid, identity)
     return elements.points, label_elements(labeller, elements, canonical)
+
+
+def labelled_surface(labeller, vertices, faces, result) -> np.ndarray:
+    """``(f,) int``: each face of a mesh (or each point of a cloud, ``faces`` empty) named by
+    ``labeller`` (indices into ``labeller.names``; -1 none), in the frame of the shape's
+    abstraction ``result`` (its ``frame`` and ``canonical`` cuboids). What ``primkit view abstraction
+    --label-guess`` starts from."""
+    if len(faces):
+        elements = mesh_elements(vertices, faces, result.frame)
+    else:
+        elements = point_elements(vertices, result.frame)
+    return label_elements(labeller, elements, result.canonical)

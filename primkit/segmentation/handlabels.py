@@ -155,11 +155,19 @@ class HandLabels:
             if raw.shape != self.codes.shape or raw.dtype.kind not in "iu":
                 raise ValueError(f"{path}: expected ({len(self.codes)},) integers, got {raw.dtype} {raw.shape}")
         meaning = read_label_names(path)
-        codes = np.zeros(len(self.codes), np.int64)
-        for value in np.unique(raw):
-            name = meaning.get(int(value)) if meaning is not None else (str(value) if value != 0 else None)
-            if name is not None:
-                codes[raw == value] = self._code(name)
+        values = np.unique(raw)
+        names = [meaning.get(int(v)) if meaning is not None else (str(v) if v != 0 else None) for v in values]
+        return self.start_from(np.searchsorted(values, raw), names)
+
+    def start_from(self, labels, names) -> "HandLabels":
+        """Give every element a name at once (one undoable step): ``labels`` ``(n,) int`` indices
+        into ``names`` (negative, or a None name: unlabelled), e.g. a labeller's guess to correct.
+        Returns ``self``."""
+        labels = np.asarray(labels, np.int64)
+        if labels.shape != self.codes.shape:
+            raise ValueError(f"`labels` must be ({len(self.codes)},) int, one per element, got shape {labels.shape}")
+        table = np.array([0 if n is None else self._code(n) for n in names] + [0], np.int64)
+        codes = table[np.where((labels >= 0) & (labels < len(names)), labels, len(names))]
         changed = np.flatnonzero(codes != self.codes)
         if len(changed):
             self._history.append(_Step(changed, self.codes[changed].copy()))

@@ -379,7 +379,7 @@ def _wire_labelling_events(p, ctl: LabellingControls) -> None:
 
 def abstraction_viewer(vertices, faces, cuboids, names=None, *, title: str = "", opacity: float = 0.6,
                        off_screen: bool = False, window_size=(1024, 768), label_to=None, overwrite: bool = False,
-                       source=None, label_from=None) -> AbstractionViewer:
+                       source=None, label_from=None, label_guess=None) -> AbstractionViewer:
     """Build the viewer for one shape.
 
     Parameters
@@ -392,7 +392,9 @@ def abstraction_viewer(vertices, faces, cuboids, names=None, *, title: str = "",
         writes, ``<stem>.seg`` for a mesh, ``<stem>.labels.npy`` for a point cloud (``faces``
         empty), with ``<stem>.names.json`` beside it; ``overwrite`` lets it replace existing files;
         ``source`` (the shape's file) is recorded in the names file; ``label_from``: a label file
-        to start from (:meth:`primkit.segmentation.handlabels.HandLabels.load`).
+        to start from (:meth:`primkit.segmentation.handlabels.HandLabels.load`); ``label_guess``:
+        ``(labels (n,) int, names)`` to start from instead (a labeller's guess,
+        :meth:`~primkit.segmentation.handlabels.HandLabels.start_from`).
     """
     names = list(names) if names is not None else default_part_names(cuboids.count)
     p = common.new_plotter(off_screen, window_size, f"primkit - {title or 'abstraction'}")
@@ -430,10 +432,13 @@ def abstraction_viewer(vertices, faces, cuboids, names=None, *, title: str = "",
     if label_to is not None:
         ctl = _add_labelling(viewer, vertices, faces, window_size, label_to=Path(label_to), overwrite=overwrite,
                              source=source)
-        if label_from is not None:
-            ctl.labels.load(label_from)
+        if label_from is not None or label_guess is not None:
+            if label_from is not None:
+                ctl.labels.load(label_from)
+            else:
+                ctl.labels.start_from(*label_guess)
             ctl.current = ctl.labels.names[-1] if ctl.labels.names else None
-            ctl.message = f"started from {Path(label_from).name}"
+            ctl.message = f"started from {Path(label_from).name if label_from is not None else 'the labeller'}"
             ctl.refresh()
     return viewer
 

@@ -132,3 +132,15 @@ def test_load_goes_on_from_a_saved_file(tmp_path, plates):
     assert raw.names == ["7"] and raw.counts() == {"7": int((parts == 1).sum())}
     with pytest.raises(ValueError, match="faces"):
         HandLabels.for_mesh(v[:-3], f[:10], parts[:10]).load(seg)
+
+
+def test_start_from_a_guess(plates):
+    v, f, parts = plates
+    h = HandLabels.for_mesh(v, f, parts)
+    guess = np.where(parts == 1, 0, -1)
+    guess[:5] = 2  # a name given as None: unlabelled
+    h.start_from(guess, ["top", "unused", None])
+    assert h.counts() == {"top": int((parts == 1).sum())} and h.names == ["top", "unused"]
+    assert h.undo() and not h.codes.any()
+    with pytest.raises(ValueError, match="one per element"):
+        h.start_from(guess[:-1], ["top"])

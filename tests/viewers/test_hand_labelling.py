@@ -125,6 +125,10 @@ def test_view_abstraction_label_to_cli(chair, tmp_path, capsys):
     assert main(args + ["--label-to", str(label), "--label-from", str(label), "--force", "--png", str(png)]) != 0
     assert f"{label}" in capsys.readouterr().err
     assert main(args + ["--label-from", str(label), "--png", str(png), "--force"]) == 2
+    # starting from the bundled chair labeller's guess
+    assert main(args + ["--label-to", str(tmp_path / "g.seg"), "--label-guess", "--png", str(png), "--force"]) == 0
+    assert main(args + ["--label-to", str(label), "--label-guess", "--label-from", str(label), "--png", str(png),
+                        "--force"]) == 2
 
 
 def test_brush_paints_where_the_mouse_presses(chair):
