@@ -47,8 +47,9 @@ _POINT_LABELS = ".labels.npy"  # evaluation.POINT_LABELS (this module sits below
 
 
 def label_suffix(path) -> str:
-    """``".seg"`` or ``".labels.npy"``: which kind of label file ``path`` names (ValueError else)."""
-    name = Path(path).name
+    """``".seg"`` or ``".labels.npy"``: which kind of label file ``path`` names, whatever the case
+    of its letters (ValueError else)."""
+    name = Path(path).name.lower()
     if name.endswith(_POINT_LABELS):
         return _POINT_LABELS
     if name.endswith(".seg"):
@@ -65,8 +66,12 @@ def names_path(label_path) -> Path:
 
 def read_label_names(label_path) -> dict | None:
     """``{code: name}`` from the names file beside ``label_path`` (:func:`names_path`), or None
-    when there is none. A file that is not such a names file raises ValueError naming it."""
-    path = names_path(label_path)
+    when there is none (or ``label_path`` is no ``.seg`` / ``.labels.npy``). A file that is not
+    such a names file raises ValueError naming it."""
+    try:
+        path = names_path(label_path)
+    except ValueError:
+        return None
     if not path.is_file():
         return None
     try:

@@ -144,3 +144,8 @@ def test_start_from_a_guess(plates):
     assert h.undo() and not h.codes.any()
     with pytest.raises(ValueError, match="one per element"):
         h.start_from(guess[:-1], ["top"])
+
+
+def test_names_file_of_upper_case_and_other_files(tmp_path):
+    assert names_path(tmp_path / "Chair.SEG") == tmp_path / "Chair.names.json"
+    assert read_label_names(tmp_path / "chair.txt") is None
