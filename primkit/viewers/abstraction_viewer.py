@@ -6,6 +6,11 @@ its index, name (the model's ``part_names``) and parameters, and outlines it. Th
 from the camera convention of :mod:`primkit.viz.render`.
 
     primkit view abstraction chair.off --model chair
+    primkit view abstraction chair.off --model chair --label-to labels/chair.seg   # label by hand
+
+With ``label_to`` (``--label-to``) it is also a labelling tool (:class:`LabellingControls`): name the
+faces of a clicked cuboid by typing, paint names with a brush, undo, save a label file that
+``primkit name-parts`` reads.
 """
 
 from __future__ import annotations
