@@ -100,6 +100,7 @@ class AbstractionViewer:
 NAME_CHARS = set("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789-_. ")
 _KEY_CHARS = {"minus": "-", "underscore": "_", "period": ".", "space": " "}
 UNLABELLED = (215, 215, 215)  # the colour of an unlabelled face or point
+ERASER = "-"  # the name that takes names away
 
 
 def label_colors(count: int) -> np.ndarray:
@@ -121,8 +122,9 @@ class LabellingControls:
     checkbox) paints the current name where the left button presses and drags (the camera stays
     still while it paints on the shape). Ctrl+Z undoes the last step, Ctrl+S (or the save button)
     writes the label file and its names file (never over a file it did not write, without
-    ``overwrite``). BackSpace takes a character back, Escape clears the name. The shape is
-    coloured by name (grey: unlabelled).
+    ``overwrite``). BackSpace takes a character back, Escape clears the name; the name ``-``
+    is the eraser (what it is given is unlabelled again). The shape is coloured by name (grey:
+    unlabelled).
     """
 
     viewer: AbstractionViewer
@@ -189,7 +191,7 @@ class LabellingControls:
             self.message = f"brush name: {self.current}" if self.brush_on else "click a cuboid, then Enter"
             self.refresh()
             return 0
-        changed = self.labels.assign_part(k, self.current)
+        changed = self.labels.assign_part(k, self._name())
         self.message = f"part {k} -> {self.current} ({changed} {self._unit()})"
         self.refresh()
         return changed
@@ -232,7 +234,7 @@ class LabellingControls:
 
     def paint(self, centre, start=None) -> int:
         """Paint the current name within the brush radius of ``centre`` (from element ``start``)."""
-        changed = self.labels.paint(centre, self.radius, self.current, start)
+        changed = self.labels.paint(centre, self.radius, self._name(), start)
         if changed:
             self.message = f"painted {changed} {self._unit()} {self.current}"
             self.refresh()
@@ -258,6 +260,10 @@ class LabellingControls:
         return True
 
     # ---- what the window shows ----------------------------------------------------------------
+
+    def _name(self):
+        """The name given: None (unlabelled) for the eraser ``-``."""
+        return None if self.current == ERASER else self.current
 
     def _unit(self) -> str:
         return "faces" if self.labels.adjacency is not None else "points"

@@ -89,6 +89,12 @@ def test_label_by_clicking_cuboids_then_name_parts(chair, tmp_path):
     assert ctl.saved and "saved" in ctl.message
     ctl.key("Return")  # the last name again, on the last cuboid clicked
     ctl.save()
+    k = viewer.selected
+    ctl.type_text("-")
+    ctl.key("Return")  # the eraser
+    assert not ctl.labels.codes[ctl.labels.parts == k].any() and ctl.labels.codes.any()
+    ctl.key("z", "\x1a", ctrl=True)
+    ctl.save()
 
     # name-parts, the library way: the segmenter's part of each face, the hand labels by name
     from primkit.model.parts import names_from_labels
