@@ -101,6 +101,8 @@ __all__ = [
     "CUBOID_COLUMNS",
     "CuboidTable",
     "PartDescriptor",
+    "region_box",
+    "label_boxes",
     "AbstractionTransformer",
     "Neighbors",
     "descriptor_distances",
@@ -251,6 +253,92 @@ class CuboidTable:
     def feature_names(self) -> list[str]:
         """One name per column: ``"<part>.<column>"`` (``"seat.size.x"``, ``"legs3.present"``)."""
         return [f"{label}.{c}" for label in _slot_labels(self.part_names) for c in CUBOID_COLUMNS]
+
+
+def _signed_permutations() -> np.ndarray:
+    """The 24 rotations that permute and flip the axes: ``(24, 3, 3)``."""
+    import itertools
+
+    out = []
+    for perm in itertools.permutations(range(3)):
+        for signs in itertools.product((1.0, -1.0), repeat=3):
+            P = np.zeros((3, 3))
+            P[list(perm), range(3)] = signs
+            if np.linalg.det(P) > 0:
+                out.append(P)
+    return np.array(out)
+
+
+_AXIS_MOVES = _signed_permutations()
+
+
+def region_box(points) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The oriented box of a region's points: ``(half extents (3,), rotation (3, 3), centre (3,))``.
+
+    The axes are the principal axes of the points (the eigenvectors of their covariance), and of
+    the 24 ways to name them (which axis is local x, y, z, and their signs: the same box) the one
+    whose rotation is nearest the identity (largest trace), so a box's local x is the canonical
+    axis nearest it and the rotation is the region's tilt away from the canonical axes (a
+    back leaning 15 degrees is a 15 degree rotation). The box spans the points' projections on
+    these axes; ``centre`` is its centre (not the points' mean). ``rotation`` maps local to
+    canonical coordinates (columns: the local axes). Fewer than 4 points or a flat set still give
+    a box (extents may be 0).
+    """
+    pts = np.asarray(points, float).reshape(-1, 3)
+    mean = pts.mean(axis=0)
+    _, vecs = np.linalg.eigh(np.cov((pts - mean).T) if len(pts) > 1 else np.eye(3))
+    if np.linalg.det(vecs) < 0:
+        vecs[:, 0] = -vecs[:, 0]
+    R = vecs @ _AXIS_MOVES[np.argmax(np.trace(vecs @ _AXIS_MOVES, axis1=1, axis2=2))]
+    local = (pts - mean) @ R
+    lo, hi = local.min(axis=0), local.max(axis=0)
+    return (hi - lo) / 2.0, R, mean + R @ ((hi + lo) / 2.0)
+
+
+def label_boxes(points, labels, label_names, *, min_share: float = 0.01, names=None) -> CuboidTable:
+    """Each labelled region of each shape as a box: a :class:`CuboidTable` with one slot per label,
+    which :class:`PartDescriptor` reads as it reads cuboids (``parts="arms"`` describes the arms
+    the labeller finds on each shape, whichever cuboids hold them).
+
+    Parameters
+    ----------
+    points : list of (n_i, 3) float
+        Per shape, its elements (e.g. occupied voxel centres) in the canonical frame (upright,
+        front +X, longest side 1).
+    labels : list of (n_i,) int
+        Per shape, each element's label, an index into ``label_names`` (negative: none).
+    label_names : sequence of str
+        The slots' names.
+    min_share : float
+        A label is present on a shape when it holds at least this share of the shape's elements
+        and 4 of them (the labeller's own rule drops labels under 1%); an absent label's slot
+        holds a unit box at the centre with ``present`` 0.
+    names : the shapes' names (default ``shape0, ...``).
+
+    Each present label's box is :func:`region_box` of its elements (centres: the box of a voxel
+    region's centres is half a voxel short of the voxels' on each side, on every shape alike).
+    """
+    label_names = [str(n) for n in label_names]
+    if len(points) != len(labels):
+        raise ValueError(f"`points` and `labels` differ in length ({len(points)} and {len(labels)} shapes)")
+    rows = []
+    for pts, lab in zip(points, labels):
+        pts, lab = np.asarray(pts, float).reshape(-1, 3), np.asarray(lab, np.int64)
+        if len(pts) != len(lab):
+            raise ValueError(f"a shape has {len(pts)} points but {len(lab)} labels")
+        row = []
+        for j in range(len(label_names)):
+            mine = lab == j
+            if mine.sum() >= max(4, min_share * len(lab)):
+                z, R, t = region_box(pts[mine])
+                q = primitives.matrix_to_quaternion(R[None])[0]
+                row.append(np.concatenate([z, q, t, [1.0]]))
+            else:
+                row.append(np.array([1.0, 1.0, 1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]))
+        rows.append(np.concatenate(row))
+    if names is None:
+        names = [f"shape{i}" for i in range(len(rows))]
+    return CuboidTable(np.array(rows).reshape(len(rows), -1), tuple(label_names), tuple(names))
 
 
 def _raw_from_table(A: np.ndarray, idx):

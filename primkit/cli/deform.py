@@ -89,6 +89,17 @@ def _labelled_names(labeller, mesh, frame, canonical, fallback) -> list:
                           labeller.names, fallback)
 
 
+def _check_label_held(text: str, names, labeller, shape: str, kind: str) -> None:
+    """A label the labeller knows but no cuboid of this shape holds mostly (arms spread over the
+    legs' and the seat's cuboids): one line saying so, instead of "unknown part"."""
+    from ..segmentation.bylabel import by_label
+
+    missing = [n for n in by_label(text.split("=", 1)[0], labeller.names) or [] if n not in names]
+    if missing:
+        raise ValueError(f"--{kind} {text!r}: no cuboid of {shape} holds mostly {', '.join(missing)} (each cuboid "
+                         f"takes the label the model's labeller gives most of its faces on this shape)")
+
+
 def _source_mesh(path, *, points: bool = False):
     """The source as read: a Mesh, or with ``points`` also a PointCloud (deformed point by point)."""
     from ..io import Mesh, PointCloud, ShapeFileError, read_shape
@@ -251,6 +262,7 @@ def _cmd_edit(args) -> int:
         names = _labelled_names(labeller, _source_mesh(src), shape.frame, res.canonical, names)
         for kind in edits:
             for text in getattr(args, kind) or []:
+                _check_label_held(text, names, labeller, shape.name, kind)
                 edits[kind].update(parse_edit(text, names, kind=kind))
     present = set(res.canonical.present.tolist())
     for kind, chosen in edits.items():

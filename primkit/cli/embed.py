@@ -82,16 +82,64 @@ def _write_csv(path, rows, force):
             csv.writer(fh).writerows(rows)
 
 
-def _describe(args, abstractor, results, grids, queries=None):
+def _describe(args, abstractor, results, grids, queries=None, query_grids=None):
     """Descriptor matrix of the collection (and of extra query results), or None for voxel IoU."""
     from ..embedding import PartDescriptor
 
     if args.metric == "voxel-iou":
         return None, None, None
+    labelled = _label_tables(args, results, grids, queries, query_grids)
+    if labelled is not None:  # --parts names the labeller's labels: each shape's labelled regions
+        table, qtable = labelled
+        desc = PartDescriptor(None, args.what, _scales(args.scale)).fit(table)
+        desc.by_label_ = True
+        return desc, desc.transform(table), (desc.transform(qtable) if qtable is not None else None)
     desc = PartDescriptor(args.parts, args.what, _scales(args.scale), part_names=abstractor.part_names).fit(results)
     X = desc.transform(results)
     Q = desc.transform(queries) if queries else None
     return desc, X, Q
+
+
+def _label_tables(args, results, grids, queries=None, query_grids=None):
+    """With a model labeller and --parts naming only its labels: the boxes of those labels on each
+    shape (:func:`primkit.embedding.label_boxes` of :func:`primkit.segmentation.bylabel.labelled_voxels`),
+    for the collection and the queries; None otherwise (index-based parts)."""
+    from ..embedding import label_boxes
+    from ..model.bundled import resolve_model
+    from ..segmentation.bylabel import by_label, labelled_voxels
+    from ..segmentation.labeller import read_labeller
+
+    if args.parts is None:
+        return None
+    labeller = read_labeller(resolve_model(args.model))
+    chosen = by_label(args.parts, None if labeller is None else labeller.names)
+    if chosen is None:
+        return None
+    keep = [labeller.names.index(n) for n in chosen]
+
+    def table(rs, gs):
+        pts, labs = [], []
+        for r, g in zip(rs, gs):
+            p, lab = labelled_voxels(labeller, g, r.canonical)
+            pts.append(p)
+            labs.append(np.array([keep.index(c) if c in keep else -1 for c in range(len(labeller.names))] + [-1])[lab])
+        return label_boxes(pts, labs, chosen, names=[r.name for r in rs])
+
+    qtable = None
+    if queries:
+        qtable = table(queries, query_grids)
+    return table(results, grids), qtable
+
+
+def _selected(desc):
+    """The part indices the thumbnails colour (None: all; parts by label are no indices)."""
+    return None if desc is None or getattr(desc, "by_label_", False) else desc.parts_
+
+
+def _chosen(args, desc) -> str:
+    if getattr(desc, "by_label_", False):
+        return f"labels {','.join(desc.part_names_)} (each shape's labelled regions)"
+    return f"parts {args.parts or 'all'} ({len(desc.parts_)} indices)"
 
 
 def _picture_path(path):
@@ -143,9 +191,9 @@ def _cmd_embed(args) -> int:
         coords = embedding.tsne_map(X, perplexity=args.perplexity, random_state=args.seed)
     _write_csv(out / "map.csv", [["name", "x", "y"]] + [[n, f"{x:.6g}", f"{y:.6g}"] for n, (x, y) in zip(names, coords)],
                args.force)
-    what = "voxel IoU" if X is None else f"parts {args.parts or 'all'} ({len(desc.parts_)} indices), {','.join(desc.what_)}"
+    what = "voxel IoU" if X is None else f"{_chosen(args, desc)}, {','.join(desc.what_)}"
     if args.png or args.svg:
-        meshes = _thumb_meshes(results, grids, args.thumbnails, None if desc is None else desc.parts_)
+        meshes = _thumb_meshes(results, grids, args.thumbnails, _selected(desc))
         images = embedding.render_thumbnails(meshes, size=args.thumb_size, progress=progress_of(args))
         embedding.draw_map(coords, images, args.png, svg=args.svg, title=f"t-SNE map of {s} shapes: {what}")
     print(f"{s} shapes embedded ({what}) -> {out}")
@@ -174,7 +222,7 @@ def _cmd_similar(args) -> int:
     if k < 1:
         err("no usable shapes to rank")
         return report_errors(errors) or 1
-    desc, X, Q = _describe(args, abstractor, results, grids, [query])
+    desc, X, Q = _describe(args, abstractor, results, grids, [query], qgrid)
     if X is None:
         d = embedding.voxel_iou_distances(qgrid, grids)[0]
         order = np.argsort(d, kind="stable")[:k]
@@ -189,17 +237,18 @@ def _cmd_similar(args) -> int:
     for i, (j, dv) in enumerate(zip(order, dist)):
         print(f"{i + 1:3d}  {dv:10.4g}  {results[j].name}")
     if args.png:
-        sel = None if desc is None else desc.parts_
+        sel = _selected(desc)
         meshes = _thumb_meshes([query] + [results[j] for j in order], np.concatenate([qgrid, grids[order]]), args.thumbnails, sel)
         images = embedding.render_thumbnails(meshes, size=160, progress=progress_of(args))
-        what = "voxel IoU" if X is None else f"parts {args.parts or 'all'}, {','.join(desc.what_)}"
+        what = "voxel IoU" if X is None else f"{_chosen(args, desc)}, {','.join(desc.what_)}"
         embedding.draw_matches(images[0], images[1:], [results[j].name for j in order], dist, args.png,
                                query_name=query.name, title=f"nearest to {query.name} by {what}")
     return report_errors(errors)
 
 
 def _common_options(p) -> None:
-    p.add_argument("--parts", default=None, help="parts to compare, by name or index: back,seat or 3,7 (default: all)")
+    p.add_argument("--parts", default=None, help="parts to compare, by name or index: back,seat or 3,7 (default: all); "
+                   "with a model labeller, names it knows (arms) are each shape's labelled regions (docs/labeller.md)")
     p.add_argument("--what", default="size,position,orientation,presence",
                    help="properties compared: any of size, position, orientation, presence (default: all)")
     p.add_argument("--scale", default=None, metavar="NAME=VALUE,...",

@@ -90,13 +90,45 @@ def _view_abstraction(args, off, size) -> int:
         err(errors[0] if errors else f"{args.shape}: not usable")
         return 2
     s = shapes[0]
+    label_to = getattr(args, "label_to", None)
+    if (getattr(args, "label_from", None) is not None or getattr(args, "label_guess", False)) and label_to is None:
+        err("--label-from and --label-guess start a labelling: give --label-to as well")
+        return 2
+    guess = None
+    if getattr(args, "label_guess", False):
+        if args.label_from is not None:
+            err("--label-from or --label-guess: one start, not both")
+            return 2
+        from ..model.bundled import resolve_model
+        from ..segmentation.bylabel import labelled_surface
+        from ..segmentation.labeller import read_labeller
+
+        labeller = read_labeller(resolve_model(args.model))
+        if labeller is None:
+            err(f"--label-guess: the model {args.model} has no labeller (primkit name-parts learns one)")
+            return 2
+        guess = (labelled_surface(labeller, s.vertices, s.faces, s.result), list(labeller.names))
+    if label_to is not None:
+        from ..segmentation.handlabels import label_suffix
+
+        want = ".seg" if len(s.faces) else ".labels.npy"
+        if label_suffix(label_to) != want:
+            err(f"{label_to}: {args.shape} is a {'mesh' if len(s.faces) else 'point cloud'}: its labels go to "
+                f"<stem>{want}")
+            return 2
     viewer = abstraction_viewer(s.vertices, s.faces, s.cuboids, model.part_names, title=s.name, off_screen=off,
-                                window_size=size)
+                                window_size=size, label_to=label_to, overwrite=args.force, source=args.shape,
+                                opacity=0.6 if label_to is None else 0.35,  # labelling: the names show through
+                                label_from=getattr(args, "label_from", None), label_guess=guess)
     if args.select is not None:
         viewer.select(args.select)
     elif viewer.part_actors:
         viewer.select(max(viewer.part_actors, key=lambda k: s.cuboids.volumes[k]))
     show(viewer.plotter, args.png, args.window)
+    hand = viewer.labelling
+    if hand is not None and args.png is None and not hand.saved and hand.labels.changed:
+        err(f"closed without saving: nothing written to {label_to}")
+        return 1
     return 0
 
 
@@ -185,11 +217,15 @@ _VIEWERS = {"abstraction": _view_abstraction, "collection": _view_collection, "e
 def _run(args) -> int:
     from ..io import check_suffix
 
-    if args.png is not None:  # before any work: a .png that can be written and is none of the inputs
-        given = [getattr(args, k) for k in ("shape", "source", "target") if getattr(args, k, None)]
-        given += list(getattr(args, "folder", None) or [])
-        check_command_outputs(args, [check_suffix(args.png, ".png", "a picture")],
-                      input_paths([f for g in given for f in collect([g])], model_file(args.model)))
+    given = [getattr(args, k) for k in ("shape", "source", "target") if getattr(args, k, None)]
+    given += list(getattr(args, "folder", None) or [])
+    outputs = [] if args.png is None else [check_suffix(args.png, ".png", "a picture")]
+    if getattr(args, "label_to", None) is not None:  # the label file and its names file
+        from ..segmentation.handlabels import names_path
+
+        outputs += [Path(args.label_to), names_path(args.label_to)]
+    if outputs:  # before any work: outputs that can be written and are none of the inputs
+        check_command_outputs(args, outputs, input_paths([f for g in given for f in collect([g])], model_file(args.model)))
     off = args.png is not None and not args.window
     return _VIEWERS[args.viewer](args, off, _size(args.size))
 
@@ -210,9 +246,19 @@ def register(subparsers) -> None:
     sub = p.add_subparsers(dest="viewer", required=True)
     q = add_command(sub, "abstraction", help="one shape and its cuboids: toggle parts, opacity, click a cuboid",
         description="One shape and its cuboids: a toggle per part, the mesh's opacity, click a cuboid to select it.",
-        examples=["primkit view abstraction chair.off --model chair", "primkit view abstraction chair.off --model chair --png view.png"])
+        examples=["primkit view abstraction chair.off --model chair", "primkit view abstraction chair.off --model chair --png view.png",
+                  "primkit view abstraction chair.off --model chair --label-to chair.seg"])
     q.add_argument("shape", help="a mesh, point cloud or voxel file")
     q.add_argument("--select", type=int, default=None, help="part index selected at start (default: the largest)")
+    q.add_argument("--label-to", default=None, metavar="PATH",
+                   help="label by hand (docs/labeller.md): click a cuboid, type a name, Enter; Tab paints with a brush; "
+                   "Ctrl+Z undoes, Ctrl+S writes PATH (a mesh: <stem>.seg, a point cloud: <stem>.labels.npy) and "
+                   "<stem>.names.json beside it, which name-parts reads")
+    q.add_argument("--label-from", default=None, metavar="PATH",
+                   help="with --label-to: start from this label file (and its <stem>.names.json), e.g. to go on "
+                   "with an earlier labelling (--label-to the same file needs --force)")
+    q.add_argument("--label-guess", action="store_true",
+                   help="with --label-to: start from the model's labeller's labels, to correct them")
     _options(q)
     q = add_command(sub, "collection", help="a grid of shapes, parts coloured alike; mesh / cuboids / segmentation",
         description="A grid of shapes with parts coloured alike on every shape; switch between the mesh, the cuboids and the segmentation.",

@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import io
+from .handlabels import read_label_names
 from .points import PointSegmentation
 from .voxels import VoxelSegmentation
 
@@ -166,7 +167,8 @@ def read_ground_truth(label_path, face_count: int, label_names=None, names=None)
     face_count : the mesh's number of faces (checked).
     label_names : str or dict or None
         What each label value means: ``"back,seat,legs"`` (values 1, 2, 3, as in COSEG),
-        ``"1=back,2=seat"`` or ``{1: "back"}``. None: a ``.json`` written by
+        ``"1=back,2=seat"`` or ``{1: "back"}``. None: the ``<stem>.names.json`` of hand labelling
+        (:mod:`primkit.segmentation.handlabels`) beside the labels, else a ``.json`` written by
         :func:`primkit.synthetic.write_collection` beside the labels gives the part groups
         (``seat``, ``back``, ``legs``, ``arms``, ...); otherwise the values themselves are the names.
     names : list of str, optional
@@ -176,6 +178,8 @@ def read_ground_truth(label_path, face_count: int, label_names=None, names=None)
     raw = io.read_labels(label_path, face_count)
     if isinstance(label_names, str):
         label_names = parse_label_names(label_names)
+    if label_names is None:  # a names file written by hand labelling, else a procedural shape's .json
+        label_names = read_label_names(label_path)
     if label_names is None:
         meta = label_path.with_suffix(".json")
         if meta.is_file():
@@ -674,7 +678,7 @@ def read_point_truth(path, count: int, label_names, names: list) -> np.ndarray:
         raise ValueError(f"{path}: not a NumPy label array ({exc})") from None
     if raw.shape != (count,) or raw.dtype.kind not in "iu":
         raise ValueError(f"{path}: expected ({count},) integers, one per point, got {raw.dtype} {raw.shape}")
-    meaning = parse_label_names(label_names) if label_names else None
+    meaning = parse_label_names(label_names) if label_names else read_label_names(path)
     codes = np.full(count, -1, np.int64)
     for value in np.unique(raw):
         name = str(value) if meaning is None else meaning.get(int(value))

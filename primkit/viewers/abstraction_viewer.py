@@ -6,11 +6,17 @@ its index, name (the model's ``part_names``) and parameters, and outlines it. Th
 from the camera convention of :mod:`primkit.viz.render`.
 
     primkit view abstraction chair.off --model chair
+    primkit view abstraction chair.off --model chair --label-to labels/chair.seg   # label by hand
+
+With ``label_to`` (``--label-to``) it is also a labelling tool (:class:`LabellingControls`): name the
+faces of a clicked cuboid by typing, paint names with a brush, undo, save a label file that
+``primkit name-parts`` reads.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -21,7 +27,7 @@ from ..viz.camera import apply_camera
 
 from . import common
 
-__all__ = ["AbstractionViewer", "abstraction_viewer"]
+__all__ = ["AbstractionViewer", "LabellingControls", "abstraction_viewer", "label_colors"]
 
 BOX, GAP = 20, 26  # checkbox size and spacing in pixels
 
@@ -42,6 +48,7 @@ class AbstractionViewer:
     info_actor: object = None
     outline_actor: object = None
     selected: int | None = None
+    labelling: "LabellingControls | None" = None
 
     def toggle_part(self, k: int, visible: bool) -> None:
         """Show or hide part ``k`` (its faces and edges); a hidden part cannot be picked and loses its outline."""
@@ -74,7 +81,10 @@ class AbstractionViewer:
                                                    reset_camera=False, pickable=False)
 
     def pick_at(self, x: float, y: float) -> int | None:
-        """Select the cuboid under display position ``(x, y)`` (what a click does); returns its index."""
+        """Select the cuboid under display position ``(x, y)`` (what a click does); returns its index.
+        With the labelling brush on, a click paints instead (:class:`LabellingControls`)."""
+        if self.labelling is not None and self.labelling.brush_on:
+            return self.selected
         actor = common.pick_actor(self.plotter, x, y, list(self.part_actors.values()))
         k = next((k for k, a in self.part_actors.items() if a is actor), None)
         self.select(k)
@@ -86,8 +96,301 @@ class AbstractionViewer:
         return common.text_of(self.info_actor)
 
 
+#: Printable characters a label name may hold (typed in the window).
+NAME_CHARS = set("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789-_. ")
+_KEY_CHARS = {"minus": "-", "underscore": "_", "period": ".", "space": " "}
+UNLABELLED = (215, 215, 215)  # the colour of an unlabelled face or point
+ERASER = "-"  # the name that takes names away
+
+
+def label_colors(count: int) -> np.ndarray:
+    """``(count, 3) uint8``: the colour of the ``count`` label names, in order (matplotlib's
+    tab10, then tab20: names are few, and should not look like the cuboids' part colours)."""
+    from matplotlib import colormaps
+
+    table = np.vstack([colormaps["tab10"].colors, colormaps["tab20"].colors[1::2]])
+    return (np.asarray(table)[np.arange(count) % len(table)] * 255).round().astype(np.uint8)
+
+
+@dataclass
+class LabellingControls:
+    """Labelling by hand in the abstraction viewer (``--label-to``): the handlers its keys,
+    buttons and mouse call, over a GUI-free :class:`primkit.segmentation.handlabels.HandLabels`.
+
+    Typing builds a name (shown in the window); Enter gives it to the faces (points) of the
+    selected cuboid, or with the brush on makes it the brush's name. The brush (Tab, or its
+    checkbox) paints the current name where the left button presses and drags (the camera stays
+    still while it paints on the shape). Ctrl+Z undoes the last step, Ctrl+S (or the save button)
+    writes the label file and its names file (never over a file it did not write, without
+    ``overwrite``). BackSpace takes a character back, Escape clears the name; the name ``-``
+    is the eraser (what it is given is unlabelled again). The shape is coloured by name (grey:
+    unlabelled).
+    """
+
+    viewer: AbstractionViewer
+    labels: object  # HandLabels
+    path: object
+    overwrite: bool = False
+    source: object = None
+    typed: str = ""
+    current: str | None = None
+    brush_on: bool = False
+    radius: float = 0.05
+    message: str = ""
+    poly: object = None  # the shape's PolyData, coloured by name
+    status_actor: object = None
+    brush_checkbox: object = None
+    radius_slider: object = None
+    save_button: object = None
+    undo_button: object = None
+    saved: bool = False
+    painting: bool = field(default=False, repr=False)
+    _legend: list = field(default_factory=list, repr=False)
+
+    # ---- the handlers -------------------------------------------------------------------------
+
+    def key(self, sym: str, code: str = "", ctrl: bool = False) -> None:
+        """A key press: ``sym`` VTK's key symbol (``"a"``, ``"Return"``), ``code`` its character."""
+        low = (sym or "").lower()
+        if ctrl and low == "z":
+            self.undo()
+        elif ctrl and low == "s":
+            self.save()
+        elif sym in ("Return", "KP_Enter"):
+            self.enter()
+        elif sym == "BackSpace":
+            self.typed = self.typed[:-1]
+        elif sym == "Escape":
+            self.typed = ""
+        elif sym == "Tab":
+            self.set_brush(not self.brush_on)
+            return
+        elif not ctrl:
+            char = _KEY_CHARS.get(sym) or (code if code and len(code) == 1 else (sym if len(sym or "") == 1 else ""))
+            if char in NAME_CHARS:
+                self.typed += char
+        self.refresh()
+
+    def type_text(self, text: str) -> None:
+        """Type ``text`` as key presses would."""
+        for ch in text:
+            self.key(ch, ch)
+
+    def enter(self) -> int:
+        """Take the typed name (or keep the current one) and give it to the selected cuboid's
+        elements unless the brush is on; returns how many elements changed."""
+        name = self.typed.strip()
+        self.typed = ""
+        if name:
+            self.current = name
+        if self.current is None:
+            self.message = "type a name first"
+            return 0
+        k = self.viewer.selected
+        if self.brush_on or k is None:
+            self.message = f"brush name: {self.current}" if self.brush_on else "click a cuboid, then Enter"
+            self.refresh()
+            return 0
+        changed = self.labels.assign_part(k, self._name())
+        self.message = f"part {k} -> {self.current} ({changed} {self._unit()})"
+        self.refresh()
+        return changed
+
+    def set_brush(self, on: bool) -> None:
+        """Turn the brush on or off (it paints the current name)."""
+        self.brush_on = bool(on)
+        if self.brush_checkbox is not None:
+            self.brush_checkbox.GetRepresentation().SetState(int(self.brush_on))
+        self.viewer.mesh_actor.SetPickable(self.brush_on)
+        self.refresh()
+
+    def set_radius(self, value: float) -> None:
+        self.radius = float(value)
+        self.refresh()
+
+    def paint_at(self, x: float, y: float) -> bool:
+        """Paint the current name around the shape's point under display position ``(x, y)``;
+        False when nothing of the shape is there (or no name is chosen)."""
+        if self.current is None:
+            self.message = "type a name and Enter before painting"
+            self.refresh()
+            return False
+        import vtk
+
+        picker = vtk.vtkCellPicker()
+        picker.SetTolerance(0.002)
+        picker.PickFromListOn()
+        picker.AddPickList(self.viewer.mesh_actor)
+        was = self.viewer.mesh_actor.GetPickable()
+        self.viewer.mesh_actor.SetPickable(True)
+        picker.Pick(float(x), float(y), 0.0, self.viewer.plotter.renderer)
+        self.viewer.mesh_actor.SetPickable(was)
+        if picker.GetActor() is None:
+            return False
+        cell = int(picker.GetCellId())
+        start = cell if cell >= 0 and self.labels.adjacency is not None else None
+        self.paint(picker.GetPickPosition(), start)
+        return True
+
+    def paint(self, centre, start=None) -> int:
+        """Paint the current name within the brush radius of ``centre`` (from element ``start``)."""
+        changed = self.labels.paint(centre, self.radius, self._name(), start)
+        if changed:
+            self.message = f"painted {changed} {self._unit()} {self.current}"
+            self.refresh()
+        return changed
+
+    def undo(self) -> bool:
+        done = self.labels.undo()
+        self.message = "undone" if done else "nothing to undo"
+        self.refresh()
+        return done
+
+    def save(self) -> bool:
+        """Write the label and names files; the outcome is shown in the window."""
+        try:
+            label, names = self.labels.save(self.path, overwrite=self.overwrite, source=self.source)
+        except (FileExistsError, ValueError, OSError) as exc:
+            self.message = str(exc).splitlines()[0]
+            self.refresh()
+            return False
+        self.saved = True
+        self.message = f"saved {label.name} + {names.name}"
+        self.refresh()
+        return True
+
+    # ---- what the window shows ----------------------------------------------------------------
+
+    def _name(self):
+        """The name given: None (unlabelled) for the eraser ``-``."""
+        return None if self.current == ERASER else self.current
+
+    def _unit(self) -> str:
+        return "faces" if self.labels.adjacency is not None else "points"
+
+    def colors(self) -> np.ndarray:
+        """``(n, 3) uint8``: each element's colour (its name's, or grey)."""
+        table = np.vstack([np.array([UNLABELLED], np.uint8), label_colors(max(len(self.labels.names), 1))])
+        return table[self.labels.codes]
+
+    def status(self) -> str:
+        counts = self.labels.counts()
+        total = len(self.labels.codes)
+        done = sum(counts.values())
+        mode = f"brush on, radius {self.radius:.3g} (Tab)" if self.brush_on else "click a cuboid, Enter names it (Tab: brush)"
+        lines = [f"LABELLING -> {getattr(self.path, 'name', self.path)}",
+                 f"name: {self.typed}_" + (f"   current: {self.current}" if self.current else ""),
+                 mode, "Ctrl+Z undo   Ctrl+S save",
+                 f"labelled {done}/{total} {self._unit()}"]
+        items = [f"{n} {c}" for n, c in counts.items()]
+        lines += [", ".join(items[i:i + 3]) for i in range(0, len(items), 3)]
+        if self.message:
+            lines.append(self.message)
+        return "\n".join(lines)
+
+    def refresh(self) -> None:
+        if self.poly is not None:
+            key = "hand" if "hand" in self.poly.cell_data else None
+            data = self.poly.cell_data if key else self.poly.point_data
+            data["hand"] = self.colors()
+            data.active_scalars_name = "hand"
+        if self.status_actor is not None:
+            self.status_actor.SetInput(self.status())
+            p = self.viewer.plotter
+            if self.labels.names != self._legend:  # the names in their colours
+                if self._legend:
+                    p.remove_legend(render=False)
+                self._legend = list(self.labels.names)
+                if self._legend:
+                    colors = label_colors(len(self._legend)) / 255.0
+                    p.add_legend([[n, c] for n, c in zip(self._legend, colors)], bcolor="white", face="rectangle",
+                                 loc="center right", size=(0.14, 0.035 * len(self._legend)))
+
+    @property
+    def text(self) -> str:
+        """The text shown in the labelling panel."""
+        return common.text_of(self.status_actor)
+
+
+def _add_labelling(viewer: AbstractionViewer, vertices, faces, window_size, *, label_to, overwrite, source,
+                   parts=None) -> LabellingControls:
+    """Labelling mode: the shape drawn coloured by name, the panel, keys, buttons and the brush."""
+    from ..segmentation.handlabels import HandLabels
+
+    p = viewer.plotter
+    parts = common.part_labels(vertices, faces, viewer.cuboids) if parts is None else parts
+    labels = (HandLabels.for_mesh(vertices, faces, parts) if len(faces)
+              else HandLabels(np.asarray(vertices, float), parts))
+    v = np.asarray(vertices, float)
+    size = float(np.linalg.norm(v.max(0) - v.min(0))) if len(v) else 1.0
+    ctl = LabellingControls(viewer, labels, label_to, overwrite=overwrite, source=source, radius=0.05 * size)
+    viewer.labelling = ctl
+    # the shape again, coloured by name, in place of the grey one
+    p.remove_actor(viewer.mesh_actor)
+    if len(faces):
+        ctl.poly = to_pyvista((v, faces))
+        ctl.poly.cell_data["hand"] = ctl.colors()
+    else:
+        ctl.poly = to_pyvista(v)
+        ctl.poly.point_data["hand"] = ctl.colors()
+    viewer.mesh_actor = p.add_mesh(ctl.poly, scalars="hand", rgb=True, smooth_shading=False, pickable=False,
+                                   reset_camera=False, point_size=6)
+    w, h = window_size
+    ctl.status_actor = p.add_text(ctl.status(), position=(w - 470, 150), font_size=9, color="black")
+    buttons = {}
+    for i, (label, callback, color) in enumerate([("brush (Tab)", ctl.set_brush, "orange"),
+                                                  ("undo (Ctrl+Z)", lambda state: ctl.undo(), "white"),
+                                                  ("save (Ctrl+S)", lambda state: ctl.save(), "white")]):
+        y = 10 + GAP * (3 - i)  # above the mesh checkbox
+        buttons[label] = p.add_checkbox_button_widget(callback, value=False, position=(10, y), size=BOX,
+                                                      color_on=color, color_off="white", background_color="grey")
+        p.add_text(label, position=(10 + BOX + 6, y + 3), font_size=9, color="black")
+    ctl.brush_checkbox, ctl.undo_button, ctl.save_button = buttons.values()
+    ctl.radius_slider = p.add_slider_widget(ctl.set_radius, rng=(0.005 * size, 0.25 * size), value=ctl.radius,
+                                            title="brush radius", pointa=(0.25, 0.08), pointb=(0.55, 0.08),
+                                            interaction_event="always", style="modern", color="black")
+    _wire_labelling_events(p, ctl)
+    return ctl
+
+
+def _wire_labelling_events(p, ctl: LabellingControls) -> None:
+    """Keys type names (VTK's and pyvista's own single-key commands are turned off: typing
+    "seat" must not switch to surface mode nor quit); with the brush on, a left press on the
+    shape paints and drags paint on, the camera left still."""
+    iren = getattr(p, "iren", None)
+    if iren is None:
+        return
+    inter = iren.interactor
+    iren.clear_key_event_callbacks()
+    inter.RemoveObservers("CharEvent")
+
+    def key(obj, event):
+        ctl.key(obj.GetKeySym() or "", obj.GetKeyCode() or "", bool(obj.GetControlKey()))
+
+    tags = {}
+
+    def press(obj, event):
+        if ctl.brush_on and ctl.paint_at(*obj.GetEventPosition()):
+            ctl.painting = True
+            obj.GetCommand(tags["press"]).SetAbortFlag(1)
+
+    def move(obj, event):
+        if ctl.painting:
+            ctl.paint_at(*obj.GetEventPosition())
+            obj.GetCommand(tags["move"]).SetAbortFlag(1)
+
+    def release(obj, event):
+        ctl.painting = False
+
+    inter.AddObserver("KeyPressEvent", key)
+    tags["press"] = inter.AddObserver("LeftButtonPressEvent", press, 10.0)
+    tags["move"] = inter.AddObserver("MouseMoveEvent", move, 10.0)
+    inter.AddObserver("LeftButtonReleaseEvent", release, 10.0)
+
+
 def abstraction_viewer(vertices, faces, cuboids, names=None, *, title: str = "", opacity: float = 0.6,
-                       off_screen: bool = False, window_size=(1024, 768)) -> AbstractionViewer:
+                       off_screen: bool = False, window_size=(1024, 768), label_to=None, overwrite: bool = False,
+                       source=None, label_from=None, label_guess=None) -> AbstractionViewer:
     """Build the viewer for one shape.
 
     Parameters
@@ -95,6 +398,14 @@ def abstraction_viewer(vertices, faces, cuboids, names=None, *, title: str = "",
     vertices : (n, 3) float; faces : (f, 3) int
     cuboids : primkit.primitives.Cuboids, in the mesh's frame
     names : list of str, one per part slot (default ``part<k>``)
+    label_to : path, optional
+        Labelling mode (:class:`LabellingControls`, ``viewer.labelling``): the label file saving
+        writes, ``<stem>.seg`` for a mesh, ``<stem>.labels.npy`` for a point cloud (``faces``
+        empty), with ``<stem>.names.json`` beside it; ``overwrite`` lets it replace existing files;
+        ``source`` (the shape's file) is recorded in the names file; ``label_from``: a label file
+        to start from (:meth:`primkit.segmentation.handlabels.HandLabels.load`); ``label_guess``:
+        ``(labels (n,) int, names)`` to start from instead (a labeller's guess,
+        :meth:`~primkit.segmentation.handlabels.HandLabels.start_from`).
     """
     names = list(names) if names is not None else default_part_names(cuboids.count)
     p = common.new_plotter(off_screen, window_size, f"primkit - {title or 'abstraction'}")
@@ -129,5 +440,16 @@ def abstraction_viewer(vertices, faces, cuboids, names=None, *, title: str = "",
     bounds = np.vstack([v.min(0), v.max(0)])
     apply_camera(p, bounds.mean(0), 0.5 * np.linalg.norm(bounds[1] - bounds[0]))
     common.on_click(p, viewer.pick_at)
+    if label_to is not None:
+        ctl = _add_labelling(viewer, vertices, faces, window_size, label_to=Path(label_to), overwrite=overwrite,
+                             source=source)
+        if label_from is not None or label_guess is not None:
+            if label_from is not None:
+                ctl.labels.load(label_from)
+            else:
+                ctl.labels.start_from(*label_guess)
+            ctl.current = ctl.labels.names[-1] if ctl.labels.names else None
+            ctl.message = f"started from {Path(label_from).name if label_from is not None else 'the labeller'}"
+            ctl.refresh()
     return viewer
 
