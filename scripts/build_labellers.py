@@ -18,7 +18,7 @@ naming, measured the same way. Only the labeller and the card change: the networ
 every other metadata key are copied unchanged (checked here; ``tests/segmentation/
 test_bundled_labellers.py`` checks the tensors' hash).
 
-Usage (from the repository root; about 5 minutes on two cores)::
+Usage (from the repository root; 10-15 minutes on two loaded cores)::
 
     python -m scripts.build_labellers --install           # rebuild both bundled labellers in place
     python -m scripts.build_labellers -o DIR [--categories table] [--pictures docs/images]
