@@ -70,22 +70,22 @@ WHY_PROCEDURAL = ("no real table or airplane with part names exists in ../shared
                   "are arbitrary per file, without names; the ShapeNetVox32 grids carry no labels")
 
 #: What the labeller does on real shapes: looked at, not measured (nothing real here has part names), on
-#: held-out ShapeNetVox32 shapes (``--pictures``: docs/images/labeller-real-CATEGORY.png, and 20 more
+#: held-out ShapeNetVox32 shapes (``--pictures``: docs/images/labeller-real-CATEGORY.png, and 16 more
 #: of each drawn in a scratch run).
 REAL_SHAPES = {
     "table": ("looked at, not measured (no real table here has part names). Of the 12 held-out ShapeNetVox32 "
-              "tables in docs/images/labeller-real-table.png, 6 come out about right (top, legs); the others misname "
-              "what the generator never makes: the top of a C-shaped side table mostly `legs`, splayed, crossed or "
-              "trestle legs partly or wholly `base`, desk panels split between `top` and `legs`. Over the 32 real "
-              "tables looked at, drawers, cabinets, shelves and stretchers come out `legs` and the rim of some round "
-              "or raised tops `legs`. Trust it for the top / legs / base of simple four-legged and pedestal tables "
-              "only."),
+              "tables in docs/images/labeller-real-table.png, 6 come out about right (top, legs); the others "
+              "misname what the generator never makes: the top of a C-shaped side table mostly `legs`, splayed, "
+              "crossed or trestle legs partly or wholly `base`, desk panels split between `top` and `legs`. Over "
+              "the 28 distinct real tables looked at, drawers, cabinets, shelves and stretchers come out `legs` and "
+              "the rim of some round or raised tops `legs`. Trust it for the top / legs / base of simple "
+              "four-legged and pedestal tables only."),
     "airplane": ("looked at, not measured (no real airplane here has part names). Of the 12 held-out ShapeNetVox32 "
                  "airplanes in docs/images/labeller-real-airplane.png, the 8 airliners and the light plane come out "
                  "mostly right (fuselage, wings, tail; engines under the wings in 5 of them, others missed); the 2 "
                  "fighters and 1 odd shape are named badly (parts of the fuselage called wings, tail pieces at the "
-                 "nose). Over the 32 real airplanes looked at the same holds. Trust it for a rough fuselage / wings / "
-                 "tail split of airliners only."),
+                 "nose). Over the 28 distinct real airplanes looked at the same holds. Trust it for a rough "
+                 "fuselage / wings / tail split of airliners only."),
 }
 
 #: where the card's text about the labeller starts (cut off when the labeller is built again)
