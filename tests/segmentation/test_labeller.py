@@ -143,7 +143,7 @@ def test_labeller_learns_the_frame_and_round_trips_through_a_model_file(tmp_path
     back = lab.read_labeller(out)
     assert back.names == labeller.names and back.settings == labeller.settings
     np.testing.assert_array_equal(back.ensemble.predict_proba(X), labeller.ensemble.predict_proba(X))
-    assert lab.read_labeller(resolve_model("table")) is None  # the bundled table has none
+    assert lab.read_labeller(resolve_model("chair-image")) is None  # the bundled image model has none
     # the network still loads from the file that carries the labeller
     from primkit.model.abstractor import Abstractor
 
@@ -420,8 +420,13 @@ def test_the_pyvista_accessor_carries_a_label_array(chairs, tmp_path):
     want = lab.label_elements(labeller, lab.mesh_elements(s.vertices, s.faces, a.result.frame), a.result.canonical)
     assert np.array_equal(np.asarray(out.cell_data["label"]), want)
     assert list(out.field_data["label_names"]) == ["low", "high"]
-    plain = mesh.primkit.segment(model="table", refine=0)
-    assert "label" not in plain.cell_data  # the bundled table has no labeller
+    from primkit.model.modelfile import load_model_file, save_model
+
+    weights, meta = load_model_file(resolve_model("table"))  # the bundled table without its labeller
+    none = save_model(tmp_path / "plain.safetensors", {k: v for k, v in weights.items() if not k.startswith(lab.LABELLER_PREFIX)},
+                      {k: v for k, v in meta.items() if k not in (lab.LABELLER_KEY, "created")})
+    plain = mesh.primkit.segment(model=str(none), refine=0)
+    assert "label" not in plain.cell_data  # a model without a labeller
 
 
 @pytest.mark.integration  # a labeller fitted, then the VTK filter end to end
