@@ -420,7 +420,7 @@ def main(argv=None) -> int:
     ap.add_argument("--draws", type=int, default=3, help="draws of the labelled chairs under 100")
     ap.add_argument("--only", action="append", default=None, help="sweep: these candidates only")
     ap.add_argument("--json", type=Path, default=None)
-    ap.add_argument("--grid-sample", type=int, default=LabellerSettings().grid_sample, choices=[1, 2, 8],
+    ap.add_argument("--grid-sample", type=int, default=LabellerSettings().grid_sample, choices=[1, 2, 4, 8],
                     help="curve: classify one voxel in this many (LabellerSettings.grid_sample)")
     ap.add_argument("--knn", choices=["grid", "kdtree"], default="grid",
                     help="the local shape's nearest voxels: on the grid (as the library) or by a k-d tree (before); "

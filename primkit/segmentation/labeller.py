@@ -389,7 +389,8 @@ class LabellerSettings:
         their next most probable label): a chair with a few stray "arm" voxels has no arms.
     grid_sample : int
         On a voxel grid, the classifier reads one voxel in ``grid_sample`` (1: all; 2: a 3-D
-        checkerboard, ``i + j + k`` even; 8: the voxels whose three indices are even); every other
+        checkerboard, ``i + j + k`` even; 4: the voxels whose three indices are all even or all
+        odd; 8: the voxels whose three indices are even); every other
         voxel takes the mean probabilities of the classified voxels of its 3 x 3 x 3 neighbourhood
         (or is classified itself when it has none), before the smoothing. Labelling costs about
         ``1 / grid_sample`` of the features and the tree walk; files without the key read 1.
@@ -412,7 +413,7 @@ class LabellerSettings:
     prior_weight: float | None = None
 
     #: the values ``grid_sample`` may take
-    GRID_SAMPLES = (1, 2, 8)
+    GRID_SAMPLES = (1, 2, 4, 8)
     #: what a key absent from a stored description reads (files written before it existed)
     OLD_DEFAULTS = {"grid_sample": 1, "prior_weight": 0.0}
 
@@ -718,7 +719,8 @@ def grid_sampling(index, neighbours, step: int):
     """Which voxels a labeller classifies when it reads one in ``step`` (``LabellerSettings.grid_sample``).
 
     Returns ``(classify (n,) bool, around (f, 26) int, use (f, 26) bool)``: the voxels classified
-    (step 2: ``i + j + k`` even; step 8: all three indices even; 1: all), and for the ``f`` others,
+    (step 2: ``i + j + k`` even; 4: all three indices even or all odd; 8: all three even; 1:
+    all), and for the ``f`` others,
     their 26 neighbours' positions (``neighbours[:, 1:]``, from :func:`grid_neighbours`) and which
     of them are classified occupied voxels (the mean of those is theirs). A voxel with no such
     neighbour is classified itself, so every ``use`` row has at least one True.
@@ -729,10 +731,12 @@ def grid_sampling(index, neighbours, step: int):
         sampled = np.ones(n, bool)
     elif step == 2:
         sampled = index.sum(axis=1) % 2 == 0
+    elif step == 4:  # a body-centred lattice: every voxel has one of them in its 3 x 3 x 3 block
+        sampled = np.all(index % 2 == index[:, :1] % 2, axis=1)
     elif step == 8:
         sampled = np.all(index % 2 == 0, axis=1)
     else:
-        raise ValueError(f"grid sampling one voxel in {step}: only 1, 2 or 8")
+        raise ValueError(f"grid sampling one voxel in {step}: only 1, 2, 4 or 8")
     around = neighbours[:, 1:27]
     use = sampled[around] & (around != np.arange(n)[:, None])  # an empty neighbour is the voxel itself
     classify = sampled | ~use.any(axis=1)
