@@ -58,6 +58,8 @@ def main(argv=None) -> int:
     ap.add_argument("--grid-sample", default=None, metavar="N[,N...]",
                     help="label with this grid_sample (1, 2, 4 or 8) instead of the file's (LabellerSettings); "
                          "several: each timed in every round")
+    ap.add_argument("--cache", type=Path, default=None,
+                    help="the preparation cache to use and keep (default: a temporary one, abstracted first)")
     ap.add_argument("--before", action="store_true",
                     help="also time the labeller's paths before the faster ones (k-d tree, plain walk)")
     args = ap.parse_args(argv)
@@ -72,7 +74,8 @@ def main(argv=None) -> int:
             labeller, settings=replace(labeller.settings, grid_sample=g)))) for g in steps]
     if args.before:
         variants.append(("before (k-d tree, plain walk)", Segmenter(args.model, labeller=_before(labeller))))
-    with tempfile.TemporaryDirectory(prefix="bench-labeller-") as cache:
+    with tempfile.TemporaryDirectory(prefix="bench-labeller-") as temporary:
+        cache = str(args.cache) if args.cache else temporary
         plain.abstract_files(files, cache_dir=cache, workers=args.workers, progress=False)  # warm the cache
         for _, segmenter in variants:  # untimed: the first pass pays for reading the cache and compiling
             segmenter.segment_files(files[:20], cache_dir=cache, workers=args.workers, progress=False)

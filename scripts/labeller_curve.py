@@ -318,14 +318,15 @@ def _validation_train(chairs, draw):
     return pool if draw == 0 else order(pool, draw)
 
 
-def curve(scratch: Path, part: str, sizes, draws: int, settings: LabellerSettings) -> dict:
+def curve(scratch: Path, part: str, sizes, draws: int, settings: LabellerSettings, labeller_only=False) -> dict:
     chairs = Chairs(scratch)
     evaluate = chairs.test if part == "test" else order(chairs.validation, 0)[100:]
     print(f"{part}: {len(evaluate)} chairs scored; labellers learned from validation chairs; settings {settings}")
     rows = {"index naming (bundled model)": score(chairs, evaluate, index_naming(chairs, evaluate))}
     print(line("index naming (bundled model)", rows["index naming (bundled model)"]))
     for n in sizes:
-        for kind, position_only in (("labeller", False), ("position only", True), ("index naming", None)):
+        kinds = (("labeller", False), ("position only", True), ("index naming", None))
+        for kind, position_only in kinds[:1] if labeller_only else kinds:
             runs = []
             for d in range(draws if n < 100 else 1):
                 train = order(chairs.validation, d)[:n] if part == "test" else _validation_train(chairs, d)[:n]
@@ -422,6 +423,7 @@ def main(argv=None) -> int:
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--grid-sample", type=int, default=LabellerSettings().grid_sample, choices=[1, 2, 4, 8],
                     help="curve: classify one voxel in this many (LabellerSettings.grid_sample)")
+    ap.add_argument("--labeller-only", action="store_true", help="curve: leave out the baselines")
     ap.add_argument("--knn", choices=["grid", "kdtree"], default="grid",
                     help="the local shape's nearest voxels: on the grid (as the library) or by a k-d tree (before); "
                          "give each its own --scratch (the features are cached there)")
@@ -437,7 +439,8 @@ def main(argv=None) -> int:
     elif args.command == "model":
         out = model_figures(args.model, args.part)
     elif args.command == "curve":
-        out = curve(args.scratch, args.part, sizes or SIZES, args.draws, LabellerSettings(grid_sample=args.grid_sample))
+        out = curve(args.scratch, args.part, sizes or SIZES, args.draws, LabellerSettings(grid_sample=args.grid_sample),
+                    args.labeller_only)
     else:
         out = coseg(args.scratch, LabellerSettings())
     if args.json:

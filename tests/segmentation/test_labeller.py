@@ -708,3 +708,11 @@ def test_a_labeller_reads_a_grids_local_shape_on_the_grid():
     shape = lab.grid_local_shape(points, index, np.arange(len(index)), 8, occupancy.shape)
     want = labeller.classify(frame_features(points, c, None, labeller.settings, local_shape=shape))
     np.testing.assert_array_equal(got, want)
+
+
+def test_grid_normals_at_some_voxels_are_the_full_grids():
+    rng = np.random.default_rng(9)
+    occupancy = rng.random((9, 8, 7)) < 0.4
+    occupancy[:, 0, :] = occupancy[-1] = True  # voxels on the grid's faces: the one-sided ends
+    index = np.argwhere(occupancy)
+    np.testing.assert_array_equal(lab.grid_normals(occupancy, index), lab.grid_normals(occupancy)[tuple(index.T)])
