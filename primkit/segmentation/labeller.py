@@ -1169,6 +1169,17 @@ def point_elements(points, frame, normals=None) -> Elements:
     return Elements(frame.to_canonical(points), _rotate(frame, normals))
 
 
+def element_features(elements: Elements, canonical: primitives.Cuboids, settings: LabellerSettings) -> np.ndarray:
+    """:func:`frame_features` of every element, as :meth:`Labeller.predict_proba` reads them (a voxel
+    grid's local shape found on the grid, :func:`grid_local_shape`): what a labeller learns from."""
+    shape = None
+    if settings.neighbours and elements.context is None and elements.grid_index is not None and len(elements.points):
+        index = np.asarray(elements.grid_index, np.int64)
+        shape = grid_local_shape(elements.points, index, np.arange(len(index)), settings.neighbours,
+                                 index.max(axis=0) + 1)
+    return frame_features(elements.points, canonical, elements.normals, settings, elements.context, local_shape=shape)
+
+
 def label_elements(labeller: Labeller, elements: Elements, canonical: primitives.Cuboids) -> np.ndarray:
     """``(n,) int``: each element's label (index into ``labeller.names``); -1 everywhere when no
     cuboid is present."""

@@ -716,3 +716,18 @@ def test_grid_normals_at_some_voxels_are_the_full_grids():
     occupancy[:, 0, :] = occupancy[-1] = True  # voxels on the grid's faces: the one-sided ends
     index = np.argwhere(occupancy)
     np.testing.assert_array_equal(lab.grid_normals(occupancy, index), lab.grid_normals(occupancy)[tuple(index.T)])
+
+
+def test_a_labeller_learns_a_grids_local_shape_as_it_reads_it():
+    rng = np.random.default_rng(10)
+    occupancy = rng.random((10, 9, 8)) < 0.5
+    index = np.argwhere(occupancy)
+    points = (index + 0.5) / 10 - 0.5
+    c = _cuboids(rng, absent=())
+    settings = LabellerSettings(neighbours=8)
+    elements = lab.Elements(points, grid_index=index)
+    shape = lab.grid_local_shape(points, index, np.arange(len(index)), 8, occupancy.shape)
+    np.testing.assert_array_equal(lab.element_features(elements, c, settings),
+                                  frame_features(points, c, None, settings, local_shape=shape))
+    np.testing.assert_array_equal(lab.element_features(lab.Elements(points), c, settings),
+                                  frame_features(points, c, None, settings))  # no grid: the k-d tree
