@@ -409,7 +409,7 @@ class LabellerSettings:
     smooth: int = 2
     normals: bool = True
     min_share: float = 0.01
-    grid_sample: int = 2
+    grid_sample: int = 4
     prior_weight: float | None = None
 
     #: the values ``grid_sample`` may take

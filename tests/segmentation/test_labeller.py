@@ -349,6 +349,7 @@ def test_smoothing_is_the_mean_over_the_neighbours_repeated():
 def test_grid_sample_is_read_back_and_checked():
     assert LabellerSettings.from_dict({}).grid_sample == 1  # files written before it: every voxel
     assert LabellerSettings.from_dict({"grid_sample": 2}).grid_sample == 2
+    assert LabellerSettings.from_dict({"grid_sample": 4}).grid_sample == 4
     with pytest.raises(ValueError, match="grid_sample"):
         LabellerSettings.from_dict({"grid_sample": 3})
 
