@@ -12,7 +12,8 @@ sits in the shape's abstraction, which means the same thing on every shape of a 
 * its position and, where known, its outward normal, in the model's canonical frame (+Y up,
   +X front, the longest side of the bounding box 1: :class:`primkit.geometry.CanonicalFrame`);
 * the local shape around it: the principal axes of its ``k`` nearest neighbours among the shape's
-  elements (how flat, thin or round it is there, and which way).
+  elements (how flat, thin or round it is there, and which way); on a voxel grid the nearest
+  voxels are found on the grid (:func:`grid_local_shape`), elsewhere by a k-d tree.
 
 A gradient-boosted tree ensemble (scikit-learn's ``HistGradientBoostingClassifier``) learns the
 labels from a few labelled shapes; its class probabilities are blended with the index-naming
@@ -28,7 +29,8 @@ array is checked (shapes, dtypes, child indices inside their tree, feature indic
 feature vector, trees that end) before use, and any failure is one :class:`ModelFileError` line.
 Predictions walk the exported trees with a Numba kernel that gives scikit-learn's
 ``predict_proba`` (the same ``<=`` rule, the same handling of NaN, float64 sums, the same
-softmax), so the stored labeller labels exactly as the fitted one did.
+softmax), so the stored labeller labels exactly as the fitted one did; the nodes are packed into
+two arrays on load for the walk (:meth:`TreeEnsemble.packed`), the stored arrays unchanged.
 
 Frames: points, normals and cuboids given to :meth:`Labeller.features` are in the canonical frame
 (``AbstractionResult.canonical`` and ``AbstractionResult.frame.to_canonical``); the
