@@ -35,11 +35,15 @@ import numpy as np
 
 from primkit import io, primitives
 from primkit.segmentation import VoxelGroundTruth, evaluate_voxels
-from primkit.segmentation.labeller import Labeller, LabellerSettings, frame_features, grid_elements, mesh_elements
+from primkit.segmentation.labeller import (Labeller, LabellerSettings, frame_features, grid_elements, grid_local_shape,
+                                           mesh_elements)
 
 from scripts.partnet_chairs import MEAN_OVER, split
 
 NAMES = ["back", "seat", "legs", "arms"]
+#: how the local shape of a voxel finds its nearest voxels: "grid" (:func:`grid_local_shape`, as the
+#: library labels a voxel grid) or "kdtree" (a k-d tree, as the library did before; ``--knn``)
+KNN = {"how": "grid"}
 SIZES = [1, 3, 10, 40, 100]
 
 
@@ -102,7 +106,11 @@ class Chairs:
         points = a["points"].astype(float)
         if position_only:
             return points
-        return frame_features(points, self.cuboids[name], a["normals"].astype(float), settings)
+        shape = None
+        if settings.neighbours and KNN["how"] == "grid":  # as Labeller.predict_proba on a grid
+            index = a["index"].astype(np.int64)
+            shape = grid_local_shape(points, index, np.arange(len(points)), settings.neighbours, (32, 32, 32))
+        return frame_features(points, self.cuboids[name], a["normals"].astype(float), settings, local_shape=shape)
 
 
 def order(names, seed):
@@ -310,14 +318,15 @@ def _validation_train(chairs, draw):
     return pool if draw == 0 else order(pool, draw)
 
 
-def curve(scratch: Path, part: str, sizes, draws: int, settings: LabellerSettings) -> dict:
+def curve(scratch: Path, part: str, sizes, draws: int, settings: LabellerSettings, labeller_only=False) -> dict:
     chairs = Chairs(scratch)
     evaluate = chairs.test if part == "test" else order(chairs.validation, 0)[100:]
     print(f"{part}: {len(evaluate)} chairs scored; labellers learned from validation chairs; settings {settings}")
     rows = {"index naming (bundled model)": score(chairs, evaluate, index_naming(chairs, evaluate))}
     print(line("index naming (bundled model)", rows["index naming (bundled model)"]))
     for n in sizes:
-        for kind, position_only in (("labeller", False), ("position only", True), ("index naming", None)):
+        kinds = (("labeller", False), ("position only", True), ("index naming", None))
+        for kind, position_only in kinds[:1] if labeller_only else kinds:
             runs = []
             for d in range(draws if n < 100 else 1):
                 train = order(chairs.validation, d)[:n] if part == "test" else _validation_train(chairs, d)[:n]
@@ -412,9 +421,14 @@ def main(argv=None) -> int:
     ap.add_argument("--draws", type=int, default=3, help="draws of the labelled chairs under 100")
     ap.add_argument("--only", action="append", default=None, help="sweep: these candidates only")
     ap.add_argument("--json", type=Path, default=None)
-    ap.add_argument("--grid-sample", type=int, default=LabellerSettings().grid_sample, choices=[1, 2, 8],
+    ap.add_argument("--grid-sample", type=int, default=LabellerSettings().grid_sample, choices=[1, 2, 4, 8],
                     help="curve: classify one voxel in this many (LabellerSettings.grid_sample)")
+    ap.add_argument("--labeller-only", action="store_true", help="curve: leave out the baselines")
+    ap.add_argument("--knn", choices=["grid", "kdtree"], default="grid",
+                    help="the local shape's nearest voxels: on the grid (as the library) or by a k-d tree (before); "
+                         "give each its own --scratch (the features are cached there)")
     args = ap.parse_args(argv)
+    KNN["how"] = args.knn
     args.scratch.mkdir(parents=True, exist_ok=True)
     sizes = [int(s) for s in args.sizes.split(",")] if args.sizes else None
     if args.command == "prepare":
@@ -425,7 +439,8 @@ def main(argv=None) -> int:
     elif args.command == "model":
         out = model_figures(args.model, args.part)
     elif args.command == "curve":
-        out = curve(args.scratch, args.part, sizes or SIZES, args.draws, LabellerSettings(grid_sample=args.grid_sample))
+        out = curve(args.scratch, args.part, sizes or SIZES, args.draws, LabellerSettings(grid_sample=args.grid_sample),
+                    args.labeller_only)
     else:
         out = coseg(args.scratch, LabellerSettings())
     if args.json:

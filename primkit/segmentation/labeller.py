@@ -12,7 +12,8 @@ sits in the shape's abstraction, which means the same thing on every shape of a 
 * its position and, where known, its outward normal, in the model's canonical frame (+Y up,
   +X front, the longest side of the bounding box 1: :class:`primkit.geometry.CanonicalFrame`);
 * the local shape around it: the principal axes of its ``k`` nearest neighbours among the shape's
-  elements (how flat, thin or round it is there, and which way).
+  elements (how flat, thin or round it is there, and which way); on a voxel grid the nearest
+  voxels are found on the grid (:func:`grid_local_shape`), elsewhere by a k-d tree.
 
 A gradient-boosted tree ensemble (scikit-learn's ``HistGradientBoostingClassifier``) learns the
 labels from a few labelled shapes; its class probabilities are blended with the index-naming
@@ -28,7 +29,8 @@ array is checked (shapes, dtypes, child indices inside their tree, feature indic
 feature vector, trees that end) before use, and any failure is one :class:`ModelFileError` line.
 Predictions walk the exported trees with a Numba kernel that gives scikit-learn's
 ``predict_proba`` (the same ``<=`` rule, the same handling of NaN, float64 sums, the same
-softmax), so the stored labeller labels exactly as the fitted one did.
+softmax), so the stored labeller labels exactly as the fitted one did; the nodes are packed into
+two arrays on load for the walk (:meth:`TreeEnsemble.packed`), the stored arrays unchanged.
 
 Frames: points, normals and cuboids given to :meth:`Labeller.features` are in the canonical frame
 (``AbstractionResult.canonical`` and ``AbstractionResult.frame.to_canonical``); the
@@ -37,6 +39,7 @@ Frames: points, normals and cuboids given to :meth:`Labeller.features` are in th
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -57,6 +60,8 @@ __all__ = [
     "grid_normals",
     "grid_neighbours",
     "grid_sampling",
+    "grid_knn",
+    "grid_local_shape",
     "write_labeller",
     "read_labeller",
     "has_labeller",
@@ -214,9 +219,40 @@ class TreeEnsemble:
         out = np.empty((len(X), len(self.baseline)))
         out[:] = self.baseline
         if len(X):
-            _kernel()(X, self.feature, self.threshold, self.missing_left, self.left, self.right, self.is_leaf,
-                      self.value, self.tree_start, self.tree_class, out)
+            packed = self.packed()
+            if packed is not None:
+                _packed_kernel()(X, *packed, self.tree_class, out)
+            else:
+                _kernel()(X, self.feature, self.threshold, self.missing_left, self.left, self.right, self.is_leaf,
+                          self.value, self.tree_start, self.tree_class, out)
         return out
+
+    def packed(self):
+        """The nodes packed for :func:`_packed_kernel` (built once, kept on the instance), or
+        None when they do not fit its fields (:data:`PACKED_FEATURES` features, :data:`PACKED_NODES`
+        nodes; the plain kernel walks those).
+
+        Returns ``(meta (N,) int64, split_or_value (N,) float64, missing_left (N,) uint8, roots (T,)
+        int64)``: ``meta`` holds a node's feature in bits 0-15 (:data:`PACKED_LEAF` at a leaf), its
+        left child's global index in bits 16-39 and its right child's in bits 40-63;
+        ``split_or_value`` is the threshold at a split and the leaf value at a leaf. Two arrays of
+        8 bytes a node instead of seven (a third of the bytes the walk pulls through the cache)."""
+        cached = self.__dict__.get("_packed")
+        if cached is None:
+            n = len(self.feature)
+            fits = n < PACKED_NODES and self.features < PACKED_LEAF
+            if not fits:
+                cached = ()
+            else:
+                leaf = self.is_leaf == 1
+                base = np.repeat(self.tree_start[:-1], np.diff(self.tree_start))
+                left = np.where(leaf, 0, base + self.left)
+                right = np.where(leaf, 0, base + self.right)
+                meta = np.where(leaf, PACKED_LEAF, self.feature) | (left << 16) | (right << 40)
+                cached = (meta.astype(np.int64), np.where(leaf, self.value, self.threshold).astype(np.float64),
+                          np.ascontiguousarray(self.missing_left, np.uint8), self.tree_start[:-1].astype(np.int64))
+            object.__setattr__(self, "_packed", cached)  # frozen dataclass: a cache, not a field
+        return cached or None
 
     def predict_proba(self, X) -> np.ndarray:
         """``(n, classes)`` probabilities, as the exported model's ``predict_proba``."""
@@ -263,6 +299,49 @@ def _kernel():
 
         _KERNEL = walk
     return _KERNEL
+
+
+#: :meth:`TreeEnsemble.packed`'s fields: a feature index below PACKED_LEAF (its value marks a
+#: leaf), a node index below PACKED_NODES (24 bits)
+PACKED_LEAF = 0xFFFF
+PACKED_NODES = 1 << 24
+
+_PACKED = None
+
+
+def _packed_kernel():
+    """The tree walk over :meth:`TreeEnsemble.packed` nodes, compiled on first use (cached on disk).
+
+    The same walk as :func:`_kernel` (the same ``<=`` rule, NaN to the stored side, each sample
+    through the trees in order, so the float64 sums are identical), reading two arrays per node
+    instead of seven: on the bundled chair labeller (24,400 nodes) about a third less time.
+    Tried and slower here: a branch-free walk of every tree to its full depth, blocks of samples
+    walked tree by tree (both in ``docs/labeller.md``)."""
+    global _PACKED
+    if _PACKED is None:
+        import numba
+
+        @numba.njit(cache=True, nogil=True)
+        def walk_packed(X, meta, split_or_value, missing_left, roots, tree_class, out):
+            for i in range(X.shape[0]):
+                for t in range(roots.shape[0]):
+                    node = roots[t]
+                    m = meta[node]
+                    while (m & 0xFFFF) != 0xFFFF:
+                        x = X[i, m & 0xFFFF]
+                        if x <= split_or_value[node]:
+                            node = (m >> 16) & 0xFFFFFF
+                        elif x > split_or_value[node]:
+                            node = (m >> 40) & 0xFFFFFF
+                        elif missing_left[node] == 1:  # NaN
+                            node = (m >> 16) & 0xFFFFFF
+                        else:
+                            node = (m >> 40) & 0xFFFFFF
+                        m = meta[node]
+                    out[i, tree_class[t]] += split_or_value[node]
+
+        _PACKED = walk_packed
+    return _PACKED
 
 
 _MEAN = None
@@ -312,7 +391,8 @@ class LabellerSettings:
         their next most probable label): a chair with a few stray "arm" voxels has no arms.
     grid_sample : int
         On a voxel grid, the classifier reads one voxel in ``grid_sample`` (1: all; 2: a 3-D
-        checkerboard, ``i + j + k`` even; 8: the voxels whose three indices are even); every other
+        checkerboard, ``i + j + k`` even; 4: the voxels whose three indices are all even or all
+        odd; 8: the voxels whose three indices are even); every other
         voxel takes the mean probabilities of the classified voxels of its 3 x 3 x 3 neighbourhood
         (or is classified itself when it has none), before the smoothing. Labelling costs about
         ``1 / grid_sample`` of the features and the tree walk; files without the key read 1.
@@ -331,11 +411,11 @@ class LabellerSettings:
     smooth: int = 2
     normals: bool = True
     min_share: float = 0.01
-    grid_sample: int = 2
+    grid_sample: int = 4
     prior_weight: float | None = None
 
     #: the values ``grid_sample`` may take
-    GRID_SAMPLES = (1, 2, 8)
+    GRID_SAMPLES = (1, 2, 4, 8)
     #: what a key absent from a stored description reads (files written before it existed)
     OLD_DEFAULTS = {"grid_sample": 1, "prior_weight": 0.0}
 
@@ -389,14 +469,171 @@ def _local_shape(points: np.ndarray, k: int) -> np.ndarray:
     idx = _neighbours(points, k)
     near = points[idx] - points[idx].mean(axis=1, keepdims=True)
     cov = np.einsum("nki,nkj->nij", near, near) / idx.shape[1]
+    return _shape_columns(cov)
+
+
+def _shape_columns(cov: np.ndarray) -> np.ndarray:
+    """``(n, 9)`` local-shape columns of ``(n, 3, 3)`` covariances (:func:`_local_shape`)."""
     values, vectors = np.linalg.eigh(cov)  # ascending
     total = values.sum(axis=1, keepdims=True)
     shares = np.divide(values, total, out=np.full_like(values, 1.0 / 3), where=total > 0)
     return np.hstack([shares, np.abs(vectors[:, :, 2]), np.abs(vectors[:, :, 0])])
 
 
+#: how far (in voxels) :func:`grid_local_shape` looks for a voxel's nearest occupied voxels
+#: before it asks a k-d tree (a ball of 2,109 offsets; a one-voxel-thin line reaches its 16
+#: nearest at 8 voxels)
+GRID_RADIUS = 8
+
+
+@functools.lru_cache(maxsize=4)
+def _ball_offsets(radius: int) -> np.ndarray:
+    """``(b, 3) int64``: the grid offsets within ``radius`` voxels, nearest first (ties in
+    lexicographic order), the zero offset first."""
+    r = np.arange(-radius, radius + 1)
+    offsets = np.stack(np.meshgrid(r, r, r, indexing="ij"), axis=-1).reshape(-1, 3)
+    d2 = np.einsum("ij,ij->i", offsets, offsets)
+    offsets = offsets[d2 <= radius * radius]
+    d2 = d2[d2 <= radius * radius]
+    offsets = np.ascontiguousarray(offsets[np.lexsort((offsets[:, 2], offsets[:, 1], offsets[:, 0], d2))])
+    offsets.flags.writeable = False  # shared between calls
+    return offsets
+
+
+def grid_knn(index, rows, k: int, shape, radius: int = GRID_RADIUS):
+    """The ``k`` nearest occupied voxels of some occupied voxels, by index arithmetic on the grid.
+
+    Parameters
+    ----------
+    index : (c, 3) int
+        The occupied voxels' indices (e.g. ``np.argwhere``), all distinct, inside ``shape``.
+    rows : (n,) int
+        Which of them to find neighbours for (positions in ``index``).
+    k : int
+    shape : the grid's shape.
+
+    Returns
+    -------
+    near : (n, k) int64, positions in ``index`` of each voxel's ``k`` nearest occupied voxels (by
+        the distance between voxel centres, itself first; among voxels at the same distance, the
+        one whose offset comes first in lexicographic order); rows not found are -1.
+    found : (n,) bool, False where fewer than ``k`` occupied voxels lie within ``radius`` voxels
+        (the caller asks a k-d tree for those).
+
+    Why hand-written: a k-d tree (scipy's ``cKDTree``) on a chair's voxels spends most of the
+    local-shape features' time finding what a scan of the grid around each voxel, nearest offset
+    first, finds in a tenth of it (``docs/labeller.md``); the set differs from the k-d tree's only
+    in which of several voxels at the k-th distance it keeps.
+    """
+    index = np.asarray(index, np.int64).reshape(-1, 3)
+    rows = np.asarray(rows, np.int64).reshape(-1)
+    lookup = np.full(tuple(np.asarray(shape, np.int64) + 2 * radius), -1, np.int64)  # padded: no bounds checks
+    lookup[tuple((index + radius).T)] = np.arange(len(index))
+    near = np.full((len(rows), k), -1, np.int64)
+    found = np.zeros(len(rows), bool)
+    if len(rows) and k > 0:
+        _grid_knn_kernel()(index, rows, lookup, _ball_offsets(radius) + radius, near, found)
+    return near, found
+
+
+_GRID_KNN = None
+
+
+def _grid_knn_kernel():
+    """Numba scan for :func:`grid_knn`, compiled on first use (cached on disk)."""
+    global _GRID_KNN
+    if _GRID_KNN is None:
+        import numba
+
+        @numba.njit(cache=True, nogil=True)
+        def scan(index, rows, lookup, offsets, near, found):
+            k = near.shape[1]
+            for q in range(rows.shape[0]):
+                i, j, l = index[rows[q], 0], index[rows[q], 1], index[rows[q], 2]
+                count = 0
+                for o in range(offsets.shape[0]):
+                    p = lookup[i + offsets[o, 0], j + offsets[o, 1], l + offsets[o, 2]]
+                    if p >= 0:
+                        near[q, count] = p
+                        count += 1
+                        if count == k:
+                            found[q] = True
+                            break
+
+        _GRID_KNN = scan
+    return _GRID_KNN
+
+
+_COV = None
+
+
+def _cov_kernel():
+    """``cov[i]``: the covariance of ``points[near[i]]`` (centred on their mean, divided by ``k``,
+    as :func:`_local_shape`), compiled on first use: NumPy's gather makes an ``(n, k, 3)`` copy
+    twice and its einsum costs as much as the k-d tree."""
+    global _COV
+    if _COV is None:
+        import numba
+
+        @numba.njit(cache=True, nogil=True)
+        def covariance(points, near, cov):
+            k = near.shape[1]
+            for i in range(near.shape[0]):
+                m0 = m1 = m2 = 0.0
+                for j in range(k):
+                    p = near[i, j]
+                    m0 += points[p, 0]
+                    m1 += points[p, 1]
+                    m2 += points[p, 2]
+                m0 /= k
+                m1 /= k
+                m2 /= k
+                c00 = c01 = c02 = c11 = c12 = c22 = 0.0
+                for j in range(k):
+                    p = near[i, j]
+                    d0 = points[p, 0] - m0
+                    d1 = points[p, 1] - m1
+                    d2 = points[p, 2] - m2
+                    c00 += d0 * d0
+                    c01 += d0 * d1
+                    c02 += d0 * d2
+                    c11 += d1 * d1
+                    c12 += d1 * d2
+                    c22 += d2 * d2
+                cov[i, 0, 0] = c00 / k
+                cov[i, 0, 1] = cov[i, 1, 0] = c01 / k
+                cov[i, 0, 2] = cov[i, 2, 0] = c02 / k
+                cov[i, 1, 1] = c11 / k
+                cov[i, 1, 2] = cov[i, 2, 1] = c12 / k
+                cov[i, 2, 2] = c22 / k
+
+        _COV = covariance
+    return _COV
+
+
+def grid_local_shape(points, index, rows, k: int, shape) -> np.ndarray:
+    """``(n, 9)``: :func:`_local_shape`'s columns for the voxels ``rows`` of a voxel grid whose
+    occupied voxels are ``index`` (``(c, 3) int``) with centres ``points`` (``(c, 3)`` float, any
+    frame that is a similarity of the grid's, e.g. canonical), the ``k`` nearest found on the grid
+    (:func:`grid_knn`; a k-d tree for the voxels with fewer than ``k`` within
+    :data:`GRID_RADIUS`). Among voxels at the k-th distance it may keep others than a k-d tree."""
+    points = np.ascontiguousarray(points, np.float64)
+    rows = np.asarray(rows, np.int64).reshape(-1)
+    if len(points) < 3 or len(points) < k:
+        return _local_shape(points, k)[rows]
+    near, found = grid_knn(index, rows, k, shape)
+    if not found.all():
+        from scipy.spatial import cKDTree
+
+        near[~found] = cKDTree(points).query(points[rows[~found]], k=k)[1].reshape(-1, k)
+    cov = np.empty((len(rows), 3, 3))
+    if len(rows):
+        _cov_kernel()(points, near, cov)
+    return _shape_columns(cov)
+
+
 def frame_features(points, cuboids: primitives.Cuboids, normals=None, settings: LabellerSettings | None = None,
-                   context=None) -> np.ndarray:
+                   context=None, *, local_shape=None) -> np.ndarray:
     """The features of elements in the primitive frame (see the module notes).
 
     Parameters
@@ -410,6 +647,9 @@ def frame_features(points, cuboids: primitives.Cuboids, normals=None, settings: 
     settings : LabellerSettings
     context : (c, 3) float or None
         Points whose neighbourhoods describe the local shape (default ``points``).
+    local_shape : (n, 9) float or None
+        The local-shape columns computed already (a voxel grid's :func:`grid_local_shape`);
+        None: from ``context`` by a k-d tree.
 
     Returns
     -------
@@ -442,7 +682,12 @@ def frame_features(points, cuboids: primitives.Cuboids, normals=None, settings: 
                 raise ValueError(f"`normals` must be (n, 3) float like the points, got shape {normals.shape}")
             columns += [normals, np.abs(normals[:, 1:2])]
     if settings.neighbours:
-        if context is None:
+        if local_shape is not None:
+            local_shape = np.asarray(local_shape, float)
+            if local_shape.shape != (n, 9):
+                raise ValueError(f"`local_shape` must be (n, 9) float like the points, got shape {local_shape.shape}")
+            columns.append(local_shape)
+        elif context is None:
             columns.append(_local_shape(points, settings.neighbours))
         else:
             context = primitives.cuboids.as_points(context)
@@ -476,7 +721,8 @@ def grid_sampling(index, neighbours, step: int):
     """Which voxels a labeller classifies when it reads one in ``step`` (``LabellerSettings.grid_sample``).
 
     Returns ``(classify (n,) bool, around (f, 26) int, use (f, 26) bool)``: the voxels classified
-    (step 2: ``i + j + k`` even; step 8: all three indices even; 1: all), and for the ``f`` others,
+    (step 2: ``i + j + k`` even; 4: all three indices even or all odd; 8: all three even; 1:
+    all), and for the ``f`` others,
     their 26 neighbours' positions (``neighbours[:, 1:]``, from :func:`grid_neighbours`) and which
     of them are classified occupied voxels (the mean of those is theirs). A voxel with no such
     neighbour is classified itself, so every ``use`` row has at least one True.
@@ -487,10 +733,12 @@ def grid_sampling(index, neighbours, step: int):
         sampled = np.ones(n, bool)
     elif step == 2:
         sampled = index.sum(axis=1) % 2 == 0
+    elif step == 4:  # a body-centred lattice: every voxel has one of them in its 3 x 3 x 3 block
+        sampled = np.all(index % 2 == index[:, :1] % 2, axis=1)
     elif step == 8:
         sampled = np.all(index % 2 == 0, axis=1)
     else:
-        raise ValueError(f"grid sampling one voxel in {step}: only 1, 2 or 8")
+        raise ValueError(f"grid sampling one voxel in {step}: only 1, 2, 4 or 8")
     around = neighbours[:, 1:27]
     use = sampled[around] & (around != np.arange(n)[:, None])  # an empty neighbour is the voxel itself
     classify = sampled | ~use.any(axis=1)
@@ -502,14 +750,30 @@ _OFFSETS = np.array(sorted(((i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) fo
                            key=lambda o: (sum(x * x for x in o), o)))
 
 
-def grid_normals(occupancy) -> np.ndarray:
+def grid_normals(occupancy, index=None) -> np.ndarray:
     """``(R, R, R, 3)`` outward unit normals of an occupancy grid, in its index axes: minus the
     gradient of the occupancy smoothed by a Gaussian of one voxel (scipy.ndimage), zero where flat
-    (deep inside)."""
+    (deep inside). ``index`` (``(n, 3) int``): only those voxels' normals, ``(n, 3)``, the same
+    numbers (``np.gradient``'s differences taken at those voxels alone: a chair's occupied voxels
+    are a tenth of its grid)."""
     from scipy import ndimage
 
     smooth = ndimage.gaussian_filter(np.asarray(occupancy, float), 1.0)
-    grad = -np.stack(np.gradient(smooth), axis=-1)
+    if index is None:
+        grad = -np.stack(np.gradient(smooth), axis=-1)
+    else:
+        index = np.asarray(index, np.int64).reshape(-1, 3)
+        grad = np.empty((len(index), 3))
+        for axis in range(3):  # np.gradient: central differences inside, one-sided at the two ends
+            size = smooth.shape[axis]
+            if size < 2:
+                raise ValueError("grid_normals needs at least 2 voxels along each axis")
+            i = index[:, axis]
+            hi, lo = index.copy(), index.copy()
+            hi[:, axis] = np.minimum(i + 1, size - 1)
+            lo[:, axis] = np.maximum(i - 1, 0)
+            diff = smooth[tuple(hi.T)] - smooth[tuple(lo.T)]
+            grad[:, axis] = -np.where((i > 0) & (i < size - 1), diff / 2.0, diff)
     norm = np.linalg.norm(grad, axis=-1, keepdims=True)
     return np.divide(grad, norm, out=np.zeros_like(grad), where=norm > 1e-6)
 
@@ -604,11 +868,19 @@ class Labeller:
                    {**(info or {}), "shapes": len(Xs), "elements": int(len(y))},
                    index_prior(priors, present, parts))
 
-    def features(self, points, cuboids, normals=None, context=None) -> np.ndarray:
+    def features(self, points, cuboids, normals=None, context=None, *, local_shape=None) -> np.ndarray:
         """:func:`frame_features` with this labeller's settings (canonical frame)."""
         if cuboids.count != self.parts:
             raise ValueError(f"the labeller reads {self.parts} part slots, the cuboids have {cuboids.count}")
-        return frame_features(points, cuboids, normals, self.settings, context)
+        return frame_features(points, cuboids, normals, self.settings, context, local_shape=local_shape)
+
+    def _grid_shape(self, points, grid_index, rows):
+        """The local-shape columns of the grid voxels ``rows`` (:func:`grid_local_shape`), or
+        None where the settings read none or the elements are no grid."""
+        if not self.settings.neighbours or grid_index is None or len(grid_index) != len(points):
+            return None
+        grid_index = np.asarray(grid_index, np.int64)
+        return grid_local_shape(points, grid_index, rows, self.settings.neighbours, grid_index.max(axis=0) + 1)
 
     def predict_proba(self, points, cuboids, normals=None, context=None, neighbours=None, grid_index=None) -> np.ndarray:
         """``(n, len(names))`` smoothed label probabilities of canonical-frame elements
@@ -616,14 +888,17 @@ class Labeller:
         grid's elements, with ``neighbours`` its :func:`grid_neighbours`, for ``grid_sample``)."""
         points = np.asarray(points, float)
         step = self.settings.grid_sample
+        grid = context is None and grid_index is not None  # the local shape found on the grid
         if step == 1 or grid_index is None or neighbours is None or neighbours.shape[1] < 27:
-            proba = self.classify(self.features(points, cuboids, normals, context))
+            shape = self._grid_shape(points, grid_index, np.arange(len(points))) if grid else None
+            proba = self.classify(self.features(points, cuboids, normals, context, local_shape=shape))
         else:
             classify, around, use = grid_sampling(grid_index, neighbours, step)
+            shape = self._grid_shape(points, grid_index, np.flatnonzero(classify)) if grid else None
             proba = np.zeros((len(points), self.ensemble.classes))  # zeros: the unclassified weigh 0 in the fill
             proba[classify] = self.classify(self.features(
                 points[classify], cuboids, None if normals is None else np.asarray(normals, float)[classify],
-                points if context is None else context))  # the local shape among all the elements
+                points if context is None else context, local_shape=shape))  # the local shape among all the elements
             fill = ~classify
             weights = use.astype(float)
             proba[fill] = np.einsum("nk,nkc->nc", weights, proba[around]) / weights.sum(axis=1, keepdims=True)
@@ -875,7 +1150,7 @@ def grid_elements(grid, frame) -> tuple[Elements, np.ndarray]:
     occupancy = np.asarray(grid.occupancy, bool)
     index = np.argwhere(occupancy)
     centres = grid.translate + (index + 0.5) * (grid.scale / grid.resolution)
-    normals = grid_normals(occupancy)[tuple(index.T)]  # index axes are the model axes (uniform scale)
+    normals = grid_normals(occupancy, index)  # index axes are the model axes (uniform scale)
     return Elements(frame.to_canonical(centres), _rotate(frame, normals),
                     neighbours=grid_neighbours(index, occupancy.shape), grid_index=index), index
 
@@ -894,6 +1169,17 @@ def mesh_elements(vertices, faces, frame, samples: int = 20000, seed=0) -> Eleme
 def point_elements(points, frame, normals=None) -> Elements:
     """A point cloud's points (and normals when it has them), canonical."""
     return Elements(frame.to_canonical(points), _rotate(frame, normals))
+
+
+def element_features(elements: Elements, canonical: primitives.Cuboids, settings: LabellerSettings) -> np.ndarray:
+    """:func:`frame_features` of every element, as :meth:`Labeller.predict_proba` reads them (a voxel
+    grid's local shape found on the grid, :func:`grid_local_shape`): what a labeller learns from."""
+    shape = None
+    if settings.neighbours and elements.context is None and elements.grid_index is not None and len(elements.points):
+        index = np.asarray(elements.grid_index, np.int64)
+        shape = grid_local_shape(elements.points, index, np.arange(len(index)), settings.neighbours,
+                                 index.max(axis=0) + 1)
+    return frame_features(elements.points, canonical, elements.normals, settings, elements.context, local_shape=shape)
 
 
 def label_elements(labeller: Labeller, elements: Elements, canonical: primitives.Cuboids) -> np.ndarray:

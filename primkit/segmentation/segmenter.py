@@ -14,8 +14,8 @@ import numpy as np
 from .. import io, parallel
 from ..parallel import parallel_map
 from ..model.abstraction import abstract, abstract_shapes, load_model
-from .labeller import (Labeller, LabellerSettings, frame_features, grid_elements, label_elements, mesh_elements,
-                       point_elements, read_labeller)
+from .labeller import (Labeller, LabellerSettings, element_features, grid_elements, label_elements,
+                       mesh_elements, point_elements, read_labeller)
 from . import evaluation, graphcut, outputs
 from .meshes import Segmentation, SegmentationFiles, segment_mesh
 from .points import PointSegmentation, segment_points
@@ -84,7 +84,7 @@ def fit_labeller(labelled, names, parts: int, *, settings=None, seed=0, **option
     shapes = []
     for seg, result, y in labelled:
         elements, _ = shape_elements(seg, result.frame)
-        X = frame_features(elements.points, result.canonical, elements.normals, settings, elements.context)
+        X = element_features(elements, result.canonical, settings)  # as the labeller reads them
         shapes.append((X, np.asarray(y, np.int64)))
     return Labeller.fit(shapes, names, parts, settings=settings, seed=seed, **options)
 

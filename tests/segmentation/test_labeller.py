@@ -305,7 +305,7 @@ def test_grid_neighbours_are_the_27_nearest_voxels_of_a_full_block():
 
 
 @pytest.mark.integration  # every grid step classified in full: seconds, left to the default suite
-@pytest.mark.parametrize("step", [2, 8])
+@pytest.mark.parametrize("step", [2, 4, 8])
 def test_grid_sampling_classifies_one_voxel_in_step_and_fills_the_rest(step):
     from dataclasses import replace
 
@@ -319,7 +319,8 @@ def test_grid_sampling_classifies_one_voxel_in_step_and_fills_the_rest(step):
     every = labeller.predict_proba(points, c, neighbours=near, grid_index=index)  # grid_sample 1
     sampled = replace(labeller, settings=replace(labeller.settings, grid_sample=step))
     got = sampled.predict_proba(points, c, neighbours=near, grid_index=index)
-    picked = index.sum(1) % 2 == 0 if step == 2 else np.all(index % 2 == 0, axis=1)
+    picked = {2: index.sum(1) % 2 == 0, 4: (index % 2 == 0).all(1) | (index % 2 == 1).all(1),
+              8: np.all(index % 2 == 0, axis=1)}[step]
     classified = 0
     for i, v in enumerate(index):  # brute force: the picked voxels of the 26 around, by coordinates
         around = [j for j, w in enumerate(index) if 0 < np.abs(w - v).max() <= 1 and picked[j]]
@@ -328,7 +329,7 @@ def test_grid_sampling_classifies_one_voxel_in_step_and_fills_the_rest(step):
             classified += 1
         else:
             np.testing.assert_allclose(got[i], every[around].mean(axis=0), atol=1e-12)
-    assert classified < len(index) * (0.7 if step == 2 else 0.4)
+    assert classified < len(index) * {2: 0.7, 4: 0.55, 8: 0.4}[step]
     assert not np.array_equal(got, every)
     assert np.all(lab.decide(got) >= 0)
 
@@ -348,6 +349,7 @@ def test_smoothing_is_the_mean_over_the_neighbours_repeated():
 def test_grid_sample_is_read_back_and_checked():
     assert LabellerSettings.from_dict({}).grid_sample == 1  # files written before it: every voxel
     assert LabellerSettings.from_dict({"grid_sample": 2}).grid_sample == 2
+    assert LabellerSettings.from_dict({"grid_sample": 4}).grid_sample == 4
     with pytest.raises(ValueError, match="grid_sample"):
         LabellerSettings.from_dict({"grid_sample": 3})
 
@@ -601,3 +603,137 @@ def test_the_bundled_chair_labeller_learned_from_validation_chairs_only(shared_d
     card = read_metadata(path)["card"]
     assert card["labeller"]["shapes"] == got.info["shapes"] == 100
     assert "non-commercial research" in card["labeller"]["terms"] and "PartNet" in card["text"]
+
+
+# -- the faster paths against straightforward computations ------------------------------------
+
+
+def test_packed_kernel_gives_the_plain_kernels_sums_exactly():
+    rng = np.random.default_rng(11)
+    X, y = _random_problem(4, rng, n=2000)
+    ensemble = TreeEnsemble.from_sklearn(sklearn.HistGradientBoostingClassifier(max_iter=30, random_state=0).fit(X, y))
+    assert ensemble.packed() is not None and np.any(ensemble.missing_left == 0) and np.any(ensemble.missing_left == 1)
+    Z = rng.normal(size=(500, X.shape[1])) * 2
+    Z[rng.random(Z.shape) < 0.2] = np.nan  # NaN down both stored sides
+    Z[:50] = X[:50]  # values on the thresholds' own side of the bins
+    split = ensemble.is_leaf == 0
+    Z[50:60, ensemble.feature[split][:10]] = ensemble.threshold[split][:10]  # exactly on a threshold: left
+    plain = np.empty((len(Z), len(ensemble.baseline)))
+    plain[:] = ensemble.baseline
+    lab._kernel()(Z, ensemble.feature, ensemble.threshold, ensemble.missing_left, ensemble.left, ensemble.right,
+                  ensemble.is_leaf, ensemble.value, ensemble.tree_start, ensemble.tree_class, plain)
+    np.testing.assert_array_equal(ensemble.raw_predict(Z), plain)  # the same walk, the same float64 sums
+    np.testing.assert_allclose(plain[:20], [_walk_one(ensemble, z) for z in Z[:20]], atol=1e-12)
+
+
+def test_packed_nodes_point_where_the_exported_arrays_do():
+    rng = np.random.default_rng(12)
+    X, y = _random_problem(3, rng, n=800)
+    e = TreeEnsemble.from_sklearn(sklearn.HistGradientBoostingClassifier(max_iter=4, random_state=0).fit(X, y))
+    meta, split_or_value, missing_left, roots = e.packed()
+    base = np.repeat(e.tree_start[:-1], np.diff(e.tree_start))
+    split = e.is_leaf == 0
+    np.testing.assert_array_equal(roots, e.tree_start[:-1])
+    np.testing.assert_array_equal(meta[split] & 0xFFFF, e.feature[split])
+    assert np.all(meta[~split] & 0xFFFF == lab.PACKED_LEAF)
+    np.testing.assert_array_equal((meta[split] >> 16) & 0xFFFFFF, (base + e.left)[split])
+    np.testing.assert_array_equal((meta[split] >> 40) & 0xFFFFFF, (base + e.right)[split])
+    np.testing.assert_array_equal(split_or_value, np.where(split, e.threshold, e.value))
+    np.testing.assert_array_equal(missing_left, e.missing_left)
+
+
+def _brute_knn_distances(index, i, k):
+    return np.sort(np.linalg.norm(index - index[i], axis=1))[:k]
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_grid_knn_finds_the_k_nearest_voxels_by_brute_force(seed):
+    rng = np.random.default_rng(seed)
+    occupancy = rng.random((12, 11, 10)) < 0.3
+    occupancy[2:10, 5, 4] = True  # a thin line: its neighbours lie far along it
+    index = np.argwhere(occupancy)
+    rows = rng.choice(len(index), 60, replace=False)
+    rows[0] = int(np.flatnonzero((index == [5, 5, 4]).all(axis=1))[0])
+    near, found = lab.grid_knn(index, rows, 16, occupancy.shape)
+    assert found.all()
+    for q, i in enumerate(rows):
+        assert near[q, 0] == i and len(set(near[q].tolist())) == 16  # itself first, distinct voxels
+        d = np.linalg.norm(index[near[q]] - index[i], axis=1)
+        assert np.all(np.diff(d) >= 0)  # nearest first
+        np.testing.assert_allclose(d, _brute_knn_distances(index, i, 16), atol=1e-12)  # the k smallest
+
+
+def test_grid_knn_says_when_the_ball_holds_too_few_and_the_local_shape_asks_a_tree():
+    occupancy = np.zeros((40, 4, 4), bool)
+    occupancy[0:40:3, 1, 1] = True  # 14 voxels three apart: the 16 nearest lie beyond 8 voxels
+    occupancy[0:3, 2, 2] = True
+    index = np.argwhere(occupancy)
+    near, found = lab.grid_knn(index, np.arange(len(index)), 16, occupancy.shape)
+    assert not found.any() and np.all(near[:, -1] == -1)
+    points = index * 0.1
+    got = lab.grid_local_shape(points, index, np.arange(len(index)), 16, occupancy.shape)
+    np.testing.assert_allclose(got, lab._local_shape(points, 16), atol=1e-9)  # the k-d tree's, all rows
+
+
+def test_grid_local_shape_is_the_covariance_of_the_nearest_voxels_in_any_similar_frame():
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(3)
+    occupancy = rng.random((10, 9, 8)) < 0.35
+    occupancy[1:9, 4, 2] = True
+    index = np.argwhere(occupancy)
+    rotation = Rotation.random(random_state=4).as_matrix()
+    points = (index * 0.07 + [0.1, -0.2, 0.3]) @ rotation.T  # a similarity of the grid (canonical-like)
+    rows = np.arange(0, len(index), 3)
+    got = lab.grid_local_shape(points, index, rows, 16, occupancy.shape)
+    near, _ = lab.grid_knn(index, rows, 16, occupancy.shape)
+    d_all = np.linalg.norm(index[:, None, :] - index[None, rows, :], axis=2)  # (c, n)
+    unique = 0
+    for q, i in enumerate(rows):
+        sel = points[near[q]] - points[near[q]].mean(axis=0)
+        cov = sel.T @ sel / 16
+        values, vectors = np.linalg.eigh(cov)
+        np.testing.assert_allclose(got[q, :3], values / values.sum(), atol=1e-9)  # brute force on its set
+        np.testing.assert_allclose(got[q, 3:6], np.abs(vectors[:, 2]), atol=1e-6)
+        d = np.sort(d_all[:, q])
+        if d[15] < d[16] - 1e-9 and values[2] - values[1] > 1e-6 and values[1] - values[0] > 1e-6:
+            unique += 1  # no tie at the 16th: the k-d tree's set, the same columns
+            np.testing.assert_allclose(got[q], lab._local_shape(points, 16)[i], atol=1e-6)
+    assert unique > 5
+
+
+def test_a_labeller_reads_a_grids_local_shape_on_the_grid():
+    rng = np.random.default_rng(8)
+    labeller, _ = _toy_labeller(rng, LabellerSettings(neighbours=8, smooth=0, grid_sample=1))
+    occupancy = rng.random((10, 9, 8)) < 0.5
+    index = np.argwhere(occupancy)
+    points = (index + 0.5) / 10 - 0.5
+    c = _cuboids(rng, absent=())
+    near = lab.grid_neighbours(index, occupancy.shape)
+    got = labeller.predict_proba(points, c, neighbours=near, grid_index=index)
+    shape = lab.grid_local_shape(points, index, np.arange(len(index)), 8, occupancy.shape)
+    want = labeller.classify(frame_features(points, c, None, labeller.settings, local_shape=shape))
+    np.testing.assert_array_equal(got, want)
+
+
+def test_grid_normals_at_some_voxels_are_the_full_grids():
+    rng = np.random.default_rng(9)
+    occupancy = rng.random((9, 8, 7)) < 0.4
+    occupancy[:, 0, :] = occupancy[-1] = True  # voxels on the grid's faces: the one-sided ends
+    index = np.argwhere(occupancy)
+    np.testing.assert_array_equal(lab.grid_normals(occupancy, index), lab.grid_normals(occupancy)[tuple(index.T)])
+
+
+def test_a_labeller_learns_a_grids_local_shape_as_it_reads_it():
+    rng = np.random.default_rng(10)
+    occupancy = rng.random((10, 9, 8)) < 0.5
+    index = np.argwhere(occupancy)
+    points = (index + 0.5) / 10 - 0.5
+    c = _cuboids(rng, absent=())
+    settings = LabellerSettings(neighbours=8)
+    elements = lab.Elements(points, grid_index=index)
+    shape = lab.grid_local_shape(points, index, np.arange(len(index)), 8, occupancy.shape)
+    np.testing.assert_array_equal(lab.element_features(elements, c, settings),
+                                  frame_features(points, c, None, settings, local_shape=shape))
+    np.testing.assert_array_equal(lab.element_features(lab.Elements(points), c, settings),
+                                  frame_features(points, c, None, settings))  # no grid: the k-d tree
