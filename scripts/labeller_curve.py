@@ -37,6 +37,7 @@ from primkit import io, primitives
 from primkit.segmentation import VoxelGroundTruth, evaluate_voxels
 from primkit.segmentation.labeller import (Labeller, LabellerSettings, frame_features, grid_elements, grid_local_shape,
                                            mesh_elements)
+from primkit.segmentation.profile import profile_features
 
 from scripts.partnet_chairs import MEAN_OVER, split
 
@@ -94,12 +95,15 @@ class Chairs:
             self.arrays.setdefault(name, {})[field] = z[key]
 
     def full_features(self, name):
-        """Every feature (normals and local shape), float32, cached under ``scratch/features``."""
+        """Every feature (normals, local shape and the shape profile), float32; all but the profile
+        cached under ``scratch/features`` (the profile costs milliseconds: computed each time)."""
         path = self.scratch / "features" / f"{name}.npy"
         if not path.is_file():
             path.parent.mkdir(exist_ok=True)
-            np.save(path, self.features(name, LabellerSettings(neighbours=16, normals=True)).astype(np.float32))
-        return np.load(path)
+            np.save(path, self.features(name, LabellerSettings(neighbours=16, normals=True, profile=False))
+                    .astype(np.float32))
+        profile = profile_features(self.arrays[name]["points"].astype(float))
+        return np.hstack([np.load(path), profile.astype(np.float32)])
 
     def features(self, name, settings, position_only=False):
         a = self.arrays[name]
@@ -245,13 +249,15 @@ def line(label, s):
 
 def _columns(parts, settings):
     """The columns of the full feature vector (normals and local shape) that ``settings`` read."""
-    full = LabellerSettings(neighbours=16, normals=True)
+    full = LabellerSettings(neighbours=16, normals=True, profile=True)
     keep = np.ones(_feature_count(parts, full), bool)
-    start = _feature_count(parts, replace(full, neighbours=0, normals=False))
+    start = _feature_count(parts, replace(full, neighbours=0, normals=False, profile=False))
     if not settings.normals:
         keep[start : start + 4] = False
     if not settings.neighbours:
-        keep[start + 4 :] = False
+        keep[start + 4 : start + 13] = False
+    if not settings.profile:
+        keep[start + 13 :] = False
     return keep
 
 
@@ -427,6 +433,8 @@ def main(argv=None) -> int:
     ap.add_argument("--knn", choices=["grid", "kdtree"], default="grid",
                     help="the local shape's nearest voxels: on the grid (as the library) or by a k-d tree (before); "
                          "give each its own --scratch (the features are cached there)")
+    ap.add_argument("--profile", action=argparse.BooleanOptionalAction, default=LabellerSettings().profile,
+                    help="curve, coseg: the shape-profile features (LabellerSettings.profile)")
     args = ap.parse_args(argv)
     KNN["how"] = args.knn
     args.scratch.mkdir(parents=True, exist_ok=True)
@@ -439,10 +447,11 @@ def main(argv=None) -> int:
     elif args.command == "model":
         out = model_figures(args.model, args.part)
     elif args.command == "curve":
-        out = curve(args.scratch, args.part, sizes or SIZES, args.draws, LabellerSettings(grid_sample=args.grid_sample),
+        out = curve(args.scratch, args.part, sizes or SIZES, args.draws, LabellerSettings(grid_sample=args.grid_sample,
+                                                                                     profile=args.profile),
                     args.labeller_only)
     else:
-        out = coseg(args.scratch, LabellerSettings())
+        out = coseg(args.scratch, LabellerSettings(profile=args.profile))
     if args.json:
         args.json.write_text(json.dumps(out, indent=1))
     return 0

@@ -14,6 +14,8 @@ sits in the shape's abstraction, which means the same thing on every shape of a 
 * the local shape around it: the principal axes of its ``k`` nearest neighbours among the shape's
   elements (how flat, thin or round it is there, and which way); on a voxel grid the nearest
   voxels are found on the grid (:func:`grid_local_shape`), elsewhere by a k-d tree.
+* where it sits in the shape's own occupancy (:mod:`primkit.segmentation.profile`: its place in the
+  bounding box, how full its horizontal slab is, what lies above, below, in front and behind it).
 
 A gradient-boosted tree ensemble (scikit-learn's ``HistGradientBoostingClassifier``) learns the
 labels from a few labelled shapes; its class probabilities are blended with the index-naming
@@ -47,6 +49,7 @@ import numpy as np
 
 from .. import primitives
 from ..model.modelfile import ModelFileError
+from .profile import PROFILE_FEATURES, profile_features
 
 __all__ = [
     "LABELLER_FORMAT",
@@ -71,8 +74,9 @@ __all__ = [
 #: Value of the ``format`` key of a labeller's JSON description.
 LABELLER_FORMAT = "primkit-labeller"
 #: Version of the labeller's arrays and description; newer ones are refused on load. Version 2
-#: stores feature and child indices as int16 (version 1: int64) and may carry ``labeller.prior``.
-LABELLER_FORMAT_VERSION = 2
+#: stores feature and child indices as int16 (version 1: int64) and may carry ``labeller.prior``;
+#: version 3 adds the ``profile`` setting (the shape-profile features; versions 1-2 read it false).
+LABELLER_FORMAT_VERSION = 3
 #: Prefix of a labeller's tensors in a model file (beside the network's weights).
 LABELLER_PREFIX = "labeller."
 #: Metadata key of a labeller's description in a model file.
@@ -86,6 +90,7 @@ ABSENT = 1.0e4
 #: (:attr:`TreeEnsemble.ARRAYS`): version 2 keeps feature and child indices in int16 (a third of
 #: the bytes per node: the bundled chair model's labeller fits the wheel).
 STORED = {1: {}, 2: {"feature": np.int16, "left": np.int16, "right": np.int16}}
+STORED[3] = STORED[2]  # the same arrays; the description's settings gained ``profile``
 
 #: Bounds on what a stored labeller may ask for (a hostile file allocates nothing beyond them).
 MAX_NODES = 50_000_000
@@ -404,6 +409,9 @@ class LabellerSettings:
         default): chosen by :meth:`Labeller.fit` from the number ``s`` of labelled shapes,
         ``min(0.4, 4 / s)`` (0.4 up to 10 shapes, 0.1 from 40: the best on the PartNet
         validation chairs from 3, 10 and 40); files without the key read 0.
+    profile : bool
+        Whether the shape-profile features (:func:`primkit.segmentation.profile.profile_features`)
+        end the feature vector; files without the key (format versions 1-2) read false.
     """
 
     neighbours: int = 16
@@ -413,16 +421,17 @@ class LabellerSettings:
     min_share: float = 0.01
     grid_sample: int = 4
     prior_weight: float | None = None
+    profile: bool = True
 
     #: the values ``grid_sample`` may take
     GRID_SAMPLES = (1, 2, 4, 8)
     #: what a key absent from a stored description reads (files written before it existed)
-    OLD_DEFAULTS = {"grid_sample": 1, "prior_weight": 0.0}
+    OLD_DEFAULTS = {"grid_sample": 1, "prior_weight": 0.0, "profile": False}
 
     def to_dict(self) -> dict:
         return {"neighbours": self.neighbours, "smooth_neighbours": self.smooth_neighbours, "smooth": self.smooth,
                 "normals": self.normals, "min_share": self.min_share, "grid_sample": self.grid_sample,
-                "prior_weight": self.prior_weight}
+                "prior_weight": self.prior_weight, "profile": self.profile}
 
     @classmethod
     def from_dict(cls, d: dict) -> "LabellerSettings":
@@ -448,7 +457,8 @@ class LabellerSettings:
 
 def feature_count(parts: int, settings: LabellerSettings) -> int:
     """Length of the feature vector of a model with ``parts`` slots."""
-    return 3 + parts + 3 + 3 * parts + parts + (4 if settings.normals else 0) + (9 if settings.neighbours else 0)
+    return 3 + parts + 3 + 3 * parts + parts + (4 if settings.normals else 0) + (9 if settings.neighbours else 0) \
+        + (PROFILE_FEATURES if settings.profile else 0)
 
 
 def _neighbours(points: np.ndarray, k: int) -> np.ndarray:
@@ -701,6 +711,8 @@ def frame_features(points, cuboids: primitives.Cuboids, normals=None, settings: 
             total = values.sum(axis=1, keepdims=True)
             shares = np.divide(values, total, out=np.full_like(values, 1.0 / 3), where=total > 0)
             columns.append(np.hstack([shares, np.abs(vectors[:, :, 2]), np.abs(vectors[:, :, 0])]))
+    if settings.profile:
+        columns.append(profile_features(points, context))
     return np.hstack(columns)
 
 

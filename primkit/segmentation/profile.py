@@ -1,0 +1,85 @@
+"""Where an element sits in its shape's occupancy: the shape-profile features of the labeller.
+
+The primitive frame (:func:`primkit.segmentation.labeller.frame_features`) tells a labeller where an
+element sits among the cuboids; when the cuboids fit a shape loosely (a seat cuboid that swallows
+the top of the legs) it says little about the shape itself. These features read the shape's own
+elements instead, binned in a coarse grid over their bounding box (``bins`` cells a side, in the
+canonical frame: +Y up, +X front), and tell for each element:
+
+====  =====================================================================================
+col   meaning
+====  =====================================================================================
+0-2   its position in the bounding box, each axis 0 (min) to 1 (max)
+3     how far it is from the middle plane across the shape, ``|2 z' - 1|`` (0: on it, 1: a side)
+4     the share of the shape in its horizontal slab (its height cell) over the largest slab's
+      (1 in the densest slab: on a chair, mostly the seat)
+5     its height above the centre of that densest slab, in the box's height (negative: below)
+6, 7  the shares of its vertical column's elements above and below its own cell
+8, 9  the shares of its front-to-back row's elements in front of (+X) and behind its own cell
+====  =====================================================================================
+
+A seat voxel sees a full slab and a column with legs below, a leg little in its slab and nothing
+above it, an arm the seat below it and nothing in front of a back. Each costs one histogram of the
+elements and a few cumulative sums (a few milliseconds on a 4,000-voxel chair), not a neighbour
+search. Written here because no dependency bins a point set this way and reads it back per point
+(``np.histogramdd`` gives the counts but not each point's cell).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["PROFILE_FEATURES", "PROFILE_BINS", "profile_features"]
+
+#: Columns :func:`profile_features` returns.
+PROFILE_FEATURES = 10
+#: Cells a side of the grid the elements are binned in (chosen on the PartNet validation chairs).
+PROFILE_BINS = 24
+
+
+def profile_features(points, context=None, bins: int = PROFILE_BINS) -> np.ndarray:
+    """``(n, 10)`` float: where each of ``points`` sits in the occupancy of ``context`` (the table
+    in the module notes).
+
+    Parameters
+    ----------
+    points : (n, 3) float
+        The elements, canonical frame (+Y up, +X front).
+    context : (c, 3) float or None
+        The points that stand for the shape (a mesh's surface samples; None: ``points``); the
+        bounding box and the counts are theirs.
+    bins : int
+        Cells a side of the binning grid (over each axis of the bounding box).
+    """
+    points = np.asarray(points, float)
+    ctx = points if context is None else np.asarray(context, float)
+    if points.ndim != 2 or points.shape[1] != 3 or ctx.ndim != 2 or ctx.shape[1] != 3:
+        raise ValueError(f"`points` and `context` must be (n, 3) float, got {points.shape} and {ctx.shape}")
+    if len(points) == 0:
+        return np.zeros((0, PROFILE_FEATURES))
+    if len(ctx) == 0:
+        raise ValueError("`context` is empty: no shape to read the profile from")
+    lo = ctx.min(axis=0)
+    extent = np.maximum(ctx.max(axis=0) - lo, 1e-9)
+    rel = (points - lo) / extent
+
+    def cells(p):
+        return np.clip(((p - lo) / extent * bins).astype(np.int64), 0, bins - 1)
+
+    c = cells(ctx)
+    counts = np.bincount((c[:, 0] * bins + c[:, 1]) * bins + c[:, 2], minlength=bins**3).reshape(bins, bins, bins)
+    counts = counts.astype(float)  # [x, y, z]
+    i, j, k = cells(points).T
+    own = counts[i, j, k]
+    slab = counts.sum(axis=(0, 2))  # per height cell
+    densest = (np.argmax(slab) + 0.5) / bins
+    column = counts.sum(axis=1)  # (x, z): everything above and below
+    below = np.cumsum(counts, axis=1)[i, j, k] - own
+    col = column[i, k]
+    row = counts.sum(axis=0)  # (y, z): everything in front and behind
+    behind = np.cumsum(counts, axis=0)[i, j, k] - own
+    rw = row[j, k]
+    safe_col, safe_row = np.maximum(col, 1.0), np.maximum(rw, 1.0)  # an element outside the context: zeros
+    return np.column_stack([rel, np.abs(2.0 * rel[:, 2] - 1.0), slab[j] / slab.max(), rel[:, 1] - densest,
+                            (col - below - own).clip(0) / safe_col, below / safe_col,
+                            (rw - behind - own).clip(0) / safe_row, behind / safe_row])

@@ -1,0 +1,120 @@
+"""The labeller's shape-profile features against a per-element brute force, their place in the
+feature vector, and labeller files from before them (format version 2) still loading."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from primkit import primitives
+from primkit.model.bundled import resolve_model
+from primkit.segmentation import labeller as lab
+from primkit.segmentation.labeller import Labeller, LabellerSettings, frame_features
+from primkit.segmentation.profile import PROFILE_FEATURES, profile_features
+
+
+def _brute(points, context, bins):
+    """Each column of the module's table computed for one element at a time by counting the
+    context points that share its slab, column or row (no cumulative sums, no bincount)."""
+    lo, hi = context.min(axis=0), context.max(axis=0)
+    ext = np.maximum(hi - lo, 1e-9)
+    cell = lambda p: np.clip(np.floor((p - lo) / ext * bins), 0, bins - 1).astype(int)  # noqa: E731
+    cc = cell(context)
+    slabs = [np.sum(cc[:, 1] == j) for j in range(bins)]
+    densest = (int(np.argmax(slabs)) + 0.5) / bins
+    out = []
+    for p in points:
+        i, j, k = cell(p)
+        rel = (p - lo) / ext
+        column = (cc[:, 0] == i) & (cc[:, 2] == k)
+        row = (cc[:, 1] == j) & (cc[:, 2] == k)
+        ncol, nrow = max(column.sum(), 1), max(row.sum(), 1)
+        out.append([*rel, abs(2 * rel[2] - 1), slabs[j] / max(slabs), rel[1] - densest,
+                    np.sum(column & (cc[:, 1] > j)) / ncol, np.sum(column & (cc[:, 1] < j)) / ncol,
+                    np.sum(row & (cc[:, 0] > i)) / nrow, np.sum(row & (cc[:, 0] < i)) / nrow])
+    return np.array(out)
+
+
+@pytest.mark.parametrize("bins", [5, 24])
+def test_profile_features_count_as_a_brute_force_does(bins):
+    rng = np.random.default_rng(bins)
+    context = rng.normal(size=(700, 3)) * [0.3, 0.5, 0.2]
+    points = np.vstack([context[:50], rng.normal(size=(40, 3)) * 0.4])  # some outside the context's box
+    got = profile_features(points, context, bins=bins)
+    assert got.shape == (90, PROFILE_FEATURES)
+    np.testing.assert_allclose(got, _brute(points, context, bins), atol=1e-12)
+    np.testing.assert_allclose(profile_features(context[:60], None, bins), _brute(context[:60], context[:60], bins),
+                               atol=1e-12)
+
+
+def test_profile_features_read_a_chair_like_block_as_expected():
+    """A seat plate on four legs: the seat's slab is the densest, the legs have nothing above."""
+    g = np.mgrid[0:10, 0:10, 0:10].reshape(3, -1).T.astype(float)  # x, y, z cells
+    seat = g[g[:, 1] == 5]
+    legs = np.array([p for p in g if p[1] < 5 and p[0] in (0, 9) and p[2] in (0, 9)])
+    shape = np.vstack([seat, legs]) / 10.0
+    f = profile_features(shape, bins=10)
+    s, leg = f[: len(seat)], f[len(seat):]
+    assert np.all(s[:, 4] == 1.0) and np.all(leg[:, 4] < 1.0)
+    np.testing.assert_allclose(s[:, 5], 0.0, atol=0.06)  # the seat sits in the densest slab
+    assert np.all(leg[:, 5] < 0) and np.all(s[:, 7] >= 0)
+    np.testing.assert_allclose(leg[:, 6] + leg[:, 7] + 1 / 6, 1.0)  # a leg column: 5 leg cells + the seat
+    assert np.all(leg[:, 6] > 0)  # the seat above each leg
+
+
+def test_the_profile_ends_the_frame_features():
+    rng = np.random.default_rng(3)
+    c = primitives.Cuboids(rng.uniform(0.05, 0.3, (5, 3)), rng.normal(size=(5, 4)), rng.uniform(-0.4, 0.4, (5, 3)),
+                           np.array([True, True, False, True, True]))
+    points, context = rng.uniform(-0.5, 0.5, (60, 3)), rng.uniform(-0.5, 0.5, (300, 3))
+    on = LabellerSettings(neighbours=8, profile=True)
+    off = LabellerSettings(neighbours=8, profile=False)
+    a, b = frame_features(points, c, None, on, context), frame_features(points, c, None, off, context)
+    assert a.shape == (60, lab.feature_count(5, on)) and lab.feature_count(5, on) == lab.feature_count(5, off) + 10
+    np.testing.assert_array_equal(a[:, : b.shape[1]], b)
+    np.testing.assert_array_equal(a[:, b.shape[1]:], profile_features(points, context))
+
+
+def _labeller(settings):
+    rng = np.random.default_rng(0)
+    shapes = []
+    for _ in range(3):
+        c = primitives.Cuboids(rng.uniform(0.05, 0.3, (5, 3)), rng.normal(size=(5, 4)),
+                               rng.uniform(-0.4, 0.4, (5, 3)), np.ones(5, bool))
+        points = rng.uniform(-0.5, 0.5, (300, 3))
+        y = (points[:, 1] > 0).astype(int) + (primitives.assign_points(points, c) == 1)
+        shapes.append((frame_features(points, c, None, settings), y))
+    return Labeller.fit(shapes, ["a", "b", "c"], 5, settings=settings, max_iter=10), c, points
+
+
+def _as_version_2(path, out):
+    """A labeller file as format version 2 wrote it (no ``profile`` key in its settings)."""
+    from safetensors import safe_open
+    from safetensors.numpy import load_file, save_file
+
+    with safe_open(str(path), framework="numpy") as f:
+        meta = json.loads(f.metadata()["primkit"])
+    meta["labeller"]["format_version"] = 2
+    del meta["labeller"]["settings"]["profile"]
+    save_file(load_file(str(path)), str(out), metadata={"primkit": json.dumps(meta)})
+    return out
+
+
+def test_a_version_2_labeller_loads_without_the_profile(tmp_path):
+    labeller, c, points = _labeller(LabellerSettings(neighbours=8, smooth=0, profile=False))
+    path = lab.write_labeller(resolve_model("chair"), tmp_path / "v3.safetensors", labeller)
+    got = lab.read_labeller(_as_version_2(path, tmp_path / "v2.safetensors"))
+    assert got.settings.profile is False
+    np.testing.assert_array_equal(got.predict(points, c), labeller.predict(points, c))
+
+
+def test_a_profile_labeller_passed_off_as_version_2_is_refused(tmp_path):
+    """Read as version 2 its settings lack the profile, so its trees read 10 features too many."""
+    labeller, _, _ = _labeller(LabellerSettings(neighbours=8, smooth=0, profile=True))
+    path = lab.write_labeller(resolve_model("chair"), tmp_path / "v3.safetensors", labeller)
+    assert lab.read_labeller(path).settings.profile is True
+    with pytest.raises(lab.ModelFileError) as err:
+        lab.read_labeller(_as_version_2(path, tmp_path / "v2.safetensors"))
+    assert "features" in str(err.value) and len(str(err.value).splitlines()) == 1
