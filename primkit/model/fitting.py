@@ -143,23 +143,25 @@ def _present_losses(z, q, t, present, closest, pts, uv, s: int, k: int):
     scored on all its parts, as the torch form does) and adds ``0 * value`` to the consistency sum.
     Measured: half the parts of the chair model's 24 turns are absent."""
     from ..primitives import quaternion_to_matrix_torch
-    from . import _field_kernels, _union_kernels
-    from .losses import _ABSENT
+    from ._compiled import kernels
+    from .losses import ABSENT_PENALTY
+
+    union_kernels, field_kernels = kernels("_union_kernels", z), kernels("_field_kernels", z)
 
     sk, m = present.shape
     rot = quaternion_to_matrix_torch(q)  # (s k, m, 3, 3)
     offset = (rot.transpose(-1, -2) @ t[..., None])[..., 0]  # R^T t, as losses._union_distance_sq forms it
-    absent = (1.0 - present) * _ABSENT
+    absent = (1.0 - present) * ABSENT_PENALTY
     rot, offset, z, t = rot.numpy(), offset.numpy(), z.numpy(), t.numpy()
     mask = present.numpy() > 0.5
     cols = _present_first(mask)
     rows = np.arange(sk)[:, None]
     points = np.ascontiguousarray(np.repeat(pts.numpy(), k, axis=0))
     pick = (rows, cols)
-    union, _, _ = _union_kernels.union_forward(
+    union, _, _ = union_kernels.union_forward(
         np.ascontiguousarray(rot[pick]), np.ascontiguousarray(offset[pick]), np.ascontiguousarray(z[pick]),
         np.ascontiguousarray(absent.numpy()[pick]), np.ascontiguousarray(mask[pick].astype(np.float32)), points,
-        False, _ABSENT)
+        False, ABSENT_PENALTY)
     cov = torch.from_numpy(union).mean(dim=1)
     # consistency: every set's parts are parts of its shape (one distance grid each), present ones only
     flat = mask.reshape(s, k * m)
@@ -167,7 +169,7 @@ def _present_losses(z, q, t, present, closest, pts, uv, s: int, k: int):
     pick = (np.arange(s)[:, None], parts)
     res = closest.shape[1]
     planar = closest.reshape(s, res ** 3, 3).transpose(1, 2).contiguous().numpy()
-    out, _ = _field_kernels.consistency_forward(
+    out, _ = field_kernels.consistency_forward(
         np.ascontiguousarray(rot.reshape(s, k * m, 3, 3)[pick]), np.ascontiguousarray(z.reshape(s, k * m, 3)[pick]),
         np.ascontiguousarray(t.reshape(s, k * m, 3)[pick]), np.ascontiguousarray(uv.numpy().reshape(s, k * m, -1, 2)[pick]),
         planar, res)

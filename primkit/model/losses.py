@@ -34,6 +34,7 @@ from ..primitives import (cuboid_distance_sq_torch, quaternion_to_matrix_torch, 
                           surface_coefficients_torch, surface_samples_from_coefficients_torch)
 
 __all__ = [
+    "ABSENT_PENALTY",
     "coverage_loss",
     "consistency_loss",
     "symmetry_loss",
@@ -49,7 +50,7 @@ __all__ = [
 ]
 
 #: squared distance standing in for "no present part" (far beyond anything inside the unit cube)
-_ABSENT = 1.0e2
+ABSENT_PENALTY = 1.0e2
 
 
 def _same_batch(**tensors) -> None:
@@ -85,7 +86,7 @@ def _union_distance_sq(points, half_extents, quaternions, translations, present,
     if kernels("_union_kernels", points, half_extents, quaternions, translations, present, data=(points,)):
         rot = quaternion_to_matrix_torch(quaternions)
         offset = (rot.transpose(-1, -2) @ translations[..., None])[..., 0]  # R^T t, as _nearest_distance_sq
-        absent = ((1.0 - present) * _ABSENT).detach()
+        absent = ((1.0 - present) * ABSENT_PENALTY).detach()
         union, deltas = _UnionDistance.apply(rot, offset, half_extents, absent, present.detach(), points, toggles)
         return (union, deltas) if toggles else union
     return _union_distance_sq_torch(points, half_extents, quaternions, translations, present, toggles=toggles)
@@ -96,7 +97,7 @@ def _union_distance_sq_torch(points, half_extents, quaternions, translations, pr
     with torch.no_grad():
         d2 = cuboid_distance_sq_torch(points.detach(), half_extents.detach(), quaternions.detach(),
                                       translations.detach(), parts_first=True)  # (B, m, n)
-        masked = d2 + (1.0 - present)[:, :, None] * _ABSENT
+        masked = d2 + (1.0 - present)[:, :, None] * ABSENT_PENALTY
         first, nearest = masked.min(dim=1)  # (B, n); min's indices measured faster than argmin here
         deltas = _toggle_deltas(d2, masked, present, first, nearest) if toggles else None
     union = _nearest_distance_sq(points, half_extents, quaternions, translations, present, nearest)
@@ -111,7 +112,7 @@ class _UnionDistance(torch.autograd.Function):
         from ._union_kernels import union_forward
 
         arrays = [x.detach().contiguous().numpy() for x in (rot, offset, half_extents, absent, present, points)]
-        union, nearest, deltas = union_forward(*arrays, toggles, _ABSENT)
+        union, nearest, deltas = union_forward(*arrays, toggles, ABSENT_PENALTY)
         ctx.arrays, ctx.nearest = (arrays[0], arrays[1], arrays[2], arrays[5]), nearest
         deltas = torch.from_numpy(deltas)
         ctx.mark_non_differentiable(deltas)
@@ -130,7 +131,7 @@ def _toggle_deltas(d2, masked, present, d1, k1):
     """(B, m) mean union distance with part ``j`` present minus with part ``j`` absent, others held.
 
     ``d2`` (B, m, n) distances to every cuboid, ``masked`` the same with absent parts pushed to
-    ``_ABSENT``, ``d1`` and ``k1`` (B, n) the nearest present distance of each point and its part.
+    ``ABSENT_PENALTY``, ``d1`` and ``k1`` (B, n) the nearest present distance of each point and its part.
     With ``d1'`` the second-nearest present distance: removing a present part ``j`` changes the
     point's distance by ``d1' - d1`` where ``k1 = j`` (else 0); adding an absent part ``j`` by
     ``min(d_j - d1, 0)``. The second-nearest is the minimum once the nearest is set aside (one
@@ -140,7 +141,7 @@ def _toggle_deltas(d2, masked, present, d1, k1):
     if m > 1:
         second = masked.scatter(1, k1[:, None, :], float("inf")).amin(dim=1)
     else:
-        second = torch.full_like(d1, _ABSENT)
+        second = torch.full_like(d1, ABSENT_PENALTY)
     removal = torch.zeros(b, m, dtype=d2.dtype, device=d2.device)
     removal.scatter_add_(1, k1, second - d1)
     addition = (d2 - d1[:, None, :]).clamp_max_(0.0).sum(-1)
@@ -148,7 +149,7 @@ def _toggle_deltas(d2, masked, present, d1, k1):
 
 
 def _nearest_distance_sq(points, half_extents, quaternions, translations, present, nearest):
-    """(B, n) squared distance of each point to its cuboid ``nearest`` (B, n), plus ``_ABSENT``
+    """(B, n) squared distance of each point to its cuboid ``nearest`` (B, n), plus ``ABSENT_PENALTY``
     where that cuboid is absent; differentiable in the cuboids and the points.
 
     Each cuboid's ``R`` (9), ``R^T t`` (3), half-extents (3) and absence term (1) are laid out as
@@ -161,7 +162,7 @@ def _nearest_distance_sq(points, half_extents, quaternions, translations, presen
     m = half_extents.shape[1]
     rot = quaternion_to_matrix_torch(quaternions)  # (B, m, 3, 3)
     offset = (rot.transpose(-1, -2) @ translations[..., None])[..., 0]  # R^T t, (B, m, 3)
-    absent = ((1.0 - present) * _ABSENT)[..., None]
+    absent = ((1.0 - present) * ABSENT_PENALTY)[..., None]
     table = torch.cat([rot.reshape(b, m, 9), offset, half_extents, absent], dim=-1)  # (B, m, 16)
     # unbind, not 16 slices: each slice's backward would add a (B, 16, n) gradient of zeros
     rows = torch.gather(table.transpose(1, 2), 2, nearest[:, None, :].expand(b, 16, n)).unbind(1)  # 16 x (B, n)

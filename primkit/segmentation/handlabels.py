@@ -254,7 +254,7 @@ class HandLabels:
             remap[self.names.index(n) + 1] = j + 1
         return remap[self.codes], used
 
-    def counts(self) -> dict:
+    def counts(self) -> dict[str, int]:
         """``{name: elements}`` of the used names."""
         codes, used = self.saved_codes()
         return {n: int((codes == j + 1).sum()) for j, n in enumerate(used)}

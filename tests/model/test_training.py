@@ -41,7 +41,7 @@ def test_nearest_cuboid_recomputation_is_the_plain_minimum_with_its_gradient():
     present = torch.tensor([[1, 1, 0, 1, 1, 1], [1] * 6, [0, 1, 1, 1, 1, 0]], dtype=torch.float64)
     pts = (torch.rand(3, 400, 3, dtype=torch.float64, generator=torch.Generator().manual_seed(5)) - 0.5).requires_grad_()
     ours = losses.coverage_loss(pts, z, q, t, present)
-    plain = (primitives.cuboid_distance_sq_torch(pts, z, q, t) + (1 - present)[:, None, :] * losses._ABSENT).min(-1).values.mean(1)
+    plain = (primitives.cuboid_distance_sq_torch(pts, z, q, t) + (1 - present)[:, None, :] * losses.ABSENT_PENALTY).min(-1).values.mean(1)
     assert torch.allclose(ours, plain, rtol=1e-12, atol=1e-15)
     weights = torch.tensor([1.0, 2.0, 0.5], dtype=torch.float64)
     g_ours = torch.autograd.grad((ours * weights).sum(), (pts, z, q, t))
