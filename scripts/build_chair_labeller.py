@@ -23,11 +23,12 @@ from pathlib import Path
 import numpy as np
 
 from primkit.model.bundled import bundled_models
-from primkit.model.modelfile import load_model_file, read_metadata
+from primkit.model.modelfile import read_metadata
 from primkit.segmentation import Segmenter
 from primkit.segmentation.labeller import LABELLER_KEY, read_labeller, write_labeller
 from primkit.segmentation.segmenter import fit_labeller
 
+from scripts.build_labellers import check_unchanged
 from scripts.partnet_chairs import split
 
 NAMES = ["back", "seat", "legs", "arms"]  # PartNet's values 0-3 (partnet_chair_boxes README)
@@ -73,15 +74,7 @@ def build(output: Path, chairs: int = 100, cache=None, *, overwrite: bool = Fals
         f"{chairs} PartNet validation chairs (scripts/partnet_chairs.py's split; never the test part) with "
         f"`python -m scripts.build_chair_labeller`; docs/labeller.md gives its figures. Terms: {TERMS}.\n")
     out = write_labeller(source, output, labeller, {"card": card}, overwrite=overwrite)
-    # the network and every other key unchanged
-    before, after = ({k: v for k, v in load_model_file(f)[0].items() if not k.startswith("labeller.")}
-                     for f in (source, out))
-    assert before.keys() == after.keys() and all(np.array_equal(before[k].numpy(), after[k].numpy()) for k in before)
-    new = read_metadata(out)
-    assert {k: v for k, v in new.items() if k not in ("card", LABELLER_KEY, "created")} == \
-        {k: v for k, v in meta.items() if k not in ("card", "created")}
-    assert {k: v for k, v in new["card"].items() if k not in ("labeller", "text")} == \
-        {k: v for k, v in meta["card"].items() if k != "text"}
+    check_unchanged(source, out, meta)  # the network and every other key unchanged
     back = read_labeller(out)
     print(f"wrote {out}: {out.stat().st_size} bytes (the file it started from: {source.stat().st_size}), "
           f"{len(back.ensemble.feature)} tree nodes, prior weight {back.settings.prior_weight}")
