@@ -241,15 +241,22 @@ def few_chairs(tmp_path_factory):
     return root
 
 
+@pytest.fixture(scope="module")
+def many_chairs(tmp_path_factory):
+    root = tmp_path_factory.mktemp("term-many")
+    synthetic.write_collection(root / "shapes", "chair", 40, seed=5)  # enough work for a signal to land
+    return root
+
+
 @pytest.mark.parametrize("how", [signal.SIGTERM, signal.SIGINT, signal.SIGKILL])
-def test_prepare_workers_end_with_their_parent(few_chairs, tmp_path, how):
+def test_prepare_workers_end_with_their_parent(many_chairs, tmp_path, how):
     """SIGTERM, SIGINT or SIGKILL to ``prepare --workers 2``'s main process alone: its pool workers
     end too (they were left running, about 380 MB each, after SIGTERM and SIGKILL)."""
     psutil = pytest.importorskip("psutil")
-    # the signal must reach a running prepare: on a quiet machine 8 chairs can be done within the
+    # the signal must reach a running prepare: on a quiet machine 8 chairs were done within the
     # first wait, so each try waits less, from an empty cache (no timing is asserted)
     for attempt, wait in enumerate((0.5, 0.1, 0.0)):
-        proc = _start(["prepare", few_chairs / "shapes", "--cache", tmp_path / f"cache{attempt}", "--workers", "2"])
+        proc = _start(["prepare", many_chairs / "shapes", "--cache", tmp_path / f"cache{attempt}", "--workers", "2"])
         chunks, reader = _stderr_reader(proc)
         main = psutil.Process(proc.pid)
         assert _wait_for(lambda: len(main.children(recursive=True)) >= 2 or proc.poll() is not None), "no workers"
