@@ -111,6 +111,13 @@ def test_local_shape_tells_a_line_from_a_plane():
 _TOY = {}  # (generator state, settings) -> (labeller, shapes, generator state after): a fit is seconds
 
 
+def _random_grid(rng):
+    """A random 10 x 9 x 8 occupancy, its voxels' indices and centres (cells of 0.1), random cuboids."""
+    occupancy = rng.random((10, 9, 8)) < 0.5
+    index = np.argwhere(occupancy)
+    return occupancy, index, (index + 0.5) / 10 - 0.5, _cuboids(rng, absent=())
+
+
 def _toy_labeller(rng, settings=None):
     """Learned from shapes whose label is which side of cuboid 0 a point lies on, and cuboid 1.
     The same generator state and settings give the same fit, so it is made once (the generator is
@@ -311,10 +318,7 @@ def test_grid_sampling_classifies_one_voxel_in_step_and_fills_the_rest(step):
 
     rng = np.random.default_rng(6)
     labeller, _ = _toy_labeller(rng, LabellerSettings(neighbours=8, smooth=0, grid_sample=1))
-    occupancy = rng.random((10, 9, 8)) < 0.5
-    index = np.argwhere(occupancy)
-    points = (index + 0.5) / 10 - 0.5
-    c = _cuboids(rng, absent=())
+    occupancy, index, points, c = _random_grid(rng)
     near = lab.grid_neighbours(index, occupancy.shape)
     every = labeller.predict_proba(points, c, neighbours=near, grid_index=index)  # grid_sample 1
     sampled = replace(labeller, settings=replace(labeller.settings, grid_sample=step))
@@ -705,10 +709,7 @@ def test_grid_local_shape_is_the_covariance_of_the_nearest_voxels_in_any_similar
 def test_a_labeller_reads_a_grids_local_shape_on_the_grid():
     rng = np.random.default_rng(8)
     labeller, _ = _toy_labeller(rng, LabellerSettings(neighbours=8, smooth=0, grid_sample=1))
-    occupancy = rng.random((10, 9, 8)) < 0.5
-    index = np.argwhere(occupancy)
-    points = (index + 0.5) / 10 - 0.5
-    c = _cuboids(rng, absent=())
+    occupancy, index, points, c = _random_grid(rng)
     near = lab.grid_neighbours(index, occupancy.shape)
     got = labeller.predict_proba(points, c, neighbours=near, grid_index=index)
     shape = lab.grid_local_shape(points, index, np.arange(len(index)), 8, occupancy.shape)
@@ -726,10 +727,7 @@ def test_grid_normals_at_some_voxels_are_the_full_grids():
 
 def test_a_labeller_learns_a_grids_local_shape_as_it_reads_it():
     rng = np.random.default_rng(10)
-    occupancy = rng.random((10, 9, 8)) < 0.5
-    index = np.argwhere(occupancy)
-    points = (index + 0.5) / 10 - 0.5
-    c = _cuboids(rng, absent=())
+    occupancy, index, points, c = _random_grid(rng)
     settings = LabellerSettings(neighbours=8)
     elements = lab.Elements(points, grid_index=index)
     shape = lab.grid_local_shape(points, index, np.arange(len(index)), 8, occupancy.shape)
