@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from ..model.parts import default_part_names
-from ..viz.palette import part_colors
+from ..viz.palette import UNLABELLED, label_colors, part_colors
 from ..viz.interop import to_pyvista
 from ..viz.camera import apply_camera
 
@@ -99,17 +99,7 @@ class AbstractionViewer:
 #: Printable characters a label name may hold (typed in the window).
 NAME_CHARS = set("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789-_. ")
 _KEY_CHARS = {"minus": "-", "underscore": "_", "period": ".", "space": " "}
-UNLABELLED = (215, 215, 215)  # the colour of an unlabelled face or point
 ERASER = "-"  # the name that takes names away
-
-
-def label_colors(count: int) -> np.ndarray:
-    """``(count, 3) uint8``: the colour of the ``count`` label names, in order (matplotlib's
-    tab10, then tab20: names are few, and should not look like the cuboids' part colours)."""
-    from matplotlib import colormaps
-
-    table = np.vstack([colormaps["tab10"].colors, colormaps["tab20"].colors[1::2]])
-    return (np.asarray(table)[np.arange(count) % len(table)] * 255).round().astype(np.uint8)
 
 
 @dataclass
