@@ -8,6 +8,14 @@ from the camera convention of :mod:`primkit.viz.render`.
     primkit view abstraction chair.off --model chair
     primkit view abstraction chair.off --model chair --label-to labels/chair.seg   # label by hand
 
+With ``named`` (the model's labeller's name of each face or point; ``primkit view abstraction``
+computes it when the model has a labeller) a *by name* checkbox colours the shape by name (the
+label palette, :func:`primkit.viz.palette.label_colors`, as ``segment --semantic --png``) with a
+legend of the names, and each cuboid is called by the name most of its faces get on this shape
+(:func:`primkit.segmentation.labeller.names_by_index`); ``by_name`` (``--semantic``) starts with it on.
+
+    primkit view abstraction chair.off --model chair --semantic
+
 With ``label_to`` (``--label-to``) it is also a labelling tool (:class:`LabellingControls`): name the
 faces of a clicked cuboid by typing, paint names with a brush, undo, save a label file that
 ``primkit name-parts`` reads.
@@ -49,6 +57,32 @@ class AbstractionViewer:
     outline_actor: object = None
     selected: int | None = None
     labelling: "LabellingControls | None" = None
+    named: np.ndarray | None = None  # (f,) or (n,) int: each face's (point's) label, into label_names
+    label_names: list | None = None
+    names_actor: object = None  # the shape coloured by name
+    names_checkbox: object = None
+    by_name: bool = False
+    legend: list = field(default_factory=list)  # the names in the legend shown
+
+    def colour_by_name(self, on: bool) -> None:
+        """Colour the shape by name (with a legend of the names) or show it grey (needs ``named``)."""
+        if self.names_actor is None:
+            raise ValueError("no names to colour by: the model has no labeller")
+        self.by_name = bool(on)
+        shown = self.mesh_actor.GetVisibility() or self.names_actor.GetVisibility()
+        self.names_actor.SetVisibility(self.by_name and shown)
+        self.mesh_actor.SetVisibility(not self.by_name and shown)
+        if self.names_checkbox is not None:
+            self.names_checkbox.GetRepresentation().SetState(int(self.by_name))
+        if self.legend:
+            self.plotter.remove_legend(render=False)
+            self.legend = []
+        if self.by_name:
+            present = sorted(set(np.unique(self.named).tolist()) - {-1})
+            self.legend = [self.label_names[j] for j in present]
+            colours = label_colors(len(self.label_names)) / 255.0
+            self.plotter.add_legend([[self.label_names[j], colours[j]] for j in present], bcolor="white",
+                                    face="rectangle", loc="center right", size=(0.14, 0.035 * len(present)))
 
     def toggle_part(self, k: int, visible: bool) -> None:
         """Show or hide part ``k`` (its faces and edges); a hidden part cannot be picked and loses its outline."""
@@ -59,6 +93,10 @@ class AbstractionViewer:
             self.select(None)
 
     def toggle_mesh(self, visible: bool) -> None:
+        if self.names_actor is not None:
+            self.names_actor.SetVisibility(bool(visible) and self.by_name)
+            self.mesh_actor.SetVisibility(bool(visible) and not self.by_name)
+            return
         self.mesh_actor.SetVisibility(bool(visible))
 
     def set_opacity(self, value: float) -> None:
@@ -302,6 +340,26 @@ class LabellingControls:
         return common.text_of(self.status_actor)
 
 
+def _add_names(viewer: AbstractionViewer, vertices, faces, labels, label_names, on: bool) -> None:
+    """The shape coloured by name (hidden until :meth:`AbstractionViewer.colour_by_name`) and its checkbox."""
+    from ..viz.palette import label_element_colors
+
+    p = viewer.plotter
+    viewer.named, viewer.label_names = labels, label_names
+    colours = label_element_colors(labels, len(label_names))
+    poly = to_pyvista((vertices, faces), face_colors=colours) if len(faces) else to_pyvista(np.asarray(vertices, float),
+                                                                                          colors=colours)
+    viewer.names_actor = p.add_mesh(poly, scalars="rgb", rgb=True, smooth_shading=False, pickable=False,
+                                    reset_camera=False, point_size=6)
+    viewer.names_actor.SetVisibility(False)
+    y = 10 + GAP  # above the mesh checkbox
+    viewer.names_checkbox = p.add_checkbox_button_widget(viewer.colour_by_name, value=False, position=(10, y),
+                                                         size=BOX, color_on="orange", color_off="white",
+                                                         background_color="grey")
+    p.add_text("by name", position=(10 + BOX + 6, y + 3), font_size=9, color="black")
+    viewer.colour_by_name(on)
+
+
 def _add_labelling(viewer: AbstractionViewer, vertices, faces, window_size, *, label_to, overwrite, source,
                    parts=None) -> LabellingControls:
     """Labelling mode: the shape drawn coloured by name, the panel, keys, buttons and the brush."""
@@ -380,7 +438,8 @@ def _wire_labelling_events(p, ctl: LabellingControls) -> None:
 
 def abstraction_viewer(vertices, faces, cuboids, names=None, *, title: str = "", opacity: float = 0.6,
                        off_screen: bool = False, window_size=(1024, 768), label_to=None, overwrite: bool = False,
-                       source=None, label_from=None, label_guess=None) -> AbstractionViewer:
+                       source=None, label_from=None, label_guess=None, named=None,
+                       by_name: bool = False) -> AbstractionViewer:
     """Build the viewer for one shape.
 
     Parameters
@@ -396,8 +455,23 @@ def abstraction_viewer(vertices, faces, cuboids, names=None, *, title: str = "",
         to start from (:meth:`primkit.segmentation.handlabels.HandLabels.load`); ``label_guess``:
         ``(labels (n,) int, names)`` to start from instead (a labeller's guess,
         :meth:`~primkit.segmentation.handlabels.HandLabels.start_from`).
+    named : ``(labels, label_names)``, optional
+        The model's labeller's name of each face (each point of a cloud): ``labels`` (f,) or (n,)
+        int, indices into ``label_names`` (-1 none), e.g.
+        :func:`primkit.segmentation.bylabel.labelled_surface`. Adds the *by name* checkbox (not in
+        labelling mode), and each cuboid takes the name most of its faces get
+        (:func:`primkit.segmentation.labeller.names_by_index`); ``by_name`` starts coloured by name.
     """
     names = list(names) if names is not None else default_part_names(cuboids.count)
+    if named is not None:
+        from ..segmentation.labeller import names_by_index
+
+        labels, label_names = np.asarray(named[0], np.int64), list(named[1])
+        expected = len(faces) if len(faces) else len(vertices)
+        if labels.shape != (expected,):
+            raise ValueError(f"`named` labels must be ({expected},) int, one per {'face' if len(faces) else 'point'}, "
+                             f"got {labels.shape}")
+        names = names_by_index(labels, common.part_labels(vertices, faces, cuboids), cuboids.count, label_names, names)
     p = common.new_plotter(off_screen, window_size, f"primkit - {title or 'abstraction'}")
     # no depth peeling: with Mesa (llvmpipe, EGL or Xvfb) it hid every translucent cuboid
     mesh_actor = p.add_mesh(to_pyvista((vertices, faces)), color="lightgrey", smooth_shading=False, pickable=False)
@@ -426,6 +500,8 @@ def abstraction_viewer(vertices, faces, cuboids, names=None, *, title: str = "",
                                    color="black")
     if title:
         p.add_text(title, position="upper_edge", font_size=11, color="black")
+    if named is not None and label_to is None:
+        _add_names(viewer, vertices, faces, labels, label_names, by_name)
     v = np.asarray(vertices, float)
     bounds = np.vstack([v.min(0), v.max(0)])
     apply_camera(p, bounds.mean(0), 0.5 * np.linalg.norm(bounds[1] - bounds[0]))
