@@ -188,4 +188,35 @@ def test_embedding_explorer_parts_by_label(shapes, labeller):
     np.fill_diagonal(D, np.inf)
     for i in range(len(shape_list)):
         assert sorted(explorer.neighbors.indices[i]) == sorted(np.argsort(D[i], kind="stable")[:2])
+        assert np.allclose(explorer.neighbors.distances[i], np.sort(D[i])[:2])  # index-based ones differ
     explorer.plotter.close()
+
+
+def test_view_semantic_through_the_cli(chairs, tmp_path, capsys):
+    """``view abstraction --semantic`` and ``view collection --mode names`` draw the label palette's
+    colours; a model without a labeller is refused in one line."""
+    from pictures import read_picture
+
+    from primkit.cli import main
+    from primkit.model.modelfile import load_model_file, save_model
+
+    paths = []
+    for i, c in enumerate(chairs[:2]):
+        paths.append(tmp_path / f"chair{i}.ply")
+        io.write_mesh(paths[-1], c.vertices, c.faces)
+    assert main(["view", "abstraction", str(paths[1]), "--model", "chair", "--semantic", "--png",
+                 str(tmp_path / "a.png"), "--size", "640x480"]) == 0
+    assert main(["view", "collection", *map(str, paths), "--model", "chair", "--mode", "names", "--png",
+                 str(tmp_path / "c.png"), "--size", "640x480"]) == 0
+    for png in ("a.png", "c.png"):
+        shown = [read_picture(tmp_path / png).colour_pixels(c) for c in label_colors(4)[:3]]
+        assert min(shown) > 100, (png, shown)  # back, seat and legs
+    weights, meta = load_model_file(resolve_model("chair"))
+    plain = save_model(tmp_path / "plain.safetensors",
+                       {k: v for k, v in weights.items() if not k.startswith(lab.LABELLER_PREFIX)},
+                       {k: v for k, v in meta.items() if k not in (lab.LABELLER_KEY, "created")})
+    capsys.readouterr()
+    assert main(["view", "abstraction", str(paths[0]), "--model", str(plain), "--semantic", "--png",
+                 str(tmp_path / "b.png")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "has no labeller" in err[0] and not (tmp_path / "b.png").exists()
