@@ -79,7 +79,7 @@ class ReportShape:
     scores: object = None
     named: np.ndarray | None = None
 
-    def label_shares(self, label_names) -> dict:
+    def label_shares(self, label_names) -> dict[str, float]:
         """``{name: share}``: the share of the surface (by area) each name holds, for the names
         present; empty without :attr:`named`."""
         if self.named is None or not len(self.faces):
