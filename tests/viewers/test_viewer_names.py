@@ -45,8 +45,6 @@ def _cell_rgb(actor):
 
 
 def test_abstraction_viewer_colours_by_name(shapes, labeller):
-    from pictures import read_picture
-
     from primkit.viewers import abstraction_viewer as av
     from primkit.viewers.common import part_labels
 
