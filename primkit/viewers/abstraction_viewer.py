@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from ..model.parts import default_part_names
-from ..viz.palette import UNLABELLED, label_colors, part_colors
+from ..viz.palette import UNLABELLED, label_colors, name_colors, part_colors
 from ..viz.interop import to_pyvista
 from ..viz.camera import apply_camera
 
@@ -152,7 +152,8 @@ class LabellingControls:
     writes the label file and its names file (never over a file it did not write, without
     ``overwrite``). BackSpace takes a character back, Escape clears the name; the name ``-``
     is the eraser (what it is given is unlabelled again). The shape is coloured by name (grey:
-    unlabelled).
+    unlabelled; a name the model's labeller knows, ``known``, in the colour it has everywhere,
+    :func:`primkit.viz.palette.name_colors`).
     """
 
     viewer: AbstractionViewer
@@ -174,6 +175,7 @@ class LabellingControls:
     saved: bool = False
     painting: bool = field(default=False, repr=False)
     _legend: list = field(default_factory=list, repr=False)
+    known: list = field(default_factory=list)  # the model's label names: a name typed keeps their colour
 
     # ---- the handlers -------------------------------------------------------------------------
 
@@ -298,7 +300,7 @@ class LabellingControls:
 
     def colors(self) -> np.ndarray:
         """``(n, 3) uint8``: each element's colour (its name's, or grey)."""
-        table = np.vstack([np.array([UNLABELLED], np.uint8), label_colors(max(len(self.labels.names), 1))])
+        table = np.vstack([np.array([UNLABELLED], np.uint8), name_colors(self.labels.names, self.known)])
         return table[self.labels.codes]
 
     def status(self) -> str:
@@ -330,7 +332,7 @@ class LabellingControls:
                     p.remove_legend(render=False)
                 self._legend = list(self.labels.names)
                 if self._legend:
-                    colors = label_colors(len(self._legend)) / 255.0
+                    colors = name_colors(self._legend, self.known) / 255.0
                     p.add_legend([[n, c] for n, c in zip(self._legend, colors)], bcolor="white", face="rectangle",
                                  loc="center right", size=(0.14, 0.035 * len(self._legend)))
 
@@ -361,7 +363,7 @@ def _add_names(viewer: AbstractionViewer, vertices, faces, labels, label_names, 
 
 
 def _add_labelling(viewer: AbstractionViewer, vertices, faces, window_size, *, label_to, overwrite, source,
-                   parts=None) -> LabellingControls:
+                   parts=None, known=()) -> LabellingControls:
     """Labelling mode: the shape drawn coloured by name, the panel, keys, buttons and the brush."""
     from ..segmentation.handlabels import HandLabels
 
@@ -371,7 +373,8 @@ def _add_labelling(viewer: AbstractionViewer, vertices, faces, window_size, *, l
               else HandLabels(np.asarray(vertices, float), parts))
     v = np.asarray(vertices, float)
     size = float(np.linalg.norm(v.max(0) - v.min(0))) if len(v) else 1.0
-    ctl = LabellingControls(viewer, labels, label_to, overwrite=overwrite, source=source, radius=0.05 * size)
+    ctl = LabellingControls(viewer, labels, label_to, overwrite=overwrite, source=source, radius=0.05 * size,
+                            known=list(known))
     viewer.labelling = ctl
     # the shape again, coloured by name, in place of the grey one
     p.remove_actor(viewer.mesh_actor)
@@ -508,7 +511,7 @@ def abstraction_viewer(vertices, faces, cuboids, names=None, *, title: str = "",
     common.on_click(p, viewer.pick_at)
     if label_to is not None:
         ctl = _add_labelling(viewer, vertices, faces, window_size, label_to=Path(label_to), overwrite=overwrite,
-                             source=source)
+                             source=source, known=label_names if named is not None else ())
         if label_from is not None or label_guess is not None:
             if label_from is not None:
                 ctl.labels.load(label_from)

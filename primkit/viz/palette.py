@@ -10,6 +10,8 @@
   same colour. Drawn from matplotlib's tab10, then the light half of tab20, so that names do not
   look like the cuboids' part colours (tab20). :data:`UNLABELLED` is the grey of an element
   without a name.
+* :func:`name_colors`: names that may not follow the model's order (typed by hand): a name the
+  model knows keeps the model's colour, the others take the colours after the model's.
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ import numpy as np
 
 from ..primitives.palette import part_colors
 
-__all__ = ["part_colors", "label_colors", "label_element_colors", "UNLABELLED"]
+__all__ = ["part_colors", "label_colors", "label_element_colors", "name_colors", "UNLABELLED"]
 
 #: ``(3,) uint8``-like RGB of an element with no name (no label, or no cuboid present)
 UNLABELLED = (215, 215, 215)
@@ -41,3 +43,14 @@ def label_element_colors(labels, count: int) -> np.ndarray:
         raise ValueError(f"labels go up to {labels.max()}, but there are {count} label names")
     table = np.vstack([label_colors(count).reshape(-1, 3), np.array([UNLABELLED], np.uint8)])
     return table[np.where(labels < 0, count, labels)]
+
+
+def name_colors(names, known=()) -> np.ndarray:
+    """``(len(names), 3) uint8``: the colour of each name, by name: a name of ``known`` (the model's
+    label names, in their order) takes its :func:`label_colors` colour there, so ``seat`` typed by
+    hand is drawn as the model's ``seat``; the others the colours after ``known``'s, in order."""
+    known = [str(n) for n in known]
+    table = label_colors(len(known) + len(names))
+    others = [n for n in dict.fromkeys(str(n) for n in names) if n not in known]
+    at = {n: len(known) + i for i, n in enumerate(others)} | {n: i for i, n in enumerate(known)}
+    return table[[at[str(n)] for n in names]].reshape(-1, 3)

@@ -218,3 +218,29 @@ def test_view_semantic_through_the_cli(chairs, tmp_path, capsys):
                  str(tmp_path / "b.png")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "has no labeller" in err[0] and not (tmp_path / "b.png").exists()
+
+
+def test_names_typed_by_hand_keep_the_models_colours(shapes, labeller, tmp_path):
+    """In labelling mode a name the model's labeller knows (``legs``) is drawn in its colour
+    everywhere (label_colors' third), whatever order the names were typed in; a new name takes the
+    colour after the model's."""
+    from primkit.viewers import abstraction_viewer as av
+    from primkit.viewers.common import part_labels
+    from primkit.viz.palette import name_colors
+
+    (s, *_), model = shapes
+    want = _named(labeller, s)
+    viewer = av.abstraction_viewer(s.vertices, s.faces, s.cuboids, model.part_names, off_screen=True,
+                                   window_size=(400, 300), label_to=tmp_path / "c.seg", named=(want, NAMES))
+    ctl = viewer.labelling
+    index = part_labels(s.vertices, s.faces, s.cuboids)
+    first, second = [int(k) for k in s.cuboids.present[:2]]
+    for k, name in ((first, "foot"), (second, "legs")):  # a new name first, then one the model knows
+        viewer.select(k)
+        ctl.type_text(name)
+        ctl.enter()
+    colours = ctl.colors()
+    assert np.all(colours[index == second] == label_colors(4)[2])  # legs, as the model draws legs
+    assert np.all(colours[index == first] == label_colors(5)[4])  # foot: the colour after the model's four
+    assert np.array_equal(name_colors(["foot", "legs", "back"], NAMES), label_colors(5)[[4, 2, 0]])
+    viewer.plotter.close()
