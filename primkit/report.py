@@ -462,6 +462,7 @@ def _page(shapes, part_names, thumbs, similarity, deform, notes, scene, out: Pat
     return _TEMPLATE.format(
         title=f"primkit report: {len(shapes)} shapes", meta=esc(json.dumps(meta)), cards="".join(cards),
         rows="".join(rows), convention=esc(conv), usage=usage, similarity=sim, deformation=dfm,
+        names_heading=", names (the model's labeller)" if label_names else "",
         scene=web.figure_div(scene, "scene"), scene_script=web.figure_script("scene", ready=ready))
 
 
@@ -516,7 +517,7 @@ drawn in the model's canonical frame (upright, front +X), all at one scale. Sett
 <p>Each shape's surface in the colours of its parts, beside its cuboids. Drag to turn, scroll to zoom,
 click a part in the legend to hide it on every shape. <span id="status"></span></p>
 {scene}
-<h2>Shapes: mesh, cuboids, co-segmentation</h2>
+<h2>Shapes: mesh, cuboids, co-segmentation{names_heading}</h2>
 <div class="cards">{cards}</div>
 <h2>Similarity map</h2>{similarity}
 <h2>Deformation</h2>{deformation}

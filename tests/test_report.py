@@ -234,7 +234,7 @@ def test_the_report_names_each_shape_with_the_models_labeller(report_dir):
     assert names == ["back", "seat", "legs", "arms"]
     labeller = lab.read_labeller(resolve_model("chair"))
     page = (report_dir / "index.html").read_text()
-    assert "Names (the model's labeller" in page
+    assert "Names (the model's labeller" in page and "co-segmentation, names (the model's labeller)" in page
     for i, s in enumerate(summary["shapes"]):
         mesh = io.read_mesh(s["source"])
         a = abstract((mesh.vertices, mesh.faces), "chair")
