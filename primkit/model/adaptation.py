@@ -453,6 +453,10 @@ def _part_boxes(z, q, t) -> torch.Tensor:
     return torch.stack([world.amin(2), world.amax(2)], 2)
 
 
+#: At most this many shapes (evenly spaced) speak for what an index means in :func:`index_outliers`.
+REFERENCE_SHAPES = 2000
+
+
 def index_outliers(boxes: np.ndarray, present: np.ndarray, fit: np.ndarray, *, reach: float = 0.15,
                    support: float = 0.1) -> np.ndarray:
     """(s, m) bool: where part ``k`` of shape ``s`` is unlike what index ``k`` is on the other shapes,
@@ -476,8 +480,8 @@ def index_outliers(boxes: np.ndarray, present: np.ndarray, fit: np.ndarray, *, r
     stools of the tests the parent's fit is 5-25 times the chairs'). The *support* of part ``k``
     on shape ``s`` is the weight of the other shapes on which index ``k`` is present with each of
     its box's six coordinates within ``reach`` of this one's, over the weight of all the other
-    shapes. The part is an outlier when its support is under ``support``: index ``k`` is seldom
-    there, or seldom anything like this, where the parent explains shapes well. Several modes are
+    shapes (in a collection of more than :data:`REFERENCE_SHAPES`, of that many evenly spaced).
+    The part is an outlier when its support is under ``support``: index ``k`` is seldom there, or seldom anything like this, where the parent explains shapes well. Several modes are
     fine (legs at different places on different chairs each find their like); a chair model's back
     on a stool, a slab at the seat's height, finds none among the chairs' tall backs.
     """
@@ -488,20 +492,25 @@ def index_outliers(boxes: np.ndarray, present: np.ndarray, fit: np.ndarray, *, r
         raise ValueError(f"`boxes` must be (s, m, 2, 3) float to go with `present` {present.shape}, got {boxes.shape}")
     fit = np.maximum(np.asarray(fit, float).reshape(count), 1e-12)
     w = np.minimum(1.0, np.quantile(fit, 0.25) / fit)
-    others = w.sum() - w  # (s,) the weight of the other shapes
+    # the shapes that speak: all of them, or REFERENCE_SHAPES evenly spaced in a larger collection
+    # (the pairs are what this costs: O(s * reference * m))
+    ref = np.unique(np.linspace(0, count - 1, min(count, REFERENCE_SHAPES)).round().astype(int))
+    in_ref = np.zeros(count, bool)
+    in_ref[ref] = True
+    others = w[ref].sum() - np.where(in_ref, w, 0.0)  # (s,) the weight of the other shapes that speak
     flat = boxes.reshape(count, m, 6)
     out = np.zeros((count, m), bool)
     for k in range(m):
         on = np.flatnonzero(present[:, k])
-        if not len(on):
-            continue
-        x = flat[on, k]
-        near = np.ones((len(on), len(on)), bool)
-        for c in range(6):  # one coordinate at a time: (p, p) booleans, not a (p, p, 6) stack
-            near &= np.abs(x[:, None, c] - x[None, :, c]) <= reach
-        np.fill_diagonal(near, False)
-        mass = near.astype(float) @ w[on]
-        out[on, k] = mass < support * np.maximum(others[on], 1e-12)
+        peers = ref[present[ref, k]]
+        for lo in range(0, len(on), 1024):  # (1024, reference) booleans at a time
+            rows = on[lo:lo + 1024]
+            near = np.ones((len(rows), len(peers)), bool)
+            for c in range(6):  # one coordinate at a time, not a (rows, peers, 6) stack
+                near &= np.abs(flat[rows, k, c][:, None] - flat[peers, k, c][None, :]) <= reach
+            near &= rows[:, None] != peers[None, :]  # not itself
+            mass = near.astype(float) @ w[peers]
+            out[rows, k] = mass < support * np.maximum(others[rows], 1e-12)
     return out
 
 
@@ -510,7 +519,8 @@ def _outlier_targets(answers, data, weights, config) -> tuple[_ParentAnswers, np
     without: the pull's targets (``AdaptConfig.removal="outliers"``, the default).
 
     1. On each shape, from the parent's answer (existence over 0.5) and ``points_per_shape`` samples
-       (32 shapes at a time): the fit loss (coverage + consistency, the training's weights) and each
+       (32 shapes at a time, read again for step 3 where needed, the samples seeded by ``seed`` and
+       the block: nothing else is kept): the fit loss (coverage + consistency, the training's weights) and each
        part's bounding box (:func:`_part_boxes`);
     2. the parts :func:`index_outliers` finds unlike what their index is on the other shapes (those
        the parent explains well counting most), kept only on the shapes the parent fits more than
@@ -533,23 +543,26 @@ def _outlier_targets(answers, data, weights, config) -> tuple[_ParentAnswers, np
     t_all, z_all, q_all = answers.translations, answers.half_extents, answers.quaternions
     p_all = answers.existence.clone()
     removed = np.zeros(count, int)
-    generator = torch.Generator().manual_seed(config.seed)
     plain = replace(config, leave_one_out_refit=0)
-    fit = np.empty(count)
-    batches = []
-    for lo in range(0, count, 32):
+
+    def block(lo):  # shapes lo.. lo + 31 and their samples, the same each time they are read
         index = np.arange(lo, min(count, lo + 32))
-        _, closest, pts = data.batch(index, config.points_per_shape, generator)
+        _, closest, pts = data.batch(index, config.points_per_shape, torch.Generator().manual_seed(config.seed + lo))
+        return index, closest, pts
+
+    fit = np.empty(count)
+    for lo in range(0, count, 32):  # nothing kept but the losses: memory flat in the collection's size
+        index, closest, pts = block(lo)
         base, _, _ = _refit(z_all[index], q_all[index], t_all[index], p_all[index] > 0.5, pts, closest, weights, plain)
         fit[index] = base.numpy()
-        batches.append((index, closest, pts))
     boxes = _part_boxes(z_all, q_all, t_all).numpy()
     odd = index_outliers(boxes, p_all.numpy() > 0.5, fit, reach=config.outlier_reach, support=config.outlier_support)
     odd &= (fit > config.removal_fit * np.quantile(fit, 0.25))[:, None]  # only where the parent extrapolates
-    for index, closest, pts in batches:
-        rows = odd[index].any(1)
-        if not rows.any():
+    for lo in range(0, count, 32):
+        if not odd[lo:lo + 32].any():
             continue
+        index, closest, pts = block(lo)  # read again, for the shapes with outliers
+        rows = odd[index].any(1)
         index, closest, pts = index[rows], closest[torch.from_numpy(rows)], pts[torch.from_numpy(rows)]
         doubt = torch.from_numpy(odd[index])
         z, t, q = z_all[index], t_all[index], q_all[index]

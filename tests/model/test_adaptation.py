@@ -216,10 +216,12 @@ def test_a_removed_part_hands_its_samples_to_the_next_nearest_part_grown_to_hold
         adapt(Abstractor.load("chair"), [object()], AdaptConfig(steps=1, existence_pull_on="encoder"))
 
 
-def _outliers_by_loops(boxes, present, fit, reach, support):
+def _outliers_by_loops(boxes, present, fit, reach, support, speak=None):
     # index_outliers written out shape by shape: the weights, then for every present part the
-    # weight of the other shapes whose box k lies within reach on all six coordinates
+    # weight of the other shapes (of those in `speak`: all by default) whose box k lies within
+    # reach on all six coordinates
     count, m = present.shape
+    speak = range(count) if speak is None else speak
     ordered = sorted(fit)
     pos = 0.25 * (count - 1)
     lo, frac = int(np.floor(pos)), pos - np.floor(pos)
@@ -227,12 +229,12 @@ def _outliers_by_loops(boxes, present, fit, reach, support):
     w = [min(1.0, q / f) for f in fit]
     out = np.zeros((count, m), bool)
     for s in range(count):
-        others = sum(w[o] for o in range(count) if o != s)
+        others = sum(w[o] for o in speak if o != s)
         for k in range(m):
             if not present[s, k]:
                 continue
             mass = 0.0
-            for o in range(count):
+            for o in speak:
                 if o != s and present[o, k] and all(abs(boxes[s, k].ravel()[c] - boxes[o, k].ravel()[c]) <= reach
                                                     for c in range(6)):
                     mass += w[o]
@@ -288,6 +290,21 @@ def test_index_outliers_flags_a_part_unlike_its_index_on_the_well_explained_shap
                                       _outliers_by_loops(b, pres, f, reach, support))
     with pytest.raises(ValueError, match="boxes"):
         index_outliers(boxes[:, :2], present, fit)
+
+
+def test_index_outliers_in_a_large_collection_ask_evenly_spaced_shapes(monkeypatch):
+    from primkit.model import adaptation
+
+    monkeypatch.setattr(adaptation, "REFERENCE_SHAPES", 7)
+    r = np.random.default_rng(7)
+    n = 25
+    lo = r.uniform(-0.5, 0.3, (n, 4, 3))
+    b = np.stack([lo, lo + r.uniform(0, 0.2, (n, 4, 3))], 2)
+    pres = r.random((n, 4)) < 0.8
+    f = r.uniform(0.001, 0.1, n)
+    speak = [0, 4, 8, 12, 16, 20, 24]  # 7 shapes evenly spaced over 25
+    np.testing.assert_array_equal(adaptation.index_outliers(b, pres, f, reach=0.3, support=0.2),
+                                  _outliers_by_loops(b, pres, f, 0.3, 0.2, speak))
 
 
 def test_part_boxes_bound_each_cuboid_s_corners():
