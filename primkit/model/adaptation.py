@@ -109,7 +109,8 @@ class AdaptConfig:
     leave_one_out_refit: int = 30  # Adam steps re-fitting the kept parts of each variant before it is judged
     existence_pull_on: str = "head"  # the existence pull's gradient: "network" (all weights) or "head"
     # the pull's targets without the parts that are unlike their index and that the shape does without
-    # (_outlier_targets): "outliers" (the default) or "none"
+    # (_outlier_targets): "outliers" (the default) or "none"; with pull=0 or parent_pass="every-step"
+    # there are no targets to edit and nothing is removed
     removal: str = "outliers"
     removal_cost: float = 0.0  # cheap: handing the part's samples over raises the fit by at most this share
     removal_fit: float = 4.0  # only on shapes the parent fits this many times worse than the first quartile
