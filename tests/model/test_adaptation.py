@@ -364,6 +364,8 @@ def test_outlier_targets_remove_only_cheap_outliers_and_keep_the_other_cuboids()
     expected = p.clone()
     expected[5, 1:] = 0.0
     torch.testing.assert_close(new.existence, expected)
+    again, twice = _outlier_targets(answers, stream, LossWeights(1, 1, 0), AdaptConfig(seed=0))
+    assert torch.equal(again.existence, new.existence) and twice.tolist() == removed.tolist()  # deterministic
 
 
 @pytest.mark.slow
