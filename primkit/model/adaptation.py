@@ -8,7 +8,7 @@ parent's weights, and returns a new :class:`~primkit.model.abstractor.Abstractor
 is still the parent's part ``k`` (nothing renumbers the slots; how far the answer moves is measured
 by :func:`index_agreement`).
 
-Status: experimental, off by default (``primkit adapt``, ``--adapt [STEPS]`` on the commands that
+Status: experimental, not run unless asked (``primkit adapt``, ``--adapt [STEPS]`` on the commands that
 abstract, ``abstract_shapes(..., adapt=)``, ``Segmenter(..., adapt=)``). On the 10 COSEG chairs in
 ``../shared``, paper protocol, face accuracy with the nearest labelling: the parent 0.908; 600 steps
 without the pull 0.876 (every setting without it lowered it); with the pull toward the parent's
@@ -37,11 +37,23 @@ Design:
   (``batch_norm="train"`` gave the same figures on the COSEG chairs, to 4 decimals);
 * deterministic under ``seed`` with a fixed thread count (batches and existence draws come from
   one seeded generator);
-* opt-in, :data:`LEAVE_ONE_OUT_RECIPE`: before the steps, the parts each shape does without (judged
-  by the fit loss once the other parts have taken over their samples, :func:`_leave_one_out`) are
-  removed from the pull's targets, and the existence target moves the existence head only. It makes
-  the chair model drop its back on procedural stools, but removes real chairs' parts too (PartNet
-  validation 0.735 -> 0.634), so it is not the default (docs/adaptation.md).
+* by default (``removal="outliers"``, :func:`_outlier_targets`), before the steps, a part leaves
+  the pull's targets (existence target 0; every other cuboid stays the parent's) when the parent
+  fits its shape more than ``removal_fit`` (4) times worse than the collection's first quartile,
+  the part is unlike what its index is on the other shapes, those the parent explains well
+  counting most (:func:`index_outliers`), and handing its samples to the other parts does not
+  raise the shape's fit loss. Part indices keep their meaning: a real chair's duplicate leg box
+  sits where that index sits on other chairs and stays; the chair model's back on a stool (a slab
+  at the seat's height) and the boxes it puts on a stool's seat top (an index no chair uses) go.
+  The existence pull moves the existence head only (``existence_pull_on="head"``, at 5e-2). About
+  30 ms a shape; on the first 80 PartNet validation chairs mean back/seat/legs IoU 0.735 -> 0.736
+  and arm F1 0.873 -> 0.873, and the chair model adapted to procedural stools and chairs drops its
+  back on the stools (docs/adaptation.md);
+* opt-in, :data:`LEAVE_ONE_OUT_RECIPE`: the parts each shape does without, judged by the fit loss
+  once the other parts have taken over their samples and been re-fitted (:func:`_leave_one_out`),
+  whatever their index means elsewhere. It also drops the back on the stools, but removes real
+  chairs' duplicate legs, arms and seats too (PartNet validation 0.735 -> 0.634) and costs about a
+  second a shape.
 """
 
 from __future__ import annotations
@@ -59,7 +71,7 @@ from .abstractor import Abstractor
 from .losses import LossWeights, MovingBaseline, reinforce_surrogate, shape_losses
 
 __all__ = ["AdaptConfig", "LEAVE_ONE_OUT_RECIPE", "ShapeSequence", "adapt", "collection_digest", "default_steps",
-           "index_agreement"]
+           "index_agreement", "index_outliers"]
 
 #: Bounds and rate of :func:`default_steps`.
 MIN_STEPS, MAX_STEPS, VISITS_PER_SHAPE = 200, 600, 40
@@ -86,7 +98,7 @@ class AdaptConfig:
     pull: float = 1.0
     existence_pull: float = 1.0  # weight of the existence term within the pull (0: existence moves freely)
     existence: str = "reinforce"  # how existence learns: "reinforce" (the training's) or "effect" (see adapt)
-    existence_learning_rate: float | None = None  # the existence head's own rate; None: ``learning_rate``
+    existence_learning_rate: float | None = 5e-2  # the existence head's own rate; None: ``learning_rate``
     parsimony: float | None = None  # the REINFORCE reward per part dropped; None: the parent's training's
     parent_pass: str = "once"  # the parent's answers computed "once" per shape, or on "every-step"'s batch
     # leave-one-out on the parent's answers (_leave_one_out): a present part whose removal (its samples
@@ -95,7 +107,15 @@ class AdaptConfig:
     leave_one_out: float | None = None
     leave_one_out_rounds: int = 8  # parts dropped one at a time, at most this many a shape
     leave_one_out_refit: int = 30  # Adam steps re-fitting the kept parts of each variant before it is judged
-    existence_pull_on: str = "network"  # the existence pull's gradient: "network" (all weights) or "head"
+    existence_pull_on: str = "head"  # the existence pull's gradient: "network" (all weights) or "head"
+    # the pull's targets without the parts that are unlike their index and that the shape does without
+    # (_outlier_targets): "outliers" (the default) or "none"; with pull=0 or parent_pass="every-step"
+    # there are no targets to edit and nothing is removed
+    removal: str = "outliers"
+    removal_cost: float = 0.0  # cheap: handing the part's samples over raises the fit by at most this share
+    removal_fit: float = 4.0  # only on shapes the parent fits this many times worse than the first quartile
+    outlier_reach: float = 0.15  # index_outliers' thresholds (canonical frame, the longest side 1)
+    outlier_support: float = 0.1
     weights: str = "all"  # "all", "heads" (the four part heads) or "shape-heads" (not the existence head)
     batch_norm: str = "frozen"
     seed: int = 0
@@ -423,6 +443,160 @@ def _leave_one_out(answers, data, weights, config) -> tuple[_ParentAnswers, np.n
     return _ParentAnswers(t_all, z_all, p_all, answers.quaternions), removed
 
 
+def _part_boxes(z, q, t) -> torch.Tensor:
+    """(B, m, 2, 3) the lower and upper corners of each cuboid's axis-aligned bounding box, in the
+    shape's (canonical) frame: where a part sits and how far it reaches, whatever its rotation."""
+    from .. import primitives
+
+    corners = torch.tensor([[x, y, w] for x in (-1, 1) for y in (-1, 1) for w in (-1, 1)], dtype=z.dtype)
+    rot = primitives.quaternion_to_matrix_torch(q)  # (B, m, 3, 3), columns the part's axes
+    world = t[:, :, None] + (rot[:, :, None] @ (corners[None, None] * z[:, :, None])[..., None])[..., 0]
+    return torch.stack([world.amin(2), world.amax(2)], 2)
+
+
+#: At most this many shapes (evenly spaced) speak for what an index means in :func:`index_outliers`.
+REFERENCE_SHAPES = 2000
+
+
+def index_outliers(boxes: np.ndarray, present: np.ndarray, fit: np.ndarray, *, reach: float = 0.15,
+                   support: float = 0.1) -> np.ndarray:
+    """(s, m) bool: where part ``k`` of shape ``s`` is unlike what index ``k`` is on the other shapes,
+    those the parent explains well counting most.
+
+    Parameters
+    ----------
+    boxes : (s, m, 2, 3) float
+        Each part's axis-aligned bounding box (lower and upper corner) in the canonical frame
+        (units: the shape's longest side is 1).
+    present : (s, m) bool
+        The parent's present parts.
+    fit : (s,) float
+        The parent's fit loss on each shape (coverage + consistency; > 0).
+    reach, support
+        The thresholds below.
+
+    Each shape ``s'`` speaks for what its indices mean with weight ``w = min(1, q / fit)``, ``q``
+    the collection's first quartile of the fit: a shape the parent explains as well as a quarter of
+    the collection counts fully, one fitted ``c`` times worse counts ``1 / c`` (on the procedural
+    stools of the tests the parent's fit is 5-25 times the chairs'). The *support* of part ``k``
+    on shape ``s`` is the weight of the other shapes on which index ``k`` is present with each of
+    its box's six coordinates within ``reach`` of this one's, over the weight of all the other
+    shapes (in a collection of more than :data:`REFERENCE_SHAPES`, of that many evenly spaced).
+    The part is an outlier when its support is under ``support``: index ``k`` is seldom there, or seldom anything like this, where the parent explains shapes well. Several modes are
+    fine (legs at different places on different chairs each find their like); a chair model's back
+    on a stool, a slab at the seat's height, finds none among the chairs' tall backs.
+    """
+    boxes = np.asarray(boxes, float)
+    present = np.asarray(present, bool)
+    count, m = present.shape
+    if boxes.shape != (count, m, 2, 3):
+        raise ValueError(f"`boxes` must be (s, m, 2, 3) float to go with `present` {present.shape}, got {boxes.shape}")
+    fit = np.maximum(np.asarray(fit, float).reshape(count), 1e-12)
+    w = np.minimum(1.0, np.quantile(fit, 0.25) / fit)
+    # the shapes that speak: all of them, or REFERENCE_SHAPES evenly spaced in a larger collection
+    # (the pairs are what this costs: O(s * reference * m))
+    ref = np.unique(np.linspace(0, count - 1, min(count, REFERENCE_SHAPES)).round().astype(int))
+    in_ref = np.zeros(count, bool)
+    in_ref[ref] = True
+    others = w[ref].sum() - np.where(in_ref, w, 0.0)  # (s,) the weight of the other shapes that speak
+    flat = boxes.reshape(count, m, 6)
+    out = np.zeros((count, m), bool)
+    for k in range(m):
+        on = np.flatnonzero(present[:, k])
+        peers = ref[present[ref, k]]
+        for lo in range(0, len(on), 1024):  # (1024, reference) booleans at a time
+            rows = on[lo:lo + 1024]
+            near = np.ones((len(rows), len(peers)), bool)
+            for c in range(6):  # one coordinate at a time, not a (rows, peers, 6) stack
+                near &= np.abs(flat[rows, k, c][:, None] - flat[peers, k, c][None, :]) <= reach
+            near &= rows[:, None] != peers[None, :]  # not itself
+            mass = near.astype(float) @ w[peers]
+            out[rows, k] = mass < support * np.maximum(others[rows], 1e-12)
+    return out
+
+
+def _outlier_targets(answers, data, weights, config) -> tuple[_ParentAnswers, np.ndarray]:
+    """The parent's answers without the parts that are unlike their index and that the shape does
+    without: the pull's targets (``AdaptConfig.removal="outliers"``, the default).
+
+    1. On each shape, from the parent's answer (existence over 0.5) and ``points_per_shape`` samples
+       (32 shapes at a time, read again for step 3 where needed, the samples seeded by ``seed`` and
+       the block: nothing else is kept): the fit loss (coverage + consistency, the training's weights) and each
+       part's bounding box (:func:`_part_boxes`);
+    2. the parts :func:`index_outliers` finds unlike what their index is on the other shapes (those
+       the parent explains well counting most), kept only on the shapes the parent fits more than
+       ``removal_fit`` times worse than the collection's first quartile: where it extrapolates;
+    3. per shape, of those parts, the ones whose removal (their samples handed to their next-nearest
+       present part, grown to hold them, :func:`_handed_over`; no re-fit) raises the fit loss by less
+       than ``removal_cost`` times the shape's fit loss (0: does not raise it at all) are *cheap*;
+       the cheap one nearest to the fewest samples goes and the rest are judged again, at most
+       ``leave_one_out_rounds`` times, never below one part.
+
+    A removed part gets existence target 0; every other part keeps the parent's cuboid as its
+    target (the hand-over only judges the removal: taken as the target, the grown heirs, a seat
+    stretched down over a leg's samples, cost 0.05 of mean IoU on PartNet chairs, docs/adaptation.md).
+    Also returns (s,) the number of parts removed a shape. Cost: one loss evaluation per shape, and
+    one per round and outlier part on the shapes that have outliers; no re-fit.
+    """
+    from .. import primitives
+
+    count, m = answers.existence.shape
+    t_all, z_all, q_all = answers.translations, answers.half_extents, answers.quaternions
+    p_all = answers.existence.clone()
+    removed = np.zeros(count, int)
+    plain = replace(config, leave_one_out_refit=0)
+
+    def block(lo):  # shapes lo.. lo + 31 and their samples, the same each time they are read
+        index = np.arange(lo, min(count, lo + 32))
+        _, closest, pts = data.batch(index, config.points_per_shape, torch.Generator().manual_seed(config.seed + lo))
+        return index, closest, pts
+
+    fit = np.empty(count)
+    for lo in range(0, count, 32):  # nothing kept but the losses: memory flat in the collection's size
+        index, closest, pts = block(lo)
+        base, _, _ = _refit(z_all[index], q_all[index], t_all[index], p_all[index] > 0.5, pts, closest, weights, plain)
+        fit[index] = base.numpy()
+    boxes = _part_boxes(z_all, q_all, t_all).numpy()
+    odd = index_outliers(boxes, p_all.numpy() > 0.5, fit, reach=config.outlier_reach, support=config.outlier_support)
+    odd &= (fit > config.removal_fit * np.quantile(fit, 0.25))[:, None]  # only where the parent extrapolates
+    for lo in range(0, count, 32):
+        if not odd[lo:lo + 32].any():
+            continue
+        index, closest, pts = block(lo)  # read again, for the shapes with outliers
+        rows = odd[index].any(1)
+        index, closest, pts = index[rows], closest[torch.from_numpy(rows)], pts[torch.from_numpy(rows)]
+        doubt = torch.from_numpy(odd[index])
+        z, t, q = z_all[index], t_all[index], q_all[index]
+        present = p_all[index] > 0.5
+        rot = primitives.quaternion_to_matrix_torch(q)
+        local = (pts[:, None, :, :] - t[:, :, None, :]) @ rot  # R^T (x - t), (B, m, n, 3)
+        d2 = ((local.abs() - z[:, :, None, :]).clamp_min(0) ** 2).sum(-1)
+        with torch.no_grad():
+            for _round in range(config.leave_one_out_rounds):
+                masked = d2.masked_fill(~present[:, :, None], torch.inf)
+                k1 = masked.argmin(1)
+                k2 = masked.scatter(1, k1[:, None, :], torch.inf).argmin(1)
+                share = torch.nn.functional.one_hot(k1, m).sum(1)  # (B, m) samples nearest to each part
+                base, _, _ = _refit(z, q, t, present, pts, closest, weights, plain)
+                cost = torch.full(present.shape, torch.inf)
+                for k in torch.nonzero((doubt & present).any(0)).flatten().tolist():
+                    zk, tk, pk = _handed_over(local, z, t, rot, present, k1, k2, k)
+                    lk, _, _ = _refit(zk, q, tk, pk, pts, closest, weights, plain)
+                    cost[:, k] = torch.where(doubt[:, k] & present[:, k], lk - base, torch.inf)
+                cost[present.sum(1) < 2] = torch.inf
+                cheap = cost < config.removal_cost * base[:, None]
+                fewest, k = torch.where(cheap, share.to(cost.dtype), torch.inf).min(1)
+                drop = torch.nonzero(torch.isfinite(fewest)).flatten()
+                if not len(drop):
+                    break
+                present[drop, k[drop]] = False
+                doubt[drop, k[drop]] = False
+                removed[index[drop.numpy()]] += 1
+        for b, s in enumerate(index):
+            p_all[s, (p_all[s] > 0.5) & ~present[b]] = 0.0
+    return _ParentAnswers(t_all, z_all, p_all, q_all), removed
+
+
 def _frames_and_answers(model, shapes, align, chunk: int, want_answers: bool):
     """The rotation :meth:`Abstractor.orient` chooses for each shape (``chunk`` shapes decoded at a
     time; ``"auto"`` votes its expected up axis within each chunk), the parent's answers on the
@@ -553,6 +727,8 @@ def adapt(model, shapes, config: AdaptConfig = AdaptConfig(), *, align: str | No
         raise ValueError(f"AdaptConfig.existence must be 'reinforce' or 'effect', got {config.existence!r}")
     if config.existence_pull_on not in ("network", "head"):
         raise ValueError(f"AdaptConfig.existence_pull_on must be 'network' or 'head', got {config.existence_pull_on!r}")
+    if config.removal not in ("outliers", "none"):
+        raise ValueError(f"AdaptConfig.removal must be 'outliers' or 'none', got {config.removal!r}")
     if config.leave_one_out and (not config.pull or config.parent_pass != "once"):
         raise ValueError("AdaptConfig.leave_one_out edits the pull's targets: it needs pull > 0 and parent_pass='once'")
     if config.parent_pass not in ("once", "every-step"):
@@ -571,6 +747,8 @@ def adapt(model, shapes, config: AdaptConfig = AdaptConfig(), *, align: str | No
     removed = None
     if config.leave_one_out and answers is not None:
         answers, removed = _leave_one_out(answers, data, weights, config)
+    elif config.removal == "outliers" and answers is not None:
+        answers, removed = _outlier_targets(answers, data, weights, config)
     parsimony = float(training.get("parsimony", 8e-5)) if config.parsimony is None else float(config.parsimony)
     net = copy.deepcopy(model.network).to("cpu")
     if config.weights != "all":  # the encoder keeps the parent's features; only the part heads move
@@ -610,7 +788,7 @@ def adapt(model, shapes, config: AdaptConfig = AdaptConfig(), *, align: str | No
         "config": config.to_dict(),
         "seconds": round(time.perf_counter() - t0, 1),
         "index_agreement": round(agreement, 4),
-        "leave_one_out_removed": None if removed is None else int(removed.sum()),
+        "parts_removed": None if removed is None else int(removed.sum()),  # from the pull's targets
         "agreement_shapes": agreement_shapes,
         "labels_used": False,
     }
