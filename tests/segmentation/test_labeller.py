@@ -742,10 +742,11 @@ def test_a_labeller_learns_a_grids_local_shape_as_it_reads_it():
                                   frame_features(points, c, None, settings))  # no grid: the k-d tree
 
 
-def _stopped_walk(ensemble, x, rounds, margin):
+def _stopped_walk(ensemble, x, rounds, margin, taper):
     """A plain Python walk with the early stop (the reference for :func:`lab._early_kernel`): the
     trees in rounds of ``k``, the scores after each round from ``rounds`` on checked."""
     k = len(ensemble.baseline)
+    total = len(ensemble.tree_class) // k
     raw = ensemble.baseline.copy()
     for t in range(len(ensemble.tree_class)):
         base, node = ensemble.tree_start[t], ensemble.tree_start[t]
@@ -756,7 +757,7 @@ def _stopped_walk(ensemble, x, rounds, margin):
         raw[ensemble.tree_class[t]] += ensemble.value[node]
         if (t + 1) % k == 0 and (t + 1) // k >= rounds:
             top = np.sort(raw)[::-1]
-            if (abs(raw[0]) if k == 1 else top[0] - top[1]) > margin:
+            if (abs(raw[0]) if k == 1 else top[0] - top[1]) > margin + taper * (total - (t + 1) // k) / total:
                 break
     return raw
 
@@ -769,21 +770,21 @@ def test_the_early_stop_walks_each_sample_to_its_stopping_round(classes):
     assert e.in_rounds()
     Z = rng.normal(size=(300, X.shape[1])) * 2
     Z[rng.random(Z.shape) < 0.2] = np.nan
-    for rounds, margin in [(3, 1.0), (10, 2.0), (1, 0.5)]:
-        got = e.raw_predict(Z, (rounds, margin))
-        want = [_stopped_walk(e, z, rounds, margin) for z in Z]
+    for stop in [(3, 1.0, 0.0), (10, 2.0, 0.0), (1, 0.5, 0.0), (5, 0.5, 3.0)]:
+        got = e.raw_predict(Z, stop)
+        want = [_stopped_walk(e, z, *stop) for z in Z]
         np.testing.assert_array_equal(got, want)  # the same trees in the same order: the same sums
     full = e.raw_predict(Z)
-    early = e.raw_predict(Z, (3, 1.0))
+    early = e.raw_predict(Z, (3, 1.0, 2.0))
     assert 0 < np.mean(np.all(early == full, axis=1)) < 1  # some samples stopped, some walked every tree
-    np.testing.assert_array_equal(e.raw_predict(Z, (25, 0.0)), full)  # the last round: nothing left to skip
-    np.testing.assert_array_equal(e.raw_predict(Z, (1, np.inf)), full)
+    np.testing.assert_array_equal(e.raw_predict(Z, (25, 0.0, 0.0)), full)  # the last round: nothing left to skip
+    np.testing.assert_array_equal(e.raw_predict(Z, (1, np.inf, 0.0)), full)
     if classes > 2:  # trees not in round order walk in full whatever the stop
         from dataclasses import replace
 
         shuffled = replace(e, tree_class=e.tree_class[::-1].copy())
         assert not shuffled.in_rounds()
-        np.testing.assert_array_equal(shuffled.raw_predict(Z, (1, 0.0)), shuffled.raw_predict(Z))
+        np.testing.assert_array_equal(shuffled.raw_predict(Z, (1, 0.0, 0.0)), shuffled.raw_predict(Z))
 
 
 def test_the_frame_columns_are_numpys_cuboid_frames():
