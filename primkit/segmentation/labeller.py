@@ -368,11 +368,11 @@ def _packed_kernel():
     return _PACKED
 
 
-#: The labeller's early stop in the tree walk (:meth:`TreeEnsemble.raw_predict`'s ``stop``): after
-#: at least 15 rounds, a sample whose two best raw scores lie 2.5 apart (odds of 12 to 1 between
-#: them) walks no further trees: about 44 rounds of 100 on average on a chair's voxels, a third of
-#: them walking all. Chosen on the PartNet validation chairs (``docs/labeller.md``, "Cost": 99.85%
-#: of the voxels keep the label the full walk gives).
+#: The labeller's early stop in the tree walk (:meth:`TreeEnsemble.raw_predict`'s ``stop``, no
+#: taper): after at least 15 rounds, a sample whose two best raw scores lie 2.5 apart (odds of 12
+#: to 1 between them) walks no further trees: about 44 rounds of 100 on average on a chair's
+#: voxels, a quarter of them walking all. Chosen on the PartNet validation chairs
+#: (``docs/labeller.md``, "Cost": 99.85% of the voxels keep the label the full walk gives).
 EARLY_STOP = (15, 2.5, 0.0)
 
 _EARLY = None
@@ -1046,7 +1046,7 @@ class Labeller:
         The index-naming prior: row ``k`` the shares of the labels among the labelled elements
         whose nearest cuboid is ``k``, each labelled shape weighing the same (an index no labelled
         element had: the labels' overall shares); blended in with ``settings.prior_weight``.
-    early_stop : (rounds, margin) or None
+    early_stop : (rounds, margin, taper) or None
         How :meth:`classify` walks the trees (:meth:`TreeEnsemble.raw_predict`'s ``stop``; not
         stored: a way of labelling, not part of what was learned): :data:`EARLY_STOP`, or None
         for every tree (the exact ``predict_proba``).
