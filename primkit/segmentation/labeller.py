@@ -868,12 +868,20 @@ def grid_neighbours(index, shape) -> np.ndarray:
     itself where a neighbour is empty or off the grid). The first ``k`` columns are the ``k``
     nearest voxel centres where the grid is full, found by index arithmetic instead of a k-d tree."""
     index = np.ascontiguousarray(index, np.int64).reshape(-1, 3)
+    _check_inside(index, shape)
     where = np.full(tuple(np.asarray(shape) + 2), -1, np.int64)  # padded: no bounds checks
     where[tuple((index + 1).T)] = np.arange(len(index))
     near = np.empty((len(index), len(_OFFSETS)), np.int64)
     if len(index):  # where[index + 1 + offset], the voxel itself where empty (a tenth of NumPy's gathers' time)
         _block_kernel()(index, where, _OFFSETS + 1, near)
     return near
+
+
+def _check_inside(index, shape) -> None:
+    """ValueError unless the ``(n, 3)`` voxel indices lie inside a grid of ``shape`` (the Numba
+    loops read the grid unchecked)."""
+    if len(index) and (index.min() < 0 or np.any(index.max(axis=0) >= np.asarray(shape)[:3])):
+        raise ValueError(f"voxel indices outside the grid of shape {tuple(shape)}")
 
 
 _BLOCK = None
@@ -919,6 +927,8 @@ def grid_sampling(index, neighbours, step: int):
     else:
         raise ValueError(f"grid sampling one voxel in {step}: only 1, 2, 4 or 8")
     neighbours = np.ascontiguousarray(neighbours, np.int64)
+    if neighbours.shape != (n, 27) or (n and (neighbours.min() < 0 or neighbours.max() >= n)):
+        raise ValueError(f"`neighbours` must be grid_neighbours' (n, 27) positions, got shape {neighbours.shape}")
     classify = sampled.copy()  # | no classified neighbour (an empty neighbour is the voxel itself)
     if n:
         _unreached_kernel()(neighbours, sampled, classify)
@@ -974,6 +984,7 @@ def grid_normals(occupancy, index=None) -> np.ndarray:
         grad = -np.stack(np.gradient(smooth), axis=-1)
     else:
         index = np.ascontiguousarray(index, np.int64).reshape(-1, 3)
+        _check_inside(index, smooth.shape)
         if min(smooth.shape) < 2:
             raise ValueError("grid_normals needs at least 2 voxels along each axis")
         out = np.zeros((len(index), 3))

@@ -810,3 +810,16 @@ def test_the_profile_loop_gives_numpys_sums_exactly():
     points = np.vstack([context[:500], rng.normal(size=(40, 3))])  # some outside the context's box
     np.testing.assert_array_equal(profile_features(points, context), _profile_reference(points, context))
     np.testing.assert_array_equal(profile_features(context, bins=7), _profile_reference(context, bins=7))
+
+
+def test_the_grid_loops_refuse_indices_off_the_grid():
+    occupancy = np.zeros((4, 4, 4), bool)
+    occupancy[1:3, 1:3, 1:3] = True
+    index = np.argwhere(occupancy)
+    near = lab.grid_neighbours(index, occupancy.shape)
+    with pytest.raises(ValueError, match="outside the grid"):
+        lab.grid_neighbours(index + [0, 0, 2], occupancy.shape)
+    with pytest.raises(ValueError, match="outside the grid"):
+        lab.grid_normals(occupancy, index - 2)
+    with pytest.raises(ValueError, match="neighbours"):
+        lab.grid_sampling(index, near[:, :19], 4)
