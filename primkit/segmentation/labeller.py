@@ -745,7 +745,81 @@ def grid_local_shape(points, index, rows, k: int, shape) -> np.ndarray:
     cov = np.empty((len(rows), 3, 3))
     if len(rows):
         _cov_kernel()(points, near, cov)
-    return _shape_columns(cov)
+    out = np.empty((len(rows), 9))
+    if len(rows):
+        _eigen_kernel()(cov, out)
+    return out
+
+
+_EIGEN = None
+
+
+def _eigen_kernel():
+    """:func:`_shape_columns` of ``(n, 3, 3)`` covariances in closed form (the eigenvalues by the
+    trigonometric solution of the characteristic cubic, the axes as the longest cross product of
+    two rows of ``cov - lambda I``), compiled on first use (cached on disk): a third of the time
+    of ``np.linalg.eigh``'s LAPACK call per 3 x 3 matrix. Within 1e-12 of it where the
+    eigenvalues are apart; where two tie, the axis of the pair is any one of the plane (LAPACK's
+    is as arbitrary)."""
+    global _EIGEN
+    if _EIGEN is None:
+        import numba
+
+        @numba.njit(cache=True, nogil=True)
+        def axis(a00, a01, a02, a11, a12, a22, lam, out, q, at, fallback):
+            r00, r11, r22 = a00 - lam, a11 - lam, a22 - lam
+            # cross products of the rows (r00 a01 a02), (a01 r11 a12), (a02 a12 r22)
+            c0, c1, c2 = a01 * a12 - a02 * r11, a02 * a01 - r00 * a12, r00 * r11 - a01 * a01
+            n = c0 * c0 + c1 * c1 + c2 * c2
+            d0, d1, d2 = a01 * r22 - a02 * a12, a02 * a02 - r00 * r22, r00 * a12 - a01 * a02
+            m = d0 * d0 + d1 * d1 + d2 * d2
+            if m > n:
+                c0, c1, c2, n = d0, d1, d2, m
+            d0, d1, d2 = r11 * r22 - a12 * a12, a12 * a02 - a01 * r22, a01 * a12 - r11 * a02
+            m = d0 * d0 + d1 * d1 + d2 * d2
+            if m > n:
+                c0, c1, c2, n = d0, d1, d2, m
+            if n > 0.0:
+                n = np.sqrt(n)
+                out[q, at], out[q, at + 1], out[q, at + 2] = abs(c0) / n, abs(c1) / n, abs(c2) / n
+            else:
+                out[q, at], out[q, at + 1], out[q, at + 2] = 0.0, 0.0, 0.0
+                out[q, at + fallback] = 1.0
+
+        @numba.njit(cache=True, nogil=True)
+        def eigen(cov, out):
+            for q in range(cov.shape[0]):
+                a00, a01, a02 = cov[q, 0, 0], cov[q, 0, 1], cov[q, 0, 2]
+                a11, a12, a22 = cov[q, 1, 1], cov[q, 1, 2], cov[q, 2, 2]
+                off = a01 * a01 + a02 * a02 + a12 * a12
+                mean = (a00 + a11 + a22) / 3.0
+                if off == 0.0:
+                    e1, e2, e3 = a00, a11, a22
+                    if e1 > e2:
+                        e1, e2 = e2, e1
+                    if e2 > e3:
+                        e2, e3 = e3, e2
+                    if e1 > e2:
+                        e1, e2 = e2, e1
+                else:
+                    b00, b11, b22 = a00 - mean, a11 - mean, a22 - mean
+                    p = np.sqrt((b00 * b00 + b11 * b11 + b22 * b22 + 2.0 * off) / 6.0)
+                    det = (b00 * (b11 * b22 - a12 * a12) - a01 * (a01 * b22 - a12 * a02)
+                           + a02 * (a01 * a12 - b11 * a02)) / (p * p * p)
+                    phi = np.arccos(min(max(det / 2.0, -1.0), 1.0)) / 3.0
+                    e3 = mean + 2.0 * p * np.cos(phi)
+                    e1 = mean + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0)
+                    e2 = 3.0 * mean - e1 - e3
+                total = e1 + e2 + e3
+                if total > 0:
+                    out[q, 0], out[q, 1], out[q, 2] = e1 / total, e2 / total, e3 / total
+                else:
+                    out[q, 0] = out[q, 1] = out[q, 2] = 1.0 / 3
+                axis(a00, a01, a02, a11, a12, a22, e3, out, q, 3, 2)  # the largest's axis
+                axis(a00, a01, a02, a11, a12, a22, e1, out, q, 6, 0)  # the smallest's
+
+        _EIGEN = eigen
+    return _EIGEN
 
 
 def frame_features(points, cuboids: primitives.Cuboids, normals=None, settings: LabellerSettings | None = None,

@@ -823,3 +823,20 @@ def test_the_grid_loops_refuse_indices_off_the_grid():
         lab.grid_normals(occupancy, index - 2)
     with pytest.raises(ValueError, match="neighbours"):
         lab.grid_sampling(index, near[:, :19], 4)
+
+
+def test_the_closed_form_axes_are_eighs():
+    rng = np.random.default_rng(23)
+    A = rng.normal(size=(500, 16, 3)) * [1.0, 0.5, 0.2]
+    A -= A.mean(axis=1, keepdims=True)
+    cov = np.einsum("nki,nkj->nij", A, A) / 16
+    cov[:3] = [np.diag([0.3, 0.1, 0.2]), np.diag([0.2, 0.2, 0.5]), np.zeros((3, 3))]  # diagonal, a tie, nothing
+    got = np.empty((len(cov), 9))
+    lab._eigen_kernel()(cov, got)
+    want = lab._shape_columns(cov)
+    np.testing.assert_allclose(got[:, :3], want[:, :3], atol=1e-12)  # the shares, ties included
+    np.testing.assert_allclose(got[3:], want[3:], atol=1e-9)  # the axes where the eigenvalues are apart
+    np.testing.assert_allclose(got[0], [1 / 6, 1 / 3, 1 / 2, 1, 0, 0, 0, 1, 0], atol=1e-15)
+    np.testing.assert_allclose(got[1, 3:6], [0, 0, 1], atol=1e-15)  # the largest apart; the tied pair's smallest:
+    assert abs(np.linalg.norm(got[1, 6:]) - 1) < 1e-12 and got[1, 8] < 1e-12  # any unit axis of their plane
+    np.testing.assert_allclose(np.linalg.norm(got[:, 3:6], axis=1), 1, atol=1e-12)
