@@ -8,10 +8,11 @@ runs it) once with ``labeller=None`` (names by part index) and once with the mod
 
 Usage (from the repository root)::
 
-    python -m benchmarks.bench_labeller chair [--count 600] [--rounds 3] [--workers N] [--grid-sample 1,2,4,8] [--before] [--cache DIR]
+    python -m benchmarks.bench_labeller chair [--count 600] [--rounds 3] [--workers N] [--grid-sample 1,2,4,8] [--exact] [--before] [--cache DIR]
 
 (``chair``: the bundled chair model's labeller; a file written by ``primkit name-parts`` works too.)
-``--before`` times one more variant in every round: the labeller as it labelled before the faster
+``--exact`` times one more variant in every round: the labeller walking every tree (no early
+stop, ``Labeller.early_stop`` None; the labels ``predict_proba`` gives). ``--before`` times one more variant in every round: the labeller as it labelled before the faster
 paths (a k-d tree for the local shape, the plain tree walk), the same trees. Each pass prints its
 wall time and, with ``--workers 1`` (every file labelled in this process), its CPU time, which
 other jobs on a shared machine disturb less.
@@ -36,7 +37,8 @@ CHAIRS = Path(__file__).resolve().parents[2] / "shared" / "data" / "shapenetvox3
 
 class _Before(Labeller):
     """The labeller as it labelled before ``grid_local_shape`` and the packed walk: a k-d tree for
-    the local shape of a grid's voxels (over all of them) and the plain kernel."""
+    the local shape of a grid's voxels (over all of them) and the plain kernel, every tree walked
+    (the Numba frame, profile and grid loops it shares with the labeller now)."""
 
     def _grid_shape(self, points, grid_index, rows):
         return None
@@ -45,7 +47,8 @@ class _Before(Labeller):
 def _before(labeller: Labeller) -> Labeller:
     ensemble = replace(labeller.ensemble)
     object.__setattr__(ensemble, "_packed", ())  # () : no packed nodes, the plain kernel walks
-    return _Before(labeller.names, labeller.parts, ensemble, labeller.settings, labeller.info, labeller.prior)
+    return _Before(labeller.names, labeller.parts, ensemble, labeller.settings, labeller.info, labeller.prior,
+                   early_stop=None)  # every tree, as before the early stop
 
 
 def main(argv=None) -> int:
@@ -60,6 +63,8 @@ def main(argv=None) -> int:
                          "several: each timed in every round")
     ap.add_argument("--cache", type=Path, default=None,
                     help="the preparation cache to use and keep (default: a temporary one, abstracted first)")
+    ap.add_argument("--exact", action="store_true",
+                    help="also time the labeller walking every tree (no early stop, Labeller.early_stop None)")
     ap.add_argument("--before", action="store_true",
                     help="also time the labeller's paths before the faster ones (k-d tree, plain walk)")
     args = ap.parse_args(argv)
@@ -72,6 +77,8 @@ def main(argv=None) -> int:
     variants = [("index", plain)] + [
         (f"labeller (grid_sample {g})", Segmenter(args.model, labeller=replace(
             labeller, settings=replace(labeller.settings, grid_sample=g)))) for g in steps]
+    if args.exact:
+        variants.append(("exact (every tree)", Segmenter(args.model, labeller=replace(labeller, early_stop=None))))
     if args.before:
         variants.append(("before (k-d tree, plain walk)", Segmenter(args.model, labeller=_before(labeller))))
     with tempfile.TemporaryDirectory(prefix="bench-labeller-") as temporary:

@@ -216,8 +216,16 @@ class TreeEnsemble:
         if not np.all(np.isfinite(self.baseline)):
             raise ValueError(f"{where}: non-finite baseline")
 
-    def raw_predict(self, X) -> np.ndarray:
-        """``(n, K)`` float64 raw scores of the ``(n, features)`` samples ``X`` (NaN: missing)."""
+    def raw_predict(self, X, stop=None) -> np.ndarray:
+        """``(n, K)`` float64 raw scores of the ``(n, features)`` samples ``X`` (NaN: missing).
+
+        ``stop``: ``(rounds, margin, taper)`` or None (every tree). With it, a sample leaves the
+        walk after any boosting round ``r`` from ``rounds`` on at which its two largest class
+        scores (two classes: the one raw score and 0) lie more than ``margin + taper * (R - r) /
+        R`` apart (``R`` rounds in all: a gap asked of it that shrinks to ``margin`` at the last
+        round); its scores are then the sums over the rounds walked (:data:`EARLY_STOP`; an
+        approximation, validated in ``docs/labeller.md``). Ensembles whose trees are not in
+        round order walk every tree."""
         X = np.ascontiguousarray(X, np.float64)
         if X.ndim != 2 or X.shape[1] != self.features:
             raise ValueError(f"`X` must be (n, {self.features}) float, got shape {X.shape}")
@@ -225,7 +233,11 @@ class TreeEnsemble:
         out[:] = self.baseline
         if len(X):
             packed = self.packed()
-            if packed is not None:
+            if packed is not None and stop is not None and self.in_rounds():
+                rounds, margin, taper = stop
+                _early_kernel()(X, *packed, self.tree_class, len(self.baseline), int(rounds), float(margin),
+                                float(taper), out)
+            elif packed is not None:
                 _packed_kernel()(X, *packed, self.tree_class, out)
             else:
                 _kernel()(X, self.feature, self.threshold, self.missing_left, self.left, self.right, self.is_leaf,
@@ -259,9 +271,16 @@ class TreeEnsemble:
             object.__setattr__(self, "_packed", cached)  # frozen dataclass: a cache, not a field
         return cached or None
 
-    def predict_proba(self, X) -> np.ndarray:
-        """``(n, classes)`` probabilities, as the exported model's ``predict_proba``."""
-        raw = self.raw_predict(X)
+    def in_rounds(self) -> bool:
+        """Whether the trees come in boosting rounds, one tree per raw score each (tree ``t`` adds
+        to score ``t % K``), as scikit-learn's are exported: what an early stop needs."""
+        k = len(self.baseline)
+        return len(self.tree_class) % k == 0 and np.array_equal(self.tree_class, np.arange(len(self.tree_class)) % k)
+
+    def predict_proba(self, X, stop=None) -> np.ndarray:
+        """``(n, classes)`` probabilities, as the exported model's ``predict_proba`` (``stop``:
+        :meth:`raw_predict`'s early stop; None: exactly)."""
+        raw = self.raw_predict(X, stop)
         if raw.shape[1] == 1:  # scikit-learn's binomial loss: expit of the one raw score
             from scipy.special import expit
 
@@ -347,6 +366,93 @@ def _packed_kernel():
 
         _PACKED = walk_packed
     return _PACKED
+
+
+#: The labeller's early stop in the tree walk (:meth:`TreeEnsemble.raw_predict`'s ``stop``, no
+#: taper): after at least 15 rounds, a sample whose two best raw scores lie 2.5 apart (odds of 12
+#: to 1 between them) walks no further trees: about 44 rounds of 100 on average on a chair's
+#: voxels, a quarter of them walking all. Chosen on the PartNet validation chairs
+#: (``docs/labeller.md``, "Cost": 99.85% of the voxels keep the label the full walk gives).
+EARLY_STOP = (15, 2.5, 0.0)
+
+_EARLY = None
+
+
+def _early_kernel():
+    """:func:`_packed_kernel` with an early stop (:meth:`TreeEnsemble.raw_predict`): the trees in
+    rounds of ``k``, the same sums as the full walk over the rounds a sample walks; after each
+    round ``r`` from ``rounds`` on, the sample stops when its two best scores (``k`` = 1: the
+    score and 0) differ by more than ``margin + taper * (R - r) / R``. Compiled on first use
+    (cached on disk)."""
+    global _EARLY
+    if _EARLY is None:
+        import numba
+
+        @numba.njit(cache=True, nogil=True)
+        def walk_early(X, meta, split_or_value, missing_left, roots, tree_class, k, rounds, margin, taper, out):
+            trees = roots.shape[0]
+            total = trees // k
+            for i in range(X.shape[0]):
+                for t in range(trees):
+                    node = roots[t]
+                    m = meta[node]
+                    while (m & 0xFFFF) != 0xFFFF:
+                        x = X[i, m & 0xFFFF]
+                        if x <= split_or_value[node]:
+                            node = (m >> 16) & 0xFFFFFF
+                        elif x > split_or_value[node]:
+                            node = (m >> 40) & 0xFFFFFF
+                        elif missing_left[node] == 1:  # NaN
+                            node = (m >> 16) & 0xFFFFFF
+                        else:
+                            node = (m >> 40) & 0xFFFFFF
+                        m = meta[node]
+                    out[i, tree_class[t]] += split_or_value[node]
+                    if (t + 1) % k == 0 and (t + 1) // k >= rounds:
+                        if k == 1:
+                            gap = abs(out[i, 0])
+                        else:
+                            best = second = -np.inf
+                            for c in range(k):
+                                v = out[i, c]
+                                if v > best:
+                                    second = best
+                                    best = v
+                                elif v > second:
+                                    second = v
+                            gap = best - second
+                        if gap > margin + taper * (total - (t + 1) // k) / total:
+                            break
+
+        _EARLY = walk_early
+    return _EARLY
+
+
+_FILL = None
+
+
+def _fill_kernel():
+    """``proba[rows[i]] = proba[around[i][use[i]]].mean(axis=0)`` for the voxels a labeller does
+    not classify (:func:`grid_sampling`; the neighbours summed in order), compiled on first use:
+    NumPy's gather copies ``(f, 26, classes)``."""
+    global _FILL
+    if _FILL is None:
+        import numba
+
+        @numba.njit(cache=True, nogil=True)
+        def fill(proba, rows, around, use):
+            for i in range(rows.shape[0]):
+                for c in range(proba.shape[1]):
+                    total = 0.0
+                    count = 0
+                    for j in range(around.shape[1]):
+                        if use[i, j]:
+                            total += proba[around[i, j], c]
+                            count += 1
+                    proba[rows[i], c] = total / count
+
+        _FILL = fill
+    return _FILL
 
 
 _MEAN = None
@@ -639,7 +745,81 @@ def grid_local_shape(points, index, rows, k: int, shape) -> np.ndarray:
     cov = np.empty((len(rows), 3, 3))
     if len(rows):
         _cov_kernel()(points, near, cov)
-    return _shape_columns(cov)
+    out = np.empty((len(rows), 9))
+    if len(rows):
+        _eigen_kernel()(cov, out)
+    return out
+
+
+_EIGEN = None
+
+
+def _eigen_kernel():
+    """:func:`_shape_columns` of ``(n, 3, 3)`` covariances in closed form (the eigenvalues by the
+    trigonometric solution of the characteristic cubic, the axes as the longest cross product of
+    two rows of ``cov - lambda I``), compiled on first use (cached on disk): a third of the time
+    of ``np.linalg.eigh``'s LAPACK call per 3 x 3 matrix. Within 1e-12 of it where the
+    eigenvalues are apart; where two tie, the axis of the pair is any one of the plane (LAPACK's
+    is as arbitrary)."""
+    global _EIGEN
+    if _EIGEN is None:
+        import numba
+
+        @numba.njit(cache=True, nogil=True)
+        def axis(a00, a01, a02, a11, a12, a22, lam, out, q, at, fallback):
+            r00, r11, r22 = a00 - lam, a11 - lam, a22 - lam
+            # cross products of the rows (r00 a01 a02), (a01 r11 a12), (a02 a12 r22)
+            c0, c1, c2 = a01 * a12 - a02 * r11, a02 * a01 - r00 * a12, r00 * r11 - a01 * a01
+            n = c0 * c0 + c1 * c1 + c2 * c2
+            d0, d1, d2 = a01 * r22 - a02 * a12, a02 * a02 - r00 * r22, r00 * a12 - a01 * a02
+            m = d0 * d0 + d1 * d1 + d2 * d2
+            if m > n:
+                c0, c1, c2, n = d0, d1, d2, m
+            d0, d1, d2 = r11 * r22 - a12 * a12, a12 * a02 - a01 * r22, a01 * a12 - r11 * a02
+            m = d0 * d0 + d1 * d1 + d2 * d2
+            if m > n:
+                c0, c1, c2, n = d0, d1, d2, m
+            if n > 0.0:
+                n = np.sqrt(n)
+                out[q, at], out[q, at + 1], out[q, at + 2] = abs(c0) / n, abs(c1) / n, abs(c2) / n
+            else:
+                out[q, at], out[q, at + 1], out[q, at + 2] = 0.0, 0.0, 0.0
+                out[q, at + fallback] = 1.0
+
+        @numba.njit(cache=True, nogil=True)
+        def eigen(cov, out):
+            for q in range(cov.shape[0]):
+                a00, a01, a02 = cov[q, 0, 0], cov[q, 0, 1], cov[q, 0, 2]
+                a11, a12, a22 = cov[q, 1, 1], cov[q, 1, 2], cov[q, 2, 2]
+                off = a01 * a01 + a02 * a02 + a12 * a12
+                mean = (a00 + a11 + a22) / 3.0
+                if off == 0.0:
+                    e1, e2, e3 = a00, a11, a22
+                    if e1 > e2:
+                        e1, e2 = e2, e1
+                    if e2 > e3:
+                        e2, e3 = e3, e2
+                    if e1 > e2:
+                        e1, e2 = e2, e1
+                else:
+                    b00, b11, b22 = a00 - mean, a11 - mean, a22 - mean
+                    p = np.sqrt((b00 * b00 + b11 * b11 + b22 * b22 + 2.0 * off) / 6.0)
+                    det = (b00 * (b11 * b22 - a12 * a12) - a01 * (a01 * b22 - a12 * a02)
+                           + a02 * (a01 * a12 - b11 * a02)) / (p * p * p)
+                    phi = np.arccos(min(max(det / 2.0, -1.0), 1.0)) / 3.0
+                    e3 = mean + 2.0 * p * np.cos(phi)
+                    e1 = mean + 2.0 * p * np.cos(phi + 2.0 * np.pi / 3.0)
+                    e2 = 3.0 * mean - e1 - e3
+                total = e1 + e2 + e3
+                if total > 0:
+                    out[q, 0], out[q, 1], out[q, 2] = e1 / total, e2 / total, e3 / total
+                else:
+                    out[q, 0] = out[q, 1] = out[q, 2] = 1.0 / 3
+                axis(a00, a01, a02, a11, a12, a22, e3, out, q, 3, 2)  # the largest's axis
+                axis(a00, a01, a02, a11, a12, a22, e1, out, q, 6, 0)  # the smallest's
+
+        _EIGEN = eigen
+    return _EIGEN
 
 
 def frame_features(points, cuboids: primitives.Cuboids, normals=None, settings: LabellerSettings | None = None,
@@ -672,17 +852,14 @@ def frame_features(points, cuboids: primitives.Cuboids, normals=None, settings: 
     n, m = len(points), c.count
     if not c.existence.any():
         raise ValueError("no present cuboid: nothing to read the frame from")
-    absent = ~c.existence
-    local = primitives.world_to_local(points, c)  # (m, n, 3)
-    excess = np.maximum(np.abs(local) - c.half_extents[:, None, :], 0.0)
-    distance = np.sqrt(np.einsum("mni,mni->nm", excess, excess))  # primitives.point_cuboid_distance, shared work
-    distance[:, absent] = ABSENT
-    local /= c.half_extents[:, None, :]
-    local[absent] = ABSENT
     nearest = primitives.assign_points(points, c)
-    onehot = np.zeros((n, m))
-    onehot[np.arange(n), nearest] = 1.0
-    columns = [points, onehot, local[nearest, np.arange(n)], local.transpose(1, 0, 2).reshape(n, 3 * m), distance]
+    frame = np.zeros((n, 3 + m + 3 + 3 * m + m))
+    frame[:, :3] = points
+    frame[np.arange(n), 3 + nearest] = 1.0  # one-hot
+    if n:  # the coordinates in every cuboid, over its half extents, and the distances (:func:`_frame_kernel`)
+        _frame_kernel()(np.ascontiguousarray(points), np.ascontiguousarray(c.rotations), c.translations,
+                        c.half_extents, c.existence.astype(np.uint8), nearest.astype(np.int64), ABSENT, frame, 3 + m)
+    columns = [frame]
     if settings.normals:
         if normals is None:
             columns.append(np.zeros((n, 4)))
@@ -716,17 +893,89 @@ def frame_features(points, cuboids: primitives.Cuboids, normals=None, settings: 
     return np.hstack(columns)
 
 
+_FRAME = None
+
+
+def _frame_kernel():
+    """The cuboid-frame columns of :func:`frame_features`, compiled on first use (cached on disk):
+    for each point, from column ``at`` of ``out``, its coordinates in its nearest cuboid, in every
+    cuboid (``R.T (x - t)``, as :func:`primitives.world_to_local`) over the half extents, and its
+    distance to every cuboid (as :func:`primitives.point_cuboid_distance`); :data:`ABSENT` for absent
+    slots. One pass over the points instead of NumPy's ``(m, n, 3)`` temporaries (a third of the
+    features' time on a chair)."""
+    global _FRAME
+    if _FRAME is None:
+        import numba
+
+        @numba.njit(cache=True, nogil=True)
+        def frame(points, rotations, translations, half, exists, nearest, absent, out, at):
+            m = rotations.shape[0]
+            coords, dist = at + 3, at + 3 + 3 * m
+            for i in range(points.shape[0]):
+                for j in range(m):
+                    if exists[j] == 0:
+                        out[i, coords + 3 * j] = out[i, coords + 3 * j + 1] = out[i, coords + 3 * j + 2] = absent
+                        out[i, dist + j] = absent
+                        continue
+                    d0 = points[i, 0] - translations[j, 0]
+                    d1 = points[i, 1] - translations[j, 1]
+                    d2 = points[i, 2] - translations[j, 2]
+                    total = 0.0
+                    for a in range(3):
+                        x = rotations[j, 0, a] * d0 + rotations[j, 1, a] * d1 + rotations[j, 2, a] * d2
+                        e = max(abs(x) - half[j, a], 0.0)
+                        total += e * e
+                        out[i, coords + 3 * j + a] = x / half[j, a]
+                    out[i, dist + j] = np.sqrt(total)
+                k = nearest[i]
+                for a in range(3):
+                    out[i, at + a] = out[i, coords + 3 * k + a]
+
+        _FRAME = frame
+    return _FRAME
+
+
 def grid_neighbours(index, shape) -> np.ndarray:
     """``(n, 27) int``: for the occupied voxels at ``index`` (``(n, 3) int``, e.g. ``np.argwhere``),
     the positions in ``index`` of the occupied voxels of their 3 x 3 x 3 neighbourhood, nearest
     first (the voxel itself, its 6 face neighbours, 12 edge and 8 corner neighbours; the voxel
     itself where a neighbour is empty or off the grid). The first ``k`` columns are the ``k``
     nearest voxel centres where the grid is full, found by index arithmetic instead of a k-d tree."""
-    index = np.asarray(index, np.int64)
+    index = np.ascontiguousarray(index, np.int64).reshape(-1, 3)
+    _check_inside(index, shape)
     where = np.full(tuple(np.asarray(shape) + 2), -1, np.int64)  # padded: no bounds checks
     where[tuple((index + 1).T)] = np.arange(len(index))
-    near = where[tuple((index[None, :, :] + 1 + _OFFSETS[:, None, :]).transpose(2, 0, 1))].T  # (n, 27)
-    return np.where(near >= 0, near, np.arange(len(index))[:, None])
+    near = np.empty((len(index), len(_OFFSETS)), np.int64)
+    if len(index):  # where[index + 1 + offset], the voxel itself where empty (a tenth of NumPy's gathers' time)
+        _block_kernel()(index, where, _OFFSETS + 1, near)
+    return near
+
+
+def _check_inside(index, shape) -> None:
+    """ValueError unless the ``(n, 3)`` voxel indices lie inside a grid of ``shape`` (the Numba
+    loops read the grid unchecked)."""
+    if len(index) and (index.min() < 0 or np.any(index.max(axis=0) >= np.asarray(shape)[:3])):
+        raise ValueError(f"voxel indices outside the grid of shape {tuple(shape)}")
+
+
+_BLOCK = None
+
+
+def _block_kernel():
+    """The lookup of :func:`grid_neighbours`, compiled on first use (cached on disk)."""
+    global _BLOCK
+    if _BLOCK is None:
+        import numba
+
+        @numba.njit(cache=True, nogil=True)
+        def block(index, where, offsets, near):
+            for i in range(index.shape[0]):
+                for o in range(offsets.shape[0]):
+                    p = where[index[i, 0] + offsets[o, 0], index[i, 1] + offsets[o, 1], index[i, 2] + offsets[o, 2]]
+                    near[i, o] = p if p >= 0 else i
+
+        _BLOCK = block
+    return _BLOCK
 
 
 def grid_sampling(index, neighbours, step: int):
@@ -751,10 +1000,44 @@ def grid_sampling(index, neighbours, step: int):
         sampled = np.all(index % 2 == 0, axis=1)
     else:
         raise ValueError(f"grid sampling one voxel in {step}: only 1, 2, 4 or 8")
-    around = neighbours[:, 1:27]
-    use = sampled[around] & (around != np.arange(n)[:, None])  # an empty neighbour is the voxel itself
-    classify = sampled | ~use.any(axis=1)
-    return classify, around[~classify], use[~classify]
+    neighbours = np.ascontiguousarray(neighbours, np.int64)
+    if neighbours.shape != (n, 27) or (n and (neighbours.min() < 0 or neighbours.max() >= n)):
+        raise ValueError(f"`neighbours` must be grid_neighbours' (n, 27) positions, got shape {neighbours.shape}")
+    classify = sampled.copy()  # | no classified neighbour (an empty neighbour is the voxel itself)
+    if n:
+        _unreached_kernel()(neighbours, sampled, classify)
+    around = neighbours[~classify, 1:27]
+    use = sampled[around] & (around != np.flatnonzero(~classify)[:, None])
+    return classify, around, use
+
+
+_UNREACHED = None
+
+
+def _unreached_kernel():
+    """Marks in ``classify`` the voxels none of whose 26 neighbours (``neighbours[:, 1:27]``, the
+    voxel itself where empty) is another sampled voxel (:func:`grid_sampling`), compiled on
+    first use: NumPy gathers all ``(n, 26)`` where a loop stops at the first found."""
+    global _UNREACHED
+    if _UNREACHED is None:
+        import numba
+
+        @numba.njit(cache=True, nogil=True)
+        def unreached(neighbours, sampled, classify):
+            for i in range(neighbours.shape[0]):
+                if sampled[i]:
+                    continue
+                found = False
+                for j in range(1, 27):
+                    p = neighbours[i, j]
+                    if p != i and sampled[p]:
+                        found = True
+                        break
+                if not found:
+                    classify[i] = True
+
+        _UNREACHED = unreached
+    return _UNREACHED
 
 
 #: the 27 offsets of a 3 x 3 x 3 block, nearest first (ties in a fixed order)
@@ -774,20 +1057,55 @@ def grid_normals(occupancy, index=None) -> np.ndarray:
     if index is None:
         grad = -np.stack(np.gradient(smooth), axis=-1)
     else:
-        index = np.asarray(index, np.int64).reshape(-1, 3)
-        grad = np.empty((len(index), 3))
-        for axis in range(3):  # np.gradient: central differences inside, one-sided at the two ends
-            size = smooth.shape[axis]
-            if size < 2:
-                raise ValueError("grid_normals needs at least 2 voxels along each axis")
-            i = index[:, axis]
-            hi, lo = index.copy(), index.copy()
-            hi[:, axis] = np.minimum(i + 1, size - 1)
-            lo[:, axis] = np.maximum(i - 1, 0)
-            diff = smooth[tuple(hi.T)] - smooth[tuple(lo.T)]
-            grad[:, axis] = -np.where((i > 0) & (i < size - 1), diff / 2.0, diff)
+        index = np.ascontiguousarray(index, np.int64).reshape(-1, 3)
+        _check_inside(index, smooth.shape)
+        if min(smooth.shape) < 2:
+            raise ValueError("grid_normals needs at least 2 voxels along each axis")
+        out = np.zeros((len(index), 3))
+        if len(index):  # the same differences and norms as below, one voxel at a time
+            _normals_kernel()(smooth, index, out)
+        return out
     norm = np.linalg.norm(grad, axis=-1, keepdims=True)
     return np.divide(grad, norm, out=np.zeros_like(grad), where=norm > 1e-6)
+
+
+_NORMALS = None
+
+
+def _normals_kernel():
+    """:func:`grid_normals` at some voxels, compiled on first use (cached on disk): per voxel and
+    axis ``np.gradient``'s difference (central inside, one-sided at the grid's two ends), then
+    the unit vector of minus the gradient (zero where its norm is at most 1e-6), as the NumPy
+    expressions over the whole grid compute them; a loop instead of six gathers of the grid."""
+    global _NORMALS
+    if _NORMALS is None:
+        import numba
+
+        @numba.njit(cache=True, nogil=True)
+        def normals(smooth, index, out):
+            g = np.empty(3)
+            for q in range(index.shape[0]):
+                for axis in range(3):
+                    size = smooth.shape[axis]
+                    i = index[q, axis]
+                    hi0, hi1, hi2 = index[q, 0], index[q, 1], index[q, 2]
+                    lo0, lo1, lo2 = hi0, hi1, hi2
+                    up, down = min(i + 1, size - 1), max(i - 1, 0)
+                    if axis == 0:
+                        hi0, lo0 = up, down
+                    elif axis == 1:
+                        hi1, lo1 = up, down
+                    else:
+                        hi2, lo2 = up, down
+                    diff = smooth[hi0, hi1, hi2] - smooth[lo0, lo1, lo2]
+                    g[axis] = -(diff / 2.0 if 0 < i < size - 1 else diff)
+                norm = np.sqrt(g[0] * g[0] + g[1] * g[1] + g[2] * g[2])
+                if norm > 1e-6:
+                    for axis in range(3):
+                        out[q, axis] = g[axis] / norm
+
+        _NORMALS = normals
+    return _NORMALS
 
 
 # ---------------------------------------------------------------------------------------------
@@ -813,6 +1131,10 @@ class Labeller:
         The index-naming prior: row ``k`` the shares of the labels among the labelled elements
         whose nearest cuboid is ``k``, each labelled shape weighing the same (an index no labelled
         element had: the labels' overall shares); blended in with ``settings.prior_weight``.
+    early_stop : (rounds, margin, taper) or None
+        How :meth:`classify` walks the trees (:meth:`TreeEnsemble.raw_predict`'s ``stop``; not
+        stored: a way of labelling, not part of what was learned): :data:`EARLY_STOP`, or None
+        for every tree (the exact ``predict_proba``).
     """
 
     names: list
@@ -821,6 +1143,7 @@ class Labeller:
     settings: LabellerSettings = field(default_factory=LabellerSettings)
     info: dict = field(default_factory=dict)
     prior: np.ndarray | None = None
+    early_stop: tuple | None = EARLY_STOP
 
     @classmethod
     def fit(cls, shapes, names, parts: int, *, settings: LabellerSettings | None = None, per_shape: int = 1000,
@@ -911,15 +1234,16 @@ class Labeller:
             proba[classify] = self.classify(self.features(
                 points[classify], cuboids, None if normals is None else np.asarray(normals, float)[classify],
                 points if context is None else context, local_shape=shape))  # the local shape among all the elements
-            fill = ~classify
-            weights = use.astype(float)
-            proba[fill] = np.einsum("nk,nkc->nc", weights, proba[around]) / weights.sum(axis=1, keepdims=True)
+            # each other voxel: the mean of its classified neighbours' (``around[use]``), by a Numba loop
+            _fill_kernel()(proba, np.flatnonzero(~classify), np.ascontiguousarray(around, np.int64),
+                           np.ascontiguousarray(use, np.uint8))
         return self.smooth(proba, points, neighbours)
 
     def classify(self, X) -> np.ndarray:
         """``(n, classes)`` probabilities of elements' features ``X`` (:meth:`features`): the
-        trees', blended with the index prior (``settings.prior_weight``), before any smoothing."""
-        proba = self.ensemble.predict_proba(X)
+        trees' (walked with :attr:`early_stop`), blended with the index prior
+        (``settings.prior_weight``), before any smoothing."""
+        proba = self.ensemble.predict_proba(X, self.early_stop)
         w = self.settings.prior_weight or 0.0
         if w > 0 and self.prior is not None and len(proba):
             proba = (1.0 - w) * proba + w * self.prior[nearest_index(X, self.parts)]

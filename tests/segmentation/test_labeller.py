@@ -561,7 +561,12 @@ def test_the_prior_is_each_index_share_of_the_labels_and_is_blended_in(tmp_path)
     w = labeller.settings.prior_weight
     assert w > 0
     blend = (1 - w) * labeller.ensemble.predict_proba(X) + w * want[np.argmax(X[:, 3 : 3 + m], axis=1)]
-    np.testing.assert_allclose(labeller.classify(X), blend, atol=1e-12)
+    from dataclasses import replace
+
+    np.testing.assert_allclose(replace(labeller, early_stop=None).classify(X), blend, atol=1e-12)  # every tree
+    stopped = labeller.ensemble.predict_proba(X, lab.EARLY_STOP)  # the trees as classify walks them by default
+    np.testing.assert_allclose(labeller.classify(X), (1 - w) * stopped + w * want[np.argmax(X[:, 3 : 3 + m], axis=1)],
+                               atol=1e-12)
     back = lab.read_labeller(lab.write_labeller(resolve_model("chair"), tmp_path / "p.safetensors", labeller))
     np.testing.assert_array_equal(back.prior, labeller.prior)
     np.testing.assert_array_equal(back.classify(X), labeller.classify(X))
@@ -735,3 +740,103 @@ def test_a_labeller_learns_a_grids_local_shape_as_it_reads_it():
                                   frame_features(points, c, None, settings, local_shape=shape))
     np.testing.assert_array_equal(lab.element_features(lab.Elements(points), c, settings),
                                   frame_features(points, c, None, settings))  # no grid: the k-d tree
+
+
+def _stopped_walk(ensemble, x, rounds, margin, taper):
+    """A plain Python walk with the early stop (the reference for :func:`lab._early_kernel`): the
+    trees in rounds of ``k``, the scores after each round from ``rounds`` on checked."""
+    k = len(ensemble.baseline)
+    total = len(ensemble.tree_class) // k
+    raw = ensemble.baseline.copy()
+    for t in range(len(ensemble.tree_class)):
+        base, node = ensemble.tree_start[t], ensemble.tree_start[t]
+        while not ensemble.is_leaf[node]:
+            v = x[ensemble.feature[node]]
+            left = ensemble.missing_left[node] if np.isnan(v) else v <= ensemble.threshold[node]
+            node = base + (ensemble.left[node] if left else ensemble.right[node])
+        raw[ensemble.tree_class[t]] += ensemble.value[node]
+        if (t + 1) % k == 0 and (t + 1) // k >= rounds:
+            top = np.sort(raw)[::-1]
+            if (abs(raw[0]) if k == 1 else top[0] - top[1]) > margin + taper * (total - (t + 1) // k) / total:
+                break
+    return raw
+
+
+@pytest.mark.parametrize("classes", [2, 4])
+def test_the_early_stop_walks_each_sample_to_its_stopping_round(classes):
+    rng = np.random.default_rng(20 + classes)
+    X, y = _random_problem(classes, rng, n=1500)
+    e = TreeEnsemble.from_sklearn(sklearn.HistGradientBoostingClassifier(max_iter=25, random_state=0).fit(X, y))
+    assert e.in_rounds()
+    Z = rng.normal(size=(300, X.shape[1])) * 2
+    Z[rng.random(Z.shape) < 0.2] = np.nan
+    for stop in [(3, 1.0, 0.0), (10, 2.0, 0.0), (1, 0.5, 0.0), (5, 0.5, 3.0)]:
+        got = e.raw_predict(Z, stop)
+        want = [_stopped_walk(e, z, *stop) for z in Z]
+        np.testing.assert_array_equal(got, want)  # the same trees in the same order: the same sums
+    full = e.raw_predict(Z)
+    early = e.raw_predict(Z, (3, 1.0, 2.0))
+    assert 0 < np.mean(np.all(early == full, axis=1)) < 1  # some samples stopped, some walked every tree
+    np.testing.assert_array_equal(e.raw_predict(Z, (25, 0.0, 0.0)), full)  # the last round: nothing left to skip
+    np.testing.assert_array_equal(e.raw_predict(Z, (1, np.inf, 0.0)), full)
+    if classes > 2:  # trees not in round order walk in full whatever the stop
+        from dataclasses import replace
+
+        shuffled = replace(e, tree_class=e.tree_class[::-1].copy())
+        assert not shuffled.in_rounds()
+        np.testing.assert_array_equal(shuffled.raw_predict(Z, (1, 0.0, 0.0)), shuffled.raw_predict(Z))
+
+
+def test_the_frame_columns_are_numpys_cuboid_frames():
+    rng = np.random.default_rng(21)
+    c = _cuboids(rng, m=20, absent=(2, 7, 19))
+    points = rng.uniform(-0.6, 0.6, (700, 3))
+    F = frame_features(points, c, None, LabellerSettings(neighbours=0, normals=False, profile=False))
+    local = primitives.world_to_local(points, c) / c.half_extents[:, None, :]  # (m, n, 3)
+    local[~c.existence] = lab.ABSENT
+    dist = primitives.point_cuboid_distance(points, c)
+    dist[:, ~c.existence] = lab.ABSENT
+    nearest = primitives.assign_points(points, c)
+    want = np.hstack([points, np.eye(20)[nearest], local[nearest, np.arange(700)],
+                      local.transpose(1, 0, 2).reshape(700, 60), dist])
+    np.testing.assert_allclose(F, want, rtol=1e-13, atol=1e-13)  # the same products, summed in another order
+
+
+def test_the_profile_loop_gives_numpys_sums_exactly():
+    from primkit.segmentation.profile import _profile_reference, profile_features
+
+    rng = np.random.default_rng(22)
+    context = rng.normal(size=(3000, 3)) * [0.3, 0.5, 0.2]
+    points = np.vstack([context[:500], rng.normal(size=(40, 3))])  # some outside the context's box
+    np.testing.assert_array_equal(profile_features(points, context), _profile_reference(points, context))
+    np.testing.assert_array_equal(profile_features(context, bins=7), _profile_reference(context, bins=7))
+
+
+def test_the_grid_loops_refuse_indices_off_the_grid():
+    occupancy = np.zeros((4, 4, 4), bool)
+    occupancy[1:3, 1:3, 1:3] = True
+    index = np.argwhere(occupancy)
+    near = lab.grid_neighbours(index, occupancy.shape)
+    with pytest.raises(ValueError, match="outside the grid"):
+        lab.grid_neighbours(index + [0, 0, 2], occupancy.shape)
+    with pytest.raises(ValueError, match="outside the grid"):
+        lab.grid_normals(occupancy, index - 2)
+    with pytest.raises(ValueError, match="neighbours"):
+        lab.grid_sampling(index, near[:, :19], 4)
+
+
+def test_the_closed_form_axes_are_eighs():
+    rng = np.random.default_rng(23)
+    A = rng.normal(size=(500, 16, 3)) * [1.0, 0.5, 0.2]
+    A -= A.mean(axis=1, keepdims=True)
+    cov = np.einsum("nki,nkj->nij", A, A) / 16
+    cov[:3] = [np.diag([0.3, 0.1, 0.2]), np.diag([0.2, 0.2, 0.5]), np.zeros((3, 3))]  # diagonal, a tie, nothing
+    got = np.empty((len(cov), 9))
+    lab._eigen_kernel()(cov, got)
+    want = lab._shape_columns(cov)
+    np.testing.assert_allclose(got[:, :3], want[:, :3], atol=1e-12)  # the shares, ties included
+    np.testing.assert_allclose(got[3:], want[3:], atol=1e-9)  # the axes where the eigenvalues are apart
+    np.testing.assert_allclose(got[0], [1 / 6, 1 / 3, 1 / 2, 1, 0, 0, 0, 1, 0], atol=1e-15)
+    np.testing.assert_allclose(got[1, 3:6], [0, 0, 1], atol=1e-15)  # the largest apart; the tied pair's smallest:
+    assert abs(np.linalg.norm(got[1, 6:]) - 1) < 1e-12 and got[1, 8] < 1e-12  # any unit axis of their plane
+    np.testing.assert_allclose(np.linalg.norm(got[:, 3:6], axis=1), 1, atol=1e-12)
