@@ -175,7 +175,22 @@ def learn_and_label(chairs, train, evaluate, settings, *, position_only=False, *
     keep = _columns(chairs.parts, settings)
     data = [(chairs.full_features(n)[:, keep] if not position_only else chairs.arrays[n]["points"].astype(float),
              chairs.arrays[n]["truth"].astype(np.int64)) for n in train]
-    labeller = _fit(data, chairs.parts, settings, position_only, **{**FIT, **fit})
+    if MIRROR["chairs"] is not None and not position_only:  # each labelled chair mirrored left-right too
+        mirrored = MIRROR["chairs"]
+        data += [(mirrored.full_features(n)[:, keep], mirrored.arrays[n]["truth"].astype(np.int64)) for n in train]
+        if settings.prior_weight is None:  # the prior's weight follows the chairs labelled, not their mirrors
+            settings = replace(settings, prior_weight=min(0.4, 4.0 / len(train)))
+    if SELF_TRAINING["pool"] and not position_only:  # self-training: unlabelled validation chairs 0-99
+        labeller = _fit_self_trained(chairs, data, train, keep, settings, **{**FIT, **fit})
+    else:
+        labeller = _fit(data, chairs.parts, settings, position_only, **{**FIT, **fit})
+    return label_with(chairs, labeller, evaluate, settings, keep, position_only)
+
+
+def label_with(chairs, labeller, evaluate, settings, keep, position_only=False) -> dict:
+    """Label ``evaluate`` with a fitted labeller as the library does: name -> label codes."""
+    from primkit.segmentation.labeller import decide, grid_neighbours, grid_sampling
+
     known = np.array([NAMES.index(k) for k in labeller.names])
     out = {}
     for n in evaluate:
@@ -196,6 +211,30 @@ def learn_and_label(chairs, train, evaluate, settings, *, position_only=False, *
                 proba = proba[idx].mean(axis=1)
         out[n] = known[decide(proba, settings.min_share)]
     return out
+
+
+#: mirror augmentation (``--mirror``): the validation chairs mirrored left-right, abstracted again
+#: (``prepare-mirror``), as :class:`Chairs`
+MIRROR = {"chairs": None}
+#: self-training (``--self-train``): the unlabelled pool (validation chairs 0-99 of the seed-0 order
+#: not learned from; their labels never read) and :class:`primkit.segmentation.selftrain.SelfTraining`
+SELF_TRAINING = {"pool": False, "how": None}
+
+
+def _fit_self_trained(chairs, data, train, keep, settings, **fit):
+    from primkit.segmentation.labeller import grid_neighbours
+    from primkit.segmentation.selftrain import UnlabelledShape, fit_self_trained
+
+    taken = set(train)
+    pool = []
+    for c in order(chairs.validation, 0)[:100]:
+        if c in taken:
+            continue
+        a = chairs.arrays[c]  # its "truth" is not read
+        pool.append(UnlabelledShape(chairs.full_features(c)[:, keep], a["points"].astype(float),
+                                    grid_neighbours(a["index"].astype(np.int64), (32, 32, 32))))
+    return fit_self_trained(data, pool, NAMES, chairs.parts, self_training=SELF_TRAINING["how"], settings=settings,
+                            **fit)
 
 
 def _fit(data, parts, settings, position_only, **fit):

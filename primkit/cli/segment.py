@@ -157,7 +157,20 @@ def _cmd_name_parts(args) -> int:
         print(f"wrote {out} with part names")
         return report_errors(failed)
     try:
-        labeller = fit_labeller(shapes.learned, shapes.names, segmenter.abstractor.parts, seed=args.seed)
+        if args.unlabelled:  # self-training: the unlabelled shapes abstracted and segmented as the labelled ones
+            from ..segmentation.selftrain import self_train_labeller
+
+            found, pool_errors = segmenter.abstract_files(collect(args.unlabelled), cache_dir=args.cache,
+                                                          workers=args.workers, progress=progress_of(args))
+            pool, pool_errors = segmenter.segment_results(found, workers=args.workers, errors=pool_errors,
+                                                          progress=progress_of(args))
+            failed += list(pool_errors)
+            by_name = {r.name: r for r in found}
+            labeller = self_train_labeller(shapes.learned, [(s, by_name[s.name]) for s in pool], shapes.names,
+                                           segmenter.abstractor.parts,
+                                           seed=args.seed, progress=progress_of(args))
+        else:
+            labeller = fit_labeller(shapes.learned, shapes.names, segmenter.abstractor.parts, seed=args.seed)
     except ValueError as exc:
         err(f"cannot learn a labeller: {exc}")
         return 2
@@ -251,5 +264,8 @@ def register(sub) -> None:
                    help="only name the part indices (one name each); by default a labeller is learned as well, "
                    "naming each face, voxel or point on its own (segment --semantic uses it)")
     p.add_argument("--seed", type=int, default=0, help="the labeller's random state")
+    p.add_argument("--unlabelled", nargs="+", default=None, metavar="PATH",
+                   help="unlabelled shapes (files or folders) of the same kind: the labeller names them, learns again "
+                   "from the elements it is sure of (self-training, docs/labeller.md); their labels are never read")
     add_force(p)
     p.set_defaults(func=_cmd_name_parts)
