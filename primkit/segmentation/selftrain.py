@@ -21,7 +21,7 @@ import numpy as np
 
 from .labeller import Labeller, LabellerSettings, decide
 
-__all__ = ["SelfTraining", "UnlabelledShape", "pseudo_labels", "fit_self_trained", "unlabelled_shape", "self_train_labeller"]
+__all__ = ["SelfTraining", "UnlabelledShape", "pseudo_labels", "fit_self_trained", "unlabelled_shape", "learn_labeller"]
 
 
 @dataclass(frozen=True)
@@ -130,20 +130,39 @@ def unlabelled_shape(seg, result, settings: LabellerSettings) -> UnlabelledShape
                            elements.neighbours)
 
 
-def self_train_labeller(labelled, unlabelled, names, parts: int, *, self_training: SelfTraining | None = None,
-                        settings: LabellerSettings | None = None, seed=0, progress: bool = False,
-                        **options) -> Labeller:
-    """:func:`primkit.segmentation.segmenter.fit_labeller` with unlabelled shapes: ``labelled`` as
-    there (``(segmentation, abstraction result, labels)``), ``unlabelled`` an iterable of
-    ``(segmentation, abstraction result)`` of the same model (their labels, if any, never read);
-    :func:`fit_self_trained` learns from both."""
+def learn_labeller(labelled, names, parts: int, *, unlabelled=(), mirror: bool = False, segmenter=None,
+                   self_training: SelfTraining | None = None, settings: LabellerSettings | None = None, seed=0,
+                   progress: bool = False, **options) -> Labeller:
+    """:func:`primkit.segmentation.segmenter.fit_labeller` with more to learn from: the labelled
+    shapes' mirrors (``mirror``, abstracted again by ``segmenter``, :mod:`primkit.segmentation.mirror`)
+    and unlabelled shapes (self-training, :func:`fit_self_trained`).
+
+    ``labelled``: ``(segmentation, abstraction result, labels)`` as there; ``unlabelled``: an
+    iterable of ``(segmentation, abstraction result)`` of the same model (their labels, if any,
+    never read). The index prior's weight follows the number of labelled shapes (not their
+    mirrors). ``info`` records ``mirrored`` (the mirrors learned from) and ``self_training``.
+    """
     from tqdm import tqdm
 
     settings = settings or LabellerSettings()
-    shapes = []
-    for seg, result, y in labelled:
-        shapes.append((unlabelled_shape(seg, result, settings).features, np.asarray(y, np.int64)))
+    labelled = list(labelled)
+    shapes = [(unlabelled_shape(seg, result, settings).features, np.asarray(y, np.int64)) for seg, result, y in labelled]
+    info = dict(options.pop("info", None) or {})
+    if mirror:
+        if segmenter is None:
+            raise ValueError("mirroring needs the segmenter that abstracted the labelled shapes")
+        from .mirror import mirrored_shapes
+
+        mirrored = mirrored_shapes(labelled, segmenter, settings, progress=progress)
+        shapes += mirrored
+        info["mirrored"] = len(mirrored)
+    if settings.prior_weight is None:  # from the labelled shapes, not their mirrors (Labeller.fit's rule)
+        settings = replace(settings, prior_weight=min(0.4, 4.0 / max(1, len(labelled))))
     pool = [unlabelled_shape(seg, result, settings)
             for seg, result in tqdm(list(unlabelled), desc="unlabelled features", unit="shape", disable=not progress)]
-    return fit_self_trained(shapes, pool, names, parts, self_training=self_training, settings=settings, seed=seed,
-                            progress=progress, **options)
+    labeller = fit_self_trained(shapes, pool, names, parts, self_training=self_training if pool else SelfTraining(0),
+                                settings=settings, seed=seed, progress=progress, info=info, **options)
+    record = {**labeller.info, "labelled_shapes": len(labelled)}
+    if not pool:
+        record.pop("self_training", None)
+    return replace(labeller, info=record)

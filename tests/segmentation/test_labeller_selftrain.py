@@ -122,4 +122,64 @@ def test_name_parts_learns_from_unlabelled_shapes(chairs, tmp_path):
                  "--refine", "0", "--unlabelled", str(unlabelled)]) == 0
     labeller = lab.read_labeller(out)
     assert labeller.info["labelled_shapes"] == 2 and labeller.info["self_training"]["unlabelled_shapes"] == 3
-    assert labeller.info["self_training"]["pseudo_labelled_elements"] > 0
+    assert labeller.info["self_training"]["pseudo_labelled_elements"] > 0 and "mirrored" not in labeller.info
+    # the mirrors: two more labelled shapes learned from, the prior weight still that of two
+    assert main(["name-parts", str(labelled), "--model", "chair", "--names", names, "-o", str(out), "--workers", "1",
+                 "--refine", "0", "--mirror", "--force"]) == 0
+    labeller = lab.read_labeller(out)
+    assert labeller.info["mirrored"] == 2 and labeller.info["shapes"] == 4 and labeller.info["labelled_shapes"] == 2
+    assert labeller.settings.prior_weight == 0.4 and "self_training" not in labeller.info
+
+
+def _frame(rotation, centre=(0.0, 0.0, 0.0)):
+    from primkit.geometry import CanonicalFrame
+
+    return CanonicalFrame(np.asarray(rotation, float), np.asarray(centre, float), 1.0)
+
+
+def test_a_mirrored_grid_carries_each_voxels_label_to_its_mirror():
+    from primkit import io
+    from primkit.segmentation.mirror import mirror_shape
+
+    rng = np.random.default_rng(4)
+    occupancy = rng.random((8, 8, 8)) < 0.4
+    grid = io.VoxelGrid(occupancy, np.zeros(3), 1.0)
+    index = np.argwhere(occupancy)
+    labels = rng.integers(0, 4, len(index))
+    # canonical z is input x here (a quarter turn about y): the grid is flipped along axis 0
+    turn = [[0, 0, -1], [0, 1, 0], [1, 0, 0]]
+    for rotation, axis in (([[1, 0, 0], [0, 1, 0], [0, 0, 1]], 2), (turn, 0)):
+        mirrored, order = mirror_shape(grid, _frame(rotation))
+        new = np.argwhere(mirrored.occupancy)
+        assert len(new) == len(index)
+        for v, k in zip(new, order):  # by hand: voxel v is the mirror of voxel index[k]
+            w = v.copy()
+            w[axis] = occupancy.shape[axis] - 1 - v[axis]
+            assert np.array_equal(index[k], w)
+        carried = labels[order]
+        back, order2 = mirror_shape(mirrored, _frame(rotation))
+        assert np.array_equal(back.occupancy, occupancy) and np.array_equal(carried[order2], labels)
+
+
+def test_a_mirrored_mesh_is_reflected_across_the_canonical_middle_plane():
+    from primkit import io
+    from primkit.segmentation.mirror import mirror_shape
+
+    rng = np.random.default_rng(6)
+    vertices = rng.normal(size=(30, 3))
+    faces = rng.integers(0, 30, (40, 3))
+    angle = 0.3
+    rotation = [[np.cos(angle), 0, np.sin(angle)], [0, 1, 0], [-np.sin(angle), 0, np.cos(angle)]]
+    frame = _frame(rotation, (0.1, -0.2, 0.25))
+    mirrored, order = mirror_shape(io.Mesh(vertices, faces), frame)
+    assert np.array_equal(order, np.arange(40)) and np.array_equal(mirrored.faces, faces[:, ::-1])
+    # in the canonical frame the mirror negates z and keeps x and y
+    a, b = frame.to_canonical(vertices), frame.to_canonical(mirrored.vertices)
+    np.testing.assert_allclose(b, a * [1, 1, -1], atol=1e-12)
+    # face normals stay outward: the mirrored face's normal is the original's mirrored
+    def normals(v, f):
+        return np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+
+    n0 = normals(a, faces)
+    n1 = normals(b, mirrored.faces)
+    np.testing.assert_allclose(n1, n0 * [1, 1, -1], atol=1e-9)
