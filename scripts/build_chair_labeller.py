@@ -4,13 +4,14 @@ The labeller (:mod:`primkit.segmentation.labeller`) is learned from the first ``
 **validation** chairs of ``scripts/partnet_chairs.py``'s split (the chairs the model's index names
 were learned from; never the test part), abstracted and segmented as ``primkit segment`` does
 with default flags, exactly as ``primkit name-parts CHAIRS --model chair --labels
-../shared/data/partnet_chair_boxes`` learns one. Only the labeller and the card change: the
+../shared/data/partnet_chair_boxes --mirror`` learns one (each chair's left-right mirror learned
+from too, chosen on the validation chairs: docs/labeller.md). Only the labeller and the card change: the
 network's weights, the part names and every other metadata key are copied unchanged (checked). Run again on a
 bundled file that has a labeller, it replaces it (and the card's part about it).
 
 Usage (from the repository root)::
 
-    python -m scripts.build_chair_labeller -o chair-labelled.safetensors [--chairs 100] [--cache DIR]
+    python -m scripts.build_chair_labeller -o chair-labelled.safetensors [--chairs 100] [--cache DIR] [--no-mirror]
     python -m scripts.labeller_curve model --model chair-labelled.safetensors --part test   # its figures
     cp chair-labelled.safetensors primkit/model/bundled/chair.safetensors
 """
@@ -43,7 +44,7 @@ TERMS = ("the labeller was learned from PartNet's part annotations (Mo et al., C
 LABELLER_SECTION = "\n\nPart labeller "
 
 
-def build(output: Path, chairs: int = 100, cache=None, *, mirror: bool = False, overwrite: bool = False) -> Path:
+def build(output: Path, chairs: int = 100, cache=None, *, mirror: bool = True, overwrite: bool = False) -> Path:
     source = bundled_models()["chair"]
     meta = read_metadata(source)
     meta.pop(LABELLER_KEY, None)  # built again: write_labeller replaces the labeller, the card's part is redone
@@ -91,8 +92,8 @@ def main(argv=None) -> int:
     ap.add_argument("-o", "--output", type=Path, required=True)
     ap.add_argument("--chairs", type=int, default=100, help="the first N validation chairs (default 100)")
     ap.add_argument("--cache", type=Path, default=None, help="the abstractions' cache folder")
-    ap.add_argument("--mirror", action=argparse.BooleanOptionalAction, default=False,
-                    help="learn from each chair's left-right mirror too (name-parts --mirror)")
+    ap.add_argument("--mirror", action=argparse.BooleanOptionalAction, default=True,
+                    help="learn from each chair's left-right mirror too (name-parts --mirror; the default: chosen on validation)")
     ap.add_argument("--force", action="store_true")
     args = ap.parse_args(argv)
     build(args.output, args.chairs, args.cache, mirror=args.mirror, overwrite=args.force)
