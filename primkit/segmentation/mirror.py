@@ -3,9 +3,10 @@
 Chairs, tables and airplanes are left-right symmetric: a labelled shape mirrored across its
 canonical frame's left-right axis (Z: +Y up, +X front, :class:`primkit.geometry.CanonicalFrame`)
 is another plausible labelled shape, its labels carried with its elements. The mirrored shape is
-abstracted again (the network does not give mirrored cuboids the same slots as mirrored ones of
-the original), and a labeller learns from both (:func:`mirrored_shapes`,
-:func:`primkit.segmentation.selftrain.learn_labeller`).
+abstracted again (the network does not give a mirrored cuboid the slot of its twin, so mirroring
+the cuboids would teach a frame the labeller never sees), and a labeller learns from both
+(:func:`mirrored_shapes`, :func:`primkit.segmentation.selftrain.learn_labeller`; validation
+figures in docs/labeller.md).
 """
 
 from __future__ import annotations

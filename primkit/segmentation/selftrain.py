@@ -8,6 +8,10 @@ time: the result is a :class:`~primkit.segmentation.labeller.Labeller` like any 
 ``info["self_training"]`` records how it was learned). The unlabelled shapes' own labels, if they
 have any, are never read: only their features.
 
+:func:`learn_labeller` is the entry point from segmented shapes (``name-parts --unlabelled``,
+``--mirror``): it adds the labelled shapes' mirrors (:mod:`primkit.segmentation.mirror`) and the
+unlabelled shapes, then :func:`fit_self_trained`.
+
 Confidence is read from the probabilities the labeller gives at labelling time, blended with the
 index prior and smoothed over each element's neighbours (:meth:`Labeller.classify` then
 :meth:`Labeller.smooth`), on every element (no ``grid_sample``: learning time only).
@@ -146,7 +150,8 @@ def learn_labeller(labelled, names, parts: int, *, unlabelled=(), mirror: bool =
 
     settings = settings or LabellerSettings()
     labelled = list(labelled)
-    shapes = [(unlabelled_shape(seg, result, settings).features, np.asarray(y, np.int64)) for seg, result, y in labelled]
+    shapes = [(unlabelled_shape(seg, result, settings).features, np.asarray(y, np.int64))
+              for seg, result, y in labelled]  # the labelled shapes' features, as fit_labeller reads them
     info = dict(options.pop("info", None) or {})
     if mirror:
         if segmenter is None:
