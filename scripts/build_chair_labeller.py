@@ -77,7 +77,8 @@ def build(output: Path, chairs: int = 100, cache=None, *, mirror: bool = True, o
                         "settings": labeller.settings.to_dict()}
     card["text"] = card["text"].rstrip("\n") + (
         f"{LABELLER_SECTION}(`segment --semantic` names each voxel, face or point with it): learned from the first "
-        f"{chairs} PartNet validation chairs (scripts/partnet_chairs.py's split; never the test part) with "
+        f"{chairs} PartNet validation chairs (scripts/partnet_chairs.py's split; never the test part)"
+        f"{' and their left-right mirrors' if mirror else ''} with "
         f"`python -m scripts.build_chair_labeller`; docs/labeller.md gives its figures. Terms: {TERMS}.\n")
     out = write_labeller(source, output, labeller, {"card": card}, overwrite=overwrite)
     check_unchanged(source, out, meta)  # the network and every other key unchanged
