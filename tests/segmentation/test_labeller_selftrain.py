@@ -183,3 +183,18 @@ def test_a_mirrored_mesh_is_reflected_across_the_canonical_middle_plane():
     n0 = normals(a, faces)
     n1 = normals(b, mirrored.faces)
     np.testing.assert_allclose(n1, n0 * [1, 1, -1], atol=1e-9)
+
+
+def test_a_mirrored_cloud_keeps_its_points_order_and_mirrors_its_normals():
+    from primkit import io
+    from primkit.segmentation.mirror import mirror_shape
+
+    rng = np.random.default_rng(8)
+    points = rng.normal(size=(50, 3))
+    normals = rng.normal(size=(50, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    frame = _frame([[0, 0, -1], [0, 1, 0], [1, 0, 0]], (0.0, 0.0, 0.3))  # canonical z = input x, middle at x = 0.3
+    mirrored, order = mirror_shape(io.PointCloud(points, normals), frame)
+    assert np.array_equal(order, np.arange(50))
+    np.testing.assert_allclose(mirrored.points, np.c_[0.6 - points[:, 0], points[:, 1:]], atol=1e-12)
+    np.testing.assert_allclose(mirrored.normals, normals * [-1, 1, 1], atol=1e-12)
