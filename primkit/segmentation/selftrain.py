@@ -121,7 +121,6 @@ def fit_self_trained(shapes, unlabelled, names, parts: int, *, self_training: Se
     return replace(labeller, info=new_info)
 
 
-
 def unlabelled_shape(seg, result, settings: LabellerSettings) -> UnlabelledShape:
     """What self-training reads of a segmented shape (mesh, voxel grid or point cloud) and its
     :class:`~primkit.model.abstractor.AbstractionResult`: its elements' features as a labeller with
