@@ -8,6 +8,14 @@ similarity map (t-SNE of :class:`primkit.embedding.PartDescriptor`) with each sh
 neighbours; deformation transfers (each shape onto its nearest other shape); a table of
 metrics (:func:`primkit.metrics.score`, with its convention sentence); and an interactive 3D scene.
 
+When the model has a labeller (:mod:`primkit.segmentation.labeller`; the bundled chair model's
+names ``back``, ``seat``, ``legs``, ``arms``), every face is also named on its own
+(:func:`primkit.segmentation.labeller.label_elements`): each shape gets a fourth thumbnail coloured
+by name (:func:`primkit.viz.palette.label_colors`, the colours of ``segment --semantic --png``),
+its card the share of its surface each name holds, ``report.json`` the same shares (``labels``,
+and ``label_names`` at the top), and the page a table of the names in use. Without a labeller
+the report is as before.
+
 The 3D scene is drawn by plotly.js (:mod:`primkit.viz.web`): each shape's co-segmented surface
 beside its cuboids with their edges, a legend entry per part index that toggles that part on every
 shape, and the camera convention of every primkit picture; the plot's height follows the page's
@@ -37,7 +45,7 @@ from .geometry import voxel_boundary_mesh
 from .segmentation import face_labels
 from .viz import web
 from .viz.interop import mesh_from_o3d, mesh_to_o3d
-from .viz.palette import part_colors
+from .viz.palette import label_colors, label_element_colors, part_colors
 from .viz.camera import CANONICAL_RADIUS
 from .viz.render import cuboid_layer, mesh_layer, segmentation_layer, ThumbnailRenderer, Tile, write_png
 from .model.abstractor import Abstractor
@@ -57,7 +65,9 @@ class ReportShape:
     """One shape of the report, in the network's canonical frame (upright, front +X, longest side 1).
 
     vertices : (n, 3) float; faces : (f, 3) int; cuboids : Cuboids; labels : (f,) int, the
-    co-segmentation (primitive index per face); scores : primkit.metrics.AbstractionScores or None.
+    co-segmentation (primitive index per face); scores : primkit.metrics.AbstractionScores or None;
+    named : (f,) int or None, each face's name with the model's labeller (an index into the
+    report's ``label_names``, -1 none), None without one.
     """
 
     name: str
@@ -67,6 +77,19 @@ class ReportShape:
     cuboids: object
     labels: np.ndarray
     scores: object = None
+    named: np.ndarray | None = None
+
+    def label_shares(self, label_names) -> dict[str, float]:
+        """``{name: share}``: the share of the surface (by area) each name holds, for the names
+        present; empty without :attr:`named`."""
+        if self.named is None or not len(self.faces):
+            return {}
+        v = np.asarray(self.vertices, float)[np.asarray(self.faces, np.int64)]
+        area = 0.5 * np.linalg.norm(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]), axis=1)
+        keep = self.named >= 0
+        amount = np.bincount(self.named[keep], weights=area[keep], minlength=len(label_names))
+        total = max(float(area.sum()), 1e-300)
+        return {str(n): float(a / total) for n, a in zip(label_names, amount) if a > 0}
 
 
 @dataclass
@@ -93,6 +116,29 @@ def _canonical_mesh(a):
         if result.alignment is not None:  # the grid was read turned; turn it back
             v = v @ np.asarray(result.alignment.rotation, float)
         return v, f, cub
+
+
+def _named(labeller, vertices, faces, result):
+    """``(f,) int``: each face of the shape's canonical mesh named by ``labeller`` (None: None)."""
+    if labeller is None:
+        return None
+    from .geometry import CanonicalFrame
+    from .segmentation.labeller import label_elements, mesh_elements
+
+    identity = CanonicalFrame(np.eye(3), np.zeros(3), 1.0)  # the mesh is drawn in the canonical frame already
+    return label_elements(labeller, mesh_elements(vertices, faces, identity), result.canonical)
+
+
+def _labeller(model, labeller):
+    """``"auto"``: the labeller of ``model``'s file (None for a model object or a file without one)."""
+    if not (isinstance(labeller, str) and labeller == "auto"):
+        return labeller
+    if not isinstance(model, (str, Path)):
+        return None
+    from .model.bundled import resolve_model
+    from .segmentation.labeller import read_labeller
+
+    return read_labeller(resolve_model(model))
 
 
 def _face_labels(vertices, faces, cuboids) -> np.ndarray:
@@ -169,7 +215,7 @@ def _frame_scene(figure: dict, margin: float = 0.06) -> None:
     figure["layout"]["legend"] = {**figure["layout"].get("legend", {}), "y": 1.0, "yanchor": "top"}
 
 
-def _thumbnails(shapes, folder: Path, overwrite: bool, progress: bool) -> dict:
+def _thumbnails(shapes, folder: Path, overwrite: bool, progress: bool, label_names=None) -> dict:
     from tqdm import tqdm
 
     frame = np.array([[-0.5] * 3, [0.5] * 3])
@@ -180,6 +226,8 @@ def _thumbnails(shapes, folder: Path, overwrite: bool, progress: bool) -> dict:
             if s.cuboids.existence.any():
                 layers["cuboids"] = [cuboid_layer(s.cuboids)]
                 layers["segmentation"] = [segmentation_layer(s.vertices, s.faces, s.labels, s.cuboids.count)]
+            if s.named is not None and label_names:
+                layers["names"] = [mesh_layer(s.vertices, s.faces, label_element_colors(s.named, len(label_names)))]
             for kind, layer in layers.items():
                 p = folder / f"{i:03d}.{kind}.png"
                 thumbs.render(Tile("", layer, frame=frame), p, overwrite=overwrite)
@@ -243,23 +291,30 @@ def _deformation(shapes, similarity, folder: Path, overwrite: bool) -> dict:
     return {"path": path, "pairs": pairs, "shown": len(pairs), "shapes": len(shapes)}
 
 
+#: the thumbnails of each shape (``names``: with a labeller only)
+_KINDS = ("mesh", "cuboids", "segmentation", "names")
+
+
 def report_outputs(output, count: int) -> list[Path]:
     """Every file :func:`build_report` may write into ``output`` for ``count`` shapes."""
     out = Path(output)
-    images = [out / "images" / f"{i:03d}.{kind}.png" for i in range(count) for kind in ("mesh", "cuboids", "segmentation")]
+    images = [out / "images" / f"{i:03d}.{kind}.png" for i in range(count) for kind in _KINDS]
     return [out / "index.html", out / "report.json", out / "images" / "similarity.png",
             out / "images" / "deformation.png", *images]
 
 
 def build_report(paths, model, output, *, refine: int = 0, align=None, up=None, front=None, overwrite: bool = False,
                  settings=None, model_label: str | None = None,
-                 cache_dir=None, workers=None, progress: bool = False, adapt=None) -> tuple[Report, list]:
+                 cache_dir=None, workers=None, progress: bool = False, adapt=None,
+                 labeller="auto") -> tuple[Report, list]:
     """Abstract, segment, embed and deform the shapes of ``paths`` with ``model`` and write the report.
 
     ``settings``: :class:`primkit.data.PrepareSettings`; default the model's. ``up``, ``front``,
     ``align``: the inputs' axes when known, and how orientations are found, as
     :func:`primkit.model.abstraction.abstract_shapes`, as is ``adapt`` (experimental); ``progress``:
-    tqdm bars on stderr (off by default).
+    tqdm bars on stderr (off by default). ``labeller``: ``"auto"`` takes the model file's labeller
+    when it has one (a model given as an object has none), None names nothing, or a
+    :class:`primkit.segmentation.labeller.Labeller`.
     Returns ``(report, errors)``; ``errors`` has one line per unusable input (the rest goes on).
 
     ``paths``: files or folders, or a :class:`primkit.data.RunPlan` (:func:`primkit.data.plan_run`),
@@ -272,29 +327,31 @@ def build_report(paths, model, output, *, refine: int = 0, align=None, up=None, 
                           cache=cache_dir, workers=workers, progress=progress, adapt=adapt)
     if not out.shapes:
         raise ValueError("no usable shapes for the report")
+    labeller = _labeller(model, labeller)
     shapes = []
     for a in out:
         v, f, cub = _canonical_mesh(a)
         shapes.append(ReportShape(a.name, str(a.source), v, f, cub, _face_labels(v, f, cub),
-                                  score(a.canonical, a.canonical_shape())))
+                                  score(a.canonical, a.canonical_shape()), _named(labeller, v, f, a.result)))
     meta = {"model": model_label or (str(model) if not isinstance(model, Abstractor) else "given"), "refine": refine,
             "align": align or "default"}
     report = write_report(output, shapes, out.results, out.model.part_names, overwrite=overwrite, progress=progress,
-                          meta=meta)
+                          meta=meta, label_names=None if labeller is None else list(labeller.names))
     return report, [str(e) for e in out.errors]
 
 
 def write_report(output, shapes, results, part_names, *, overwrite: bool = False, progress: bool = False,
-                 meta=None) -> Report:
+                 meta=None, label_names=None) -> Report:
     """Write ``index.html``, ``report.json`` and ``images/`` into ``output`` for shapes already
-    abstracted (:class:`ReportShape`, with the :class:`~primkit.model.abstractor.AbstractionResult` s)."""
+    abstracted (:class:`ReportShape`, with the :class:`~primkit.model.abstractor.AbstractionResult` s);
+    ``label_names``: what the shapes' ``named`` index (the model's labeller's names), or None."""
     out = Path(output)
     page = out / "index.html"
     io.refuse_existing(page, overwrite)
     images = out / "images"
     images.mkdir(parents=True, exist_ok=True)
     notes = {}
-    thumbs = _thumbnails(shapes, images, overwrite, progress)
+    thumbs = _thumbnails(shapes, images, overwrite, progress, label_names)
     similarity = deform = None
     try:
         similarity = _similarity(shapes, results, part_names, images, thumbs, overwrite)
@@ -310,19 +367,23 @@ def write_report(output, shapes, results, part_names, *, overwrite: bool = False
         notes["deformation"] = f"deformation not drawn: {type(exc).__name__}: {exc}"
     count = results[0].canonical.count if results else 20
     scene = page_scene_figure(shapes, part_names, count)
-    summary = _summary_json(shapes, part_names, similarity, deform, notes, meta or {})
+    summary = _summary_json(shapes, part_names, similarity, deform, notes, meta or {}, label_names)
     with io.atomic_output(out / "report.json", overwrite=overwrite) as tmp:
         Path(tmp).write_text(json.dumps(summary, indent=1))
-    text = _page(shapes, part_names, thumbs, similarity, deform, notes, scene, out, meta or {})
+    text = _page(shapes, part_names, thumbs, similarity, deform, notes, scene, out, meta or {}, label_names)
     with io.atomic_output(page, overwrite=overwrite) as tmp:
         Path(tmp).write_text(text, encoding="utf-8", errors="surrogateescape")  # file names that are not UTF-8
     return Report(page, len(shapes), notes)
 
 
-def _summary_json(shapes, part_names, similarity, deform, notes, meta) -> dict:
+def _summary_json(shapes, part_names, similarity, deform, notes, meta, label_names=None) -> dict:
     d = {"meta": meta, "notes": notes, "part_names": list(part_names), "shapes": []}
+    if label_names:
+        d["label_names"] = list(label_names)
     for i, s in enumerate(shapes):
         e = {"name": s.name, "source": s.source, "parts": s.cuboids.present.tolist()}
+        if label_names and s.named is not None:
+            e["labels"] = s.label_shares(label_names)
         if s.scores is not None:
             e["scores"] = s.scores.to_dict()
         if similarity is not None:
@@ -339,15 +400,17 @@ def _fmt(x) -> str:
     return "&ndash;" if x is None or not np.isfinite(x) else f"{x:.4f}"
 
 
-def _page(shapes, part_names, thumbs, similarity, deform, notes, scene, out: Path, meta) -> str:
+def _page(shapes, part_names, thumbs, similarity, deform, notes, scene, out: Path, meta, label_names=None) -> str:
     esc = html.escape
     rel = lambda p: esc(str(Path(p).relative_to(out)))  # noqa: E731
     cards = []
     for i, s in enumerate(shapes):
         imgs = "".join(f'<figure><img src="{rel(thumbs[(i, k)])}" alt="{k} of {esc(s.name)}" width="{THUMB}" '
                        f'height="{THUMB}"><figcaption>{k}</figcaption></figure>'
-                       for k in ("mesh", "cuboids", "segmentation") if (i, k) in thumbs)
+                       for k in _KINDS if (i, k) in thumbs)
         parts = ", ".join(f"{k} {esc(part_names[k])}" for k in s.cuboids.present)
+        if label_names and s.named is not None:
+            parts += "<br>names: " + ", ".join(f"{esc(n)} {x:.0%}" for n, x in s.label_shares(label_names).items())
         nearest = ""
         if similarity is not None:
             nb = similarity["neighbors"]
@@ -374,6 +437,7 @@ def _page(shapes, part_names, thumbs, similarity, deform, notes, scene, out: Pat
     usage = "".join(f"<tr><td>{k}</td><td>{esc(part_names[k])}</td><td><span class='sw' style='background:rgb"
                     f"{tuple(int(c) for c in colours[k])}'></span></td><td>{present[k]:.0%}</td></tr>"
                     for k in np.flatnonzero(present))
+    usage += _names_table(shapes, label_names)
     sim = (f'<img src="{rel(similarity["map"])}" alt="similarity map" class="map">' if similarity is not None
            else f"<p class='note'>{esc(notes.get('similarity', ''))}</p>")
     if deform is not None:
@@ -398,7 +462,23 @@ def _page(shapes, part_names, thumbs, similarity, deform, notes, scene, out: Pat
     return _TEMPLATE.format(
         title=f"primkit report: {len(shapes)} shapes", meta=esc(json.dumps(meta)), cards="".join(cards),
         rows="".join(rows), convention=esc(conv), usage=usage, similarity=sim, deformation=dfm,
+        names_heading=", names (the model's labeller)" if label_names else "",
         scene=web.figure_div(scene, "scene"), scene_script=web.figure_script("scene", ready=ready))
+
+
+def _names_table(shapes, label_names) -> str:
+    """The rows closing the parts table: the labeller's names in use (their colour, the shapes
+    holding each, the mean share of the surface)."""
+    if not label_names:
+        return ""
+    shares = [s.label_shares(label_names) for s in shapes if s.named is not None]
+    colours = label_colors(len(label_names))
+    rows = "".join(f"<tr><td>label</td><td>{html.escape(n)}</td><td><span class='sw' style='background:rgb"
+                   f"{tuple(int(c) for c in colours[j])}'></span></td><td>{np.mean([n in x for x in shares]):.0%}"
+                   f" (mean {np.mean([x.get(n, 0.0) for x in shares]):.0%} of the surface)</td></tr>"
+                   for j, n in enumerate(label_names))
+    return ("<tr><th colspan='4'>Names (the model's labeller: each face named on its own)</th></tr>" + rows
+            if shares else "")
 
 
 #: JavaScript run once the scene is drawn (``gd`` the plot, ``F`` its figure): the plot area's height
@@ -421,7 +501,7 @@ _TEMPLATE = """<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>{title}</title>
 <style>
 body{{font-family:sans-serif;margin:1.5em;color:#222}} h2{{border-bottom:1px solid #ccc}}
-.cards{{display:flex;flex-wrap:wrap;gap:12px}} .card{{border:1px solid #ddd;padding:6px;width:{w}px}}
+.cards{{display:flex;flex-wrap:wrap;gap:12px}} .card{{border:1px solid #ddd;padding:6px;max-width:{w}px}}
 .card h3{{margin:0 0 4px 0;font-size:14px}} .card p{{font-size:12px;margin:4px 0}}
 .row{{display:flex}} figure{{margin:0}} figcaption{{font-size:11px;text-align:center;color:#666}}
 table{{border-collapse:collapse;font-size:13px}} td,th{{border:1px solid #ccc;padding:2px 8px;text-align:right}}
@@ -437,7 +517,7 @@ drawn in the model's canonical frame (upright, front +X), all at one scale. Sett
 <p>Each shape's surface in the colours of its parts, beside its cuboids. Drag to turn, scroll to zoom,
 click a part in the legend to hide it on every shape. <span id="status"></span></p>
 {scene}
-<h2>Shapes: mesh, cuboids, co-segmentation</h2>
+<h2>Shapes: mesh, cuboids, co-segmentation{names_heading}</h2>
 <div class="cards">{cards}</div>
 <h2>Similarity map</h2>{similarity}
 <h2>Deformation</h2>{deformation}
@@ -447,4 +527,4 @@ click a part in the legend to hide it on every shape. <span id="status"></span><
 <h3>Parts in use</h3>
 <table><tr><th>index</th><th>name</th><th>colour</th><th>present on</th></tr>{usage}</table>
 {scene_script}</body></html>
-""".replace("{w}", str(3 * THUMB + 14))
+""".replace("{w}", str(len(_KINDS) * THUMB + 14))

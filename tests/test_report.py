@@ -215,3 +215,38 @@ def test_the_3d_scene_frames_every_shape_at_any_width(report_dir, width):
     assert rows.max() < area.shape[0] - 4, (rows.max(), area.shape)
     # and the content fills the width (framed, not shrunk to a corner)
     assert cols.max() - cols.min() > 0.7 * area.shape[1]
+
+
+def test_the_report_names_each_shape_with_the_models_labeller(report_dir):
+    """The bundled chair model has a labeller: report.json's per-shape ``labels`` (the share of the
+    surface each name holds) agree with label_elements called directly on each input mesh in its own
+    frame, and each shape's ``names`` thumbnail shows the names in the label palette's colours."""
+    from pictures import read_picture
+
+    from primkit import io
+    from primkit.model.abstraction import abstract
+    from primkit.model.bundled import resolve_model
+    from primkit.segmentation import labeller as lab
+    from primkit.viz.palette import label_colors
+
+    summary = json.loads((report_dir / "report.json").read_text())
+    names = summary["label_names"]
+    assert names == ["back", "seat", "legs", "arms"]
+    labeller = lab.read_labeller(resolve_model("chair"))
+    page = (report_dir / "index.html").read_text()
+    assert "Names (the model's labeller" in page and "co-segmentation, names (the model's labeller)" in page
+    for i, s in enumerate(summary["shapes"]):
+        mesh = io.read_mesh(s["source"])
+        a = abstract((mesh.vertices, mesh.faces), "chair")
+        named = lab.label_elements(labeller, lab.mesh_elements(mesh.vertices, mesh.faces, a.result.frame),
+                                   a.result.canonical)
+        area = mesh.face_areas()
+        want = {n: area[named == j].sum() / area.sum() for j, n in enumerate(names) if (named == j).any()}
+        assert set(s["labels"]) <= set(want) and abs(sum(s["labels"].values()) - 1) < 1e-6
+        for n, share in want.items():
+            assert abs(s["labels"].get(n, 0.0) - share) < 0.02, (s["name"], n, s["labels"], want)
+        thumb = read_picture(report_dir / "images" / f"{i:03d}.names.png")
+        for j, n in enumerate(names):
+            if want.get(n, 0) >= 0.05:
+                assert thumb.colour_pixels(label_colors(4)[j]) > 20, (s["name"], n)
+        assert "names: " in page

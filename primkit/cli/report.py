@@ -14,6 +14,7 @@ def _run(args) -> int:
     from ..data import plan_run
     from ..model.abstraction import load_model
     from ..report import build_report
+    from ..segmentation.labeller import read_labeller
 
     model = load_model(args.model)
     plan = plan_run(args.inputs, limit=args.limit, reads=[model_file(args.model)])
@@ -21,7 +22,7 @@ def _run(args) -> int:
                                   settings=settings_from_args(args, model.settings), model_label=args.model,
                                   align=args.align, up=args.up, front=args.front, overwrite=args.force,
                                   cache_dir=args.cache, workers=args.workers, adapt=args.adapt,
-                                  progress=progress_of(args))
+                                  progress=progress_of(args), labeller=read_labeller(model_file(args.model)))
     for note in report.notes.values():
         print(f"primkit: note: {note}")
     print(f"wrote {report.path} ({report.shapes} shapes)")

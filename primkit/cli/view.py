@@ -77,6 +77,14 @@ def _meshes(args, inputs, progress: bool = True):
     return shapes, out.model, errors
 
 
+def _labeller(args):
+    """The model's labeller (:func:`primkit.segmentation.labeller.read_labeller`), None without one."""
+    from ..segmentation.labeller import read_labeller
+
+    path = model_file(args.model)
+    return None if path is None else read_labeller(path)
+
+
 def _files(args):
     files = collect(args.folder)
     return files[: args.limit] if args.limit else files
@@ -94,20 +102,21 @@ def _view_abstraction(args, off, size) -> int:
     if (getattr(args, "label_from", None) is not None or getattr(args, "label_guess", False)) and label_to is None:
         err("--label-from and --label-guess start a labelling: give --label-to as well")
         return 2
-    guess = None
+    guess = named = None
+    labeller = _labeller(args)
+    for flag, asked in (("--label-guess", getattr(args, "label_guess", False)), ("--semantic", args.semantic)):
+        if asked and labeller is None:
+            err(f"{flag}: the model {args.model} has no labeller (primkit name-parts learns one)")
+            return 2
+    if labeller is not None:  # each face's (point's) name: the "by name" checkbox, or the guess to start from
+        from ..segmentation.bylabel import labelled_surface
+
+        named = (labelled_surface(labeller, s.vertices, s.faces, s.result), list(labeller.names))
     if getattr(args, "label_guess", False):
         if args.label_from is not None:
             err("--label-from or --label-guess: one start, not both")
             return 2
-        from ..model.bundled import resolve_model
-        from ..segmentation.bylabel import labelled_surface
-        from ..segmentation.labeller import read_labeller
-
-        labeller = read_labeller(resolve_model(args.model))
-        if labeller is None:
-            err(f"--label-guess: the model {args.model} has no labeller (primkit name-parts learns one)")
-            return 2
-        guess = (labelled_surface(labeller, s.vertices, s.faces, s.result), list(labeller.names))
+        guess = named
     if label_to is not None:
         from ..segmentation.handlabels import label_suffix
 
@@ -118,8 +127,9 @@ def _view_abstraction(args, off, size) -> int:
             return 2
     viewer = abstraction_viewer(s.vertices, s.faces, s.cuboids, model.part_names, title=s.name, off_screen=off,
                                 window_size=size, label_to=label_to, overwrite=args.force, source=args.shape,
-                                opacity=0.6 if label_to is None else 0.35,  # labelling: the names show through
-                                label_from=getattr(args, "label_from", None), label_guess=guess)
+                                opacity=0.6 if label_to is None and not args.semantic else 0.35,  # the names show through
+                                label_from=getattr(args, "label_from", None), label_guess=guess, named=named,
+                                by_name=args.semantic)
     if args.select is not None:
         viewer.select(args.select)
     elif viewer.part_actors:
@@ -140,8 +150,12 @@ def _view_collection(args, off, size) -> int:
         report_errors(errors)
         err("no usable shapes")
         return 2
+    labeller = _labeller(args) if args.mode == "names" else None
+    if args.mode == "names" and labeller is None:
+        err(f"--mode names: the model {args.model} has no labeller (primkit name-parts learns one)")
+        return 2
     browser = collection_browser(shapes, model.part_names, mode=args.mode, off_screen=off, window_size=size,
-                                 title=" ".join(args.folder))
+                                 title=" ".join(args.folder), labeller=labeller)
     show(browser.plotter, args.png, args.window)
     return report_errors(errors)
 
@@ -155,7 +169,8 @@ def _view_embedding(args, off, size) -> int:
         err(f"the map needs at least 3 usable shapes, got {len(shapes)}")
         return 2
     explorer = embedding_explorer(shapes, model.part_names, parts=args.parts, neighbors=args.neighbors,
-                                  off_screen=off, window_size=size, title=" ".join(args.folder))
+                                  off_screen=off, window_size=size, title=" ".join(args.folder),
+                                  labeller=_labeller(args))
     explorer.select(min(max(args.select, 0), len(shapes) - 1))
     show(explorer.plotter, args.png, args.window)
     return report_errors(errors)
@@ -199,8 +214,11 @@ def _view_open3d(args, off, size) -> int:
             "or xvfb-run -a (without --window it draws off screen)")
         return 2
     options = {k: v for k, v in abstraction_options(args).items() if k not in ("cache", "workers", "progress")}
+    if args.semantic and _labeller(args) is None:
+        err(f"--semantic: the model {args.model} has no labeller (primkit name-parts learns one)")
+        return 2
     viewer = open3d_viewer(given, args.model, name=Path(args.shape).stem, refine_step=args.refine_step,
-                           export_folder=args.export, **options)
+                           export_folder=args.export, names=args.semantic, **options)
     if args.png is not None:
         # --png: Open3D's OffscreenRenderer, no display; with --window: the window's own frame (X)
         viewer.picture(args.png, width=size[0], height=size[1], overwrite=True, offscreen=not args.window)
@@ -259,20 +277,24 @@ def register(subparsers) -> None:
                    "with an earlier labelling (--label-to the same file needs --force)")
     q.add_argument("--label-guess", action="store_true",
                    help="with --label-to: start from the model's labeller's labels, to correct them")
+    q.add_argument("--semantic", action="store_true",
+                   help="colour the shape by the model's labeller's names, with a legend (the 'by name' checkbox)")
     _options(q)
     q = add_command(sub, "collection", help="a grid of shapes, parts coloured alike; mesh / cuboids / segmentation",
         description="A grid of shapes with parts coloured alike on every shape; switch between the mesh, the cuboids and the segmentation.",
         examples=["primkit view collection chairs/ --model chair --mode segmentation"])
     q.add_argument("folder", nargs="+", help="folders or files of shapes")
-    q.add_argument("--mode", choices=["mesh", "cuboids", "segmentation"], default="cuboids",
-                   help="what each shape shows at start (default cuboids)")
+    q.add_argument("--mode", choices=["mesh", "cuboids", "segmentation", "names"], default="cuboids",
+                   help="what each shape shows at start (default cuboids; names: each face coloured by the model's "
+                   "labeller's name, with a legend)")
     q.add_argument("--limit", type=int, default=0, help="at most this many shapes (0: all)")
     _options(q)
     q = add_command(sub, "embedding", help="the t-SNE map of a collection; click a shape for its nearest neighbours",
         description="The t-SNE map of a collection by the chosen parts; click a shape to see its nearest neighbours.",
         examples=["primkit view embedding chairs/ --model chair --parts back,seat"])
     q.add_argument("folder", nargs="+", help="folders or files of shapes")
-    q.add_argument("--parts", default="all", help="parts the similarity looks at (names or indices, e.g. back,seat)")
+    q.add_argument("--parts", default="all", help="parts the similarity looks at (names or indices, e.g. back,seat); "
+                   "with a model labeller, names it knows (arms) are each shape's labelled regions, as embed --parts")
     q.add_argument("--neighbors", type=int, default=4, help="neighbours shown beside the chosen shape")
     q.add_argument("--select", type=int, default=0, help="shape chosen at start (its position in the collection)")
     q.add_argument("--limit", type=int, default=0, help="at most this many shapes (0: all)")
@@ -291,5 +313,7 @@ def register(subparsers) -> None:
     q.add_argument("--export", default="primkit-export", help="folder the export button writes into (default "
                    "primkit-export; nothing is overwritten)")
     q.add_argument("--refine-step", type=int, default=100, help="gradient steps the refine button adds (default 100)")
+    q.add_argument("--semantic", action="store_true",
+                   help="colour the surface by the model's labeller's names (a 'colour by name' button switches)")
     _options(q)
     p.set_defaults(func=_run)

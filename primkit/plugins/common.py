@@ -17,7 +17,7 @@ from .. import io
 from ..model.abstraction import Abstraction, abstract_shapes
 from ..segmentation import label_voxels, point_labels, segment_mesh, segment_points, voxel_centres
 
-__all__ = ["Labelled", "label_shapes", "label_shape"]
+__all__ = ["Labelled", "label_shapes", "label_shape", "resolve_labeller"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -107,7 +107,7 @@ def label_shapes(shapes, model="chair", *, names=None, progress_bar: bool = Fals
     return labelled
 
 
-def _labeller(model, labeller):
+def resolve_labeller(model, labeller):
     """The labeller to use: ``"auto"``, the model file's (None when it has none or ``model`` is an
     object, not a file); None; or a Labeller given."""
     if not (isinstance(labeller, str) and labeller == "auto"):
@@ -118,6 +118,9 @@ def _labeller(model, labeller):
     from ..segmentation.labeller import read_labeller
 
     return read_labeller(resolve_model(model))
+
+
+_labeller = resolve_labeller
 
 
 def _named(a: Abstraction, labeller):

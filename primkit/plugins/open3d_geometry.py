@@ -14,7 +14,14 @@ A mesh comes back as an ``open3d.t.geometry.TriangleMesh`` with ``triangle["part
 vertex); a point cloud as an ``open3d.t.geometry.PointCloud`` with ``point["part"]`` ((n, 1) int32)
 and ``point["colors"]``. The attributes travel through Open3D's own operations
 (``select_faces_by_mask``, ``select_by_mask`` (with ``point["part"][:, 0] == k``),
-``select_by_index``). Cuboids come as tensor geometry too
+``select_by_index``). When the model has a labeller (:mod:`primkit.segmentation.labeller`, the
+bundled chair model's names ``back``, ``seat``, ``legs``, ``arms``), each face of a mesh also gets
+its name, ``triangle["label"]`` ((f,) int32), and each point of a cloud ``point["label"]`` ((n, 1)
+int32): indices into :attr:`O3DSegmentation.label_names` (-1: none), the labeller's names of the
+elements as :func:`primkit.segmentation.labeller.label_elements` gives them (``labeller=None``
+turns it off); :meth:`O3DSegmentation.label_colors` colours them with the label palette
+(:func:`primkit.viz.palette.label_colors`). ``label`` travels and is written and read as ``part``
+is (below); the names are not in the geometry. Cuboids come as tensor geometry too
 (:func:`primkit.viz.interop.cuboids_to_o3d_tensor`, ``triangle["part"]``; and the 12 edges of each
 as a ``LineSet`` with ``line["part"]``).
 
@@ -50,7 +57,7 @@ import numpy as np
 
 from ..viz.interop import (cuboids_to_o3d_tensor, cuboids_to_o3d_tensor_lineset, is_tensor_geometry, mesh_from_o3d,
                            mesh_to_o3d_tensor, points_from_o3d, points_to_o3d_tensor)
-from ..viz.palette import part_colors
+from ..viz.palette import label_element_colors, part_colors
 from .common import Labelled, label_shapes
 
 __all__ = ["O3DSegmentation", "segment_geometry", "segment_all", "write", "read", "KEEPS_PART"]
@@ -73,6 +80,9 @@ class O3DSegmentation:
         Their 12 edges each, ``line["part"]``, ``line["colors"]``.
     labelled : primkit.plugins.common.Labelled
         The labels as NumPy arrays and the abstraction (``labelled.cuboids``, ``labelled.abstraction``).
+
+    With a labeller in the model, ``geometry`` also carries ``label`` (``triangle["label"]`` of a
+    mesh, ``point["label"]`` of a cloud), indices into :attr:`label_names`.
     """
 
     geometry: object
@@ -88,6 +98,19 @@ class O3DSegmentation:
     @property
     def part_names(self) -> list:
         return self.labelled.part_names
+
+    @property
+    def label_names(self) -> list | None:
+        """The labeller's names, which ``label`` indexes; None when the model has no labeller."""
+        return self.labelled.label_names
+
+    def label_colors(self) -> np.ndarray | None:
+        """``(f, 3)`` (a mesh's faces) or ``(n, 3)`` (a cloud's points) float in [0, 1]: each
+        element's label colour (:func:`primkit.viz.palette.label_element_colors`); None without a
+        labeller. E.g. ``seg.geometry.point["colors"] = o3d.core.Tensor(seg.label_colors().astype("float32"))``."""
+        if self.labelled.labels is None:
+            return None
+        return label_element_colors(self.labelled.labels, len(self.label_names)) / 255.0
 
 
 def _is_mesh(geometry) -> bool:
@@ -111,11 +134,14 @@ def _to_tensor(shape, labelled: Labelled):
     point_part = labelled.point_labels
     colours = palette[np.where(point_part < 0, -1, point_part)]
     point_part = point_part.reshape(-1, 1)  # (n, 1): the shape Open3D's writers keep (module notes)
+    named = None if labelled.labels is None else labelled.labels.astype(np.int32)
     if isinstance(shape, tuple):
         vertices, faces = shape
+        triangle = {"part": labelled.face_labels} | ({} if named is None else {"label": named})
         return mesh_to_o3d_tensor(vertices, faces, vertex_attributes={"part": point_part, "colors": colours},
-                                  triangle_attributes={"part": labelled.face_labels})
-    return points_to_o3d_tensor(shape, attributes={"part": point_part, "colors": colours})
+                                  triangle_attributes=triangle)
+    point = {"part": point_part, "colors": colours} | ({} if named is None else {"label": named.reshape(-1, 1)})
+    return points_to_o3d_tensor(shape, attributes=point)
 
 
 def segment_all(geometries, model="chair", **options) -> list[O3DSegmentation]:
@@ -179,8 +205,9 @@ def _write_mesh_ply(path: Path, mesh, overwrite: bool) -> Path:
     if "colors" in mesh.vertex:
         t.visual.vertex_colors = np.clip(np.rint(mesh.vertex["colors"].numpy() * 255), 0, 255).astype(np.uint8)
     for name, attributes, store in (("vertex", mesh.vertex, t.vertex_attributes), ("face", mesh.triangle, t.face_attributes)):
-        if "part" in attributes:
-            store["part"] = attributes["part"].numpy().reshape(-1).astype(np.int32)
+        for key in ("part", "label"):
+            if key in attributes:
+                store[key] = attributes[key].numpy().reshape(-1).astype(np.int32)
     data = trimesh.exchange.ply.export_ply(t, encoding="binary", include_attributes=True)
     with io.atomic_output(path, overwrite=overwrite) as tmp:
         Path(tmp).write_bytes(data)
@@ -212,6 +239,7 @@ def read(path):
         raw = trimesh.load(path, process=False).metadata.get("_ply_raw", {})
         for element, attributes, shape in (("vertex", mesh.vertex, (-1, 1)), ("face", mesh.triangle, (-1,))):
             data = raw.get(element, {}).get("data")
-            if data is not None and data.dtype.names and "part" in data.dtype.names:
-                attributes["part"] = o3d.core.Tensor(np.asarray(data["part"]).reshape(shape).astype(np.int32))
+            for key in ("part", "label"):
+                if data is not None and data.dtype.names and key in data.dtype.names:
+                    attributes[key] = o3d.core.Tensor(np.asarray(data[key]).reshape(shape).astype(np.int32))
     return mesh

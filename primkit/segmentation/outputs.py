@@ -7,16 +7,18 @@ summaries of each kind of shape (:func:`summary_name`, :func:`write_summary`), t
 from __future__ import annotations
 
 import csv
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
 from .. import data, io, parallel
+from .meshes import Segmentation
 from .points import PointSegmentation
 from .voxels import VoxelSegmentation
 
 __all__ = ["summary_header", "read_summary", "write_summary", "summary_name", "shape_kind", "shape_outputs",
-           "label_codes_text", "written_before", "plan_segmentation", "write_picture", "SUMMARIES",
+           "label_codes_text", "written_before", "plan_segmentation", "write_picture", "legend_strip", "SUMMARIES",
            "EVALUATIONS"]
 
 #: the summary file of each kind of shape
@@ -186,22 +188,64 @@ def write_summary(segmentations, path, *, overwrite: bool = False, keep=None, or
 EVALUATIONS = {"meshes": "evaluation.json", "voxels": "evaluation-voxels.json"}
 
 
-def write_picture(segmentations, path, limit: int = 16) -> Path:
-    """Each shape beside its co-segmentation (a point cloud as points, coloured by part), the first
-    ``limit`` shapes, into a PNG file."""
-    from ..viz.palette import part_colors
-    from ..viz.render import Tile, mesh_layer, point_segmentation_layer, points_layer, write_png
+def write_picture(segmentations, path, limit: int = 16, *, semantic: bool = False) -> Path:
+    """Each shape beside its co-segmentation (a point cloud as points), the first ``limit`` shapes,
+    into a PNG file.
 
+    By default every element takes its part index's colour (:func:`primkit.viz.palette.part_colors`,
+    the cuboids' colours). With ``semantic`` (``segment --semantic --png``) it takes its *name's*
+    colour (:func:`primkit.viz.palette.label_colors`, by the name's code in ``labels.csv``: the
+    labeller's name of each element when the model has one, else its part index's name; grey: no
+    name), and a legend of the names runs under the tiles.
+    """
+    from ..viz.palette import UNLABELLED, label_colors, part_colors
+    from ..viz.render import Tile, mesh_layer, points_layer, render_tiles
+
+    names = None
     tiles = []
     for s in segmentations[:limit]:
+        if semantic:
+            names, codes = s.semantic_labels()
+            table = np.vstack([label_colors(max(len(names), 1)), np.array([UNLABELLED], np.uint8)])
+            index = np.where(codes > 0, codes - 1, -1)  # into names; -1: none (grey, the table's last row)
+        else:
+            index = s.face_labels if isinstance(s, Segmentation) else s.labels
+            table = np.vstack([part_colors(s.cuboids.count), [[200, 200, 200]]]).astype(np.uint8)
         if isinstance(s, PointSegmentation):
             plain = points_layer(s.points, point_size=2.0)
-            tiles += [Tile(s.name, [plain]), Tile("", [point_segmentation_layer(s.points, s.labels, s.cuboids.count,
-                                                                                 point_size=2.0)], frame=plain.bounds())]
+            tiles += [Tile(s.name, [plain]), Tile("", [points_layer(s.points, table[index], point_size=2.0)],
+                                                  frame=plain.bounds())]
             continue
-        v, f, labels = s.boundary_mesh() if isinstance(s, VoxelSegmentation) else (s.vertices, s.faces, s.face_labels)
+        if isinstance(s, VoxelSegmentation):  # the voxels' surface split by name (or by index)
+            v, f, labels = replace(s, labels=np.asarray(index, np.int64)).boundary_mesh()
+        else:
+            v, f, labels = s.vertices, s.faces, index
         plain = mesh_layer(v, f)
-        tiles += [Tile(s.name, [plain]), Tile("", [mesh_layer(v, f, part_colors(s.cuboids.count)[labels])],
-                                              frame=plain.bounds())]
-    write_png(path, tiles, columns=2 * min(4, max(1, len(tiles) // 2)), tile=260, overwrite=True)
+        tiles += [Tile(s.name, [plain]), Tile("", [mesh_layer(v, f, table[labels])], frame=plain.bounds())]
+    image = render_tiles(tiles, columns=2 * min(4, max(1, len(tiles) // 2)), tile=260)
+    if names:
+        image = np.vstack([image, legend_strip(names, label_colors(len(names)), image.shape[1])])
+    with io.atomic_output(path, overwrite=True) as tmp:
+        from PIL import Image
+
+        Image.fromarray(image).save(tmp, format="PNG", optimize=True)
     return Path(path)
+
+
+def legend_strip(names, colors, width: int, height: int = 28) -> np.ndarray:
+    """``(height, width, 3) uint8``: a white strip with a swatch (``colors`` (k, 3) uint8) and the
+    name of each label, left to right (Pillow's default font), for the foot of a picture."""
+    from PIL import Image, ImageDraw, ImageFont
+
+    strip = Image.new("RGB", (width, height), "white")
+    draw = ImageDraw.Draw(strip)
+    try:
+        font = ImageFont.load_default(size=height // 2)
+    except TypeError:  # Pillow before 10.1: the small bitmap font only
+        font = ImageFont.load_default()
+    x, box = 8, height - 10
+    for name, colour in zip(names, np.asarray(colors, np.uint8)):
+        draw.rectangle([x, 5, x + box, 5 + box], fill=tuple(int(c) for c in colour), outline=(0, 0, 0))
+        draw.text((x + box + 6, height // 2), str(name), fill=(0, 0, 0), font=font, anchor="lm")
+        x += box + 18 + int(draw.textlength(str(name), font=font))
+    return np.asarray(strip)

@@ -228,7 +228,7 @@ class Segmenter:
                                canonical_frame=frames[s.name], model=self.abstractor.model or None,
                                part_names=s.part_names or None, overwrite=overwrite)
         if picture:
-            run.picture = outputs.write_picture(segs, picture)
+            run.picture = outputs.write_picture(segs, picture, semantic=semantic)
         if ground_truth and kinds["mesh"]:
             run.evaluation, failed = evaluation.evaluate_meshes_against(kinds["mesh"], ground_truth, self.part_names)
             run.errors += failed

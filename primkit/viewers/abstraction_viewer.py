@@ -8,6 +8,14 @@ from the camera convention of :mod:`primkit.viz.render`.
     primkit view abstraction chair.off --model chair
     primkit view abstraction chair.off --model chair --label-to labels/chair.seg   # label by hand
 
+With ``named`` (the model's labeller's name of each face or point; ``primkit view abstraction``
+computes it when the model has a labeller) a *by name* checkbox colours the shape by name (the
+label palette, :func:`primkit.viz.palette.label_colors`, as ``segment --semantic --png``) with a
+legend of the names, and each cuboid is called by the name most of its faces get on this shape
+(:func:`primkit.segmentation.labeller.names_by_index`); ``by_name`` (``--semantic``) starts with it on.
+
+    primkit view abstraction chair.off --model chair --semantic
+
 With ``label_to`` (``--label-to``) it is also a labelling tool (:class:`LabellingControls`): name the
 faces of a clicked cuboid by typing, paint names with a brush, undo, save a label file that
 ``primkit name-parts`` reads.
@@ -21,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from ..model.parts import default_part_names
-from ..viz.palette import part_colors
+from ..viz.palette import UNLABELLED, label_colors, name_colors, part_colors
 from ..viz.interop import to_pyvista
 from ..viz.camera import apply_camera
 
@@ -49,6 +57,32 @@ class AbstractionViewer:
     outline_actor: object = None
     selected: int | None = None
     labelling: "LabellingControls | None" = None
+    named: np.ndarray | None = None  # (f,) or (n,) int: each face's (point's) label, into label_names
+    label_names: list | None = None
+    names_actor: object = None  # the shape coloured by name
+    names_checkbox: object = None
+    by_name: bool = False
+    legend: list = field(default_factory=list)  # the names in the legend shown
+
+    def colour_by_name(self, on: bool) -> None:
+        """Colour the shape by name (with a legend of the names) or show it grey (needs ``named``)."""
+        if self.names_actor is None:
+            raise ValueError("no names to colour by: the model has no labeller")
+        self.by_name = bool(on)
+        shown = self.mesh_actor.GetVisibility() or self.names_actor.GetVisibility()
+        self.names_actor.SetVisibility(self.by_name and shown)
+        self.mesh_actor.SetVisibility(not self.by_name and shown)
+        if self.names_checkbox is not None:
+            self.names_checkbox.GetRepresentation().SetState(int(self.by_name))
+        if self.legend:
+            self.plotter.remove_legend(render=False)
+            self.legend = []
+        if self.by_name:
+            present = sorted(set(np.unique(self.named).tolist()) - {-1})
+            self.legend = [self.label_names[j] for j in present]
+            colours = label_colors(len(self.label_names)) / 255.0
+            self.plotter.add_legend([[self.label_names[j], colours[j]] for j in present], bcolor="white",
+                                    face="rectangle", loc="center right", size=(0.14, 0.035 * len(present)))
 
     def toggle_part(self, k: int, visible: bool) -> None:
         """Show or hide part ``k`` (its faces and edges); a hidden part cannot be picked and loses its outline."""
@@ -59,6 +93,10 @@ class AbstractionViewer:
             self.select(None)
 
     def toggle_mesh(self, visible: bool) -> None:
+        if self.names_actor is not None:
+            self.names_actor.SetVisibility(bool(visible) and self.by_name)
+            self.mesh_actor.SetVisibility(bool(visible) and not self.by_name)
+            return
         self.mesh_actor.SetVisibility(bool(visible))
 
     def set_opacity(self, value: float) -> None:
@@ -99,17 +137,7 @@ class AbstractionViewer:
 #: Printable characters a label name may hold (typed in the window).
 NAME_CHARS = set("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789-_. ")
 _KEY_CHARS = {"minus": "-", "underscore": "_", "period": ".", "space": " "}
-UNLABELLED = (215, 215, 215)  # the colour of an unlabelled face or point
 ERASER = "-"  # the name that takes names away
-
-
-def label_colors(count: int) -> np.ndarray:
-    """``(count, 3) uint8``: the colour of the ``count`` label names, in order (matplotlib's
-    tab10, then tab20: names are few, and should not look like the cuboids' part colours)."""
-    from matplotlib import colormaps
-
-    table = np.vstack([colormaps["tab10"].colors, colormaps["tab20"].colors[1::2]])
-    return (np.asarray(table)[np.arange(count) % len(table)] * 255).round().astype(np.uint8)
 
 
 @dataclass
@@ -124,7 +152,8 @@ class LabellingControls:
     writes the label file and its names file (never over a file it did not write, without
     ``overwrite``). BackSpace takes a character back, Escape clears the name; the name ``-``
     is the eraser (what it is given is unlabelled again). The shape is coloured by name (grey:
-    unlabelled).
+    unlabelled; a name the model's labeller knows, ``known``, in the colour it has everywhere,
+    :func:`primkit.viz.palette.name_colors`).
     """
 
     viewer: AbstractionViewer
@@ -146,6 +175,7 @@ class LabellingControls:
     saved: bool = False
     painting: bool = field(default=False, repr=False)
     _legend: list = field(default_factory=list, repr=False)
+    known: list = field(default_factory=list)  # the model's label names: a name typed keeps their colour
 
     # ---- the handlers -------------------------------------------------------------------------
 
@@ -270,7 +300,7 @@ class LabellingControls:
 
     def colors(self) -> np.ndarray:
         """``(n, 3) uint8``: each element's colour (its name's, or grey)."""
-        table = np.vstack([np.array([UNLABELLED], np.uint8), label_colors(max(len(self.labels.names), 1))])
+        table = np.vstack([np.array([UNLABELLED], np.uint8), name_colors(self.labels.names, self.known)])
         return table[self.labels.codes]
 
     def status(self) -> str:
@@ -302,7 +332,7 @@ class LabellingControls:
                     p.remove_legend(render=False)
                 self._legend = list(self.labels.names)
                 if self._legend:
-                    colors = label_colors(len(self._legend)) / 255.0
+                    colors = name_colors(self._legend, self.known) / 255.0
                     p.add_legend([[n, c] for n, c in zip(self._legend, colors)], bcolor="white", face="rectangle",
                                  loc="center right", size=(0.14, 0.035 * len(self._legend)))
 
@@ -312,8 +342,28 @@ class LabellingControls:
         return common.text_of(self.status_actor)
 
 
+def _add_names(viewer: AbstractionViewer, vertices, faces, labels, label_names, on: bool) -> None:
+    """The shape coloured by name (hidden until :meth:`AbstractionViewer.colour_by_name`) and its checkbox."""
+    from ..viz.palette import label_element_colors
+
+    p = viewer.plotter
+    viewer.named, viewer.label_names = labels, label_names
+    colours = label_element_colors(labels, len(label_names))
+    poly = to_pyvista((vertices, faces), face_colors=colours) if len(faces) else to_pyvista(np.asarray(vertices, float),
+                                                                                          colors=colours)
+    viewer.names_actor = p.add_mesh(poly, scalars="rgb", rgb=True, smooth_shading=False, pickable=False,
+                                    reset_camera=False, point_size=6)
+    viewer.names_actor.SetVisibility(False)
+    y = 10 + GAP  # above the mesh checkbox
+    viewer.names_checkbox = p.add_checkbox_button_widget(viewer.colour_by_name, value=False, position=(10, y),
+                                                         size=BOX, color_on="orange", color_off="white",
+                                                         background_color="grey")
+    p.add_text("by name", position=(10 + BOX + 6, y + 3), font_size=9, color="black")
+    viewer.colour_by_name(on)
+
+
 def _add_labelling(viewer: AbstractionViewer, vertices, faces, window_size, *, label_to, overwrite, source,
-                   parts=None) -> LabellingControls:
+                   parts=None, known=()) -> LabellingControls:
     """Labelling mode: the shape drawn coloured by name, the panel, keys, buttons and the brush."""
     from ..segmentation.handlabels import HandLabels
 
@@ -323,7 +373,8 @@ def _add_labelling(viewer: AbstractionViewer, vertices, faces, window_size, *, l
               else HandLabels(np.asarray(vertices, float), parts))
     v = np.asarray(vertices, float)
     size = float(np.linalg.norm(v.max(0) - v.min(0))) if len(v) else 1.0
-    ctl = LabellingControls(viewer, labels, label_to, overwrite=overwrite, source=source, radius=0.05 * size)
+    ctl = LabellingControls(viewer, labels, label_to, overwrite=overwrite, source=source, radius=0.05 * size,
+                            known=list(known))
     viewer.labelling = ctl
     # the shape again, coloured by name, in place of the grey one
     p.remove_actor(viewer.mesh_actor)
@@ -390,7 +441,8 @@ def _wire_labelling_events(p, ctl: LabellingControls) -> None:
 
 def abstraction_viewer(vertices, faces, cuboids, names=None, *, title: str = "", opacity: float = 0.6,
                        off_screen: bool = False, window_size=(1024, 768), label_to=None, overwrite: bool = False,
-                       source=None, label_from=None, label_guess=None) -> AbstractionViewer:
+                       source=None, label_from=None, label_guess=None, named=None,
+                       by_name: bool = False) -> AbstractionViewer:
     """Build the viewer for one shape.
 
     Parameters
@@ -406,8 +458,23 @@ def abstraction_viewer(vertices, faces, cuboids, names=None, *, title: str = "",
         to start from (:meth:`primkit.segmentation.handlabels.HandLabels.load`); ``label_guess``:
         ``(labels (n,) int, names)`` to start from instead (a labeller's guess,
         :meth:`~primkit.segmentation.handlabels.HandLabels.start_from`).
+    named : ``(labels, label_names)``, optional
+        The model's labeller's name of each face (each point of a cloud): ``labels`` (f,) or (n,)
+        int, indices into ``label_names`` (-1 none), e.g.
+        :func:`primkit.segmentation.bylabel.labelled_surface`. Adds the *by name* checkbox (not in
+        labelling mode), and each cuboid takes the name most of its faces get
+        (:func:`primkit.segmentation.labeller.names_by_index`); ``by_name`` starts coloured by name.
     """
     names = list(names) if names is not None else default_part_names(cuboids.count)
+    if named is not None:
+        from ..segmentation.labeller import names_by_index
+
+        labels, label_names = np.asarray(named[0], np.int64), list(named[1])
+        expected = len(faces) if len(faces) else len(vertices)
+        if labels.shape != (expected,):
+            raise ValueError(f"`named` labels must be ({expected},) int, one per {'face' if len(faces) else 'point'}, "
+                             f"got {labels.shape}")
+        names = names_by_index(labels, common.part_labels(vertices, faces, cuboids), cuboids.count, label_names, names)
     p = common.new_plotter(off_screen, window_size, f"primkit - {title or 'abstraction'}")
     # no depth peeling: with Mesa (llvmpipe, EGL or Xvfb) it hid every translucent cuboid
     mesh_actor = p.add_mesh(to_pyvista((vertices, faces)), color="lightgrey", smooth_shading=False, pickable=False)
@@ -436,13 +503,15 @@ def abstraction_viewer(vertices, faces, cuboids, names=None, *, title: str = "",
                                    color="black")
     if title:
         p.add_text(title, position="upper_edge", font_size=11, color="black")
+    if named is not None and label_to is None:
+        _add_names(viewer, vertices, faces, labels, label_names, by_name)
     v = np.asarray(vertices, float)
     bounds = np.vstack([v.min(0), v.max(0)])
     apply_camera(p, bounds.mean(0), 0.5 * np.linalg.norm(bounds[1] - bounds[0]))
     common.on_click(p, viewer.pick_at)
     if label_to is not None:
         ctl = _add_labelling(viewer, vertices, faces, window_size, label_to=Path(label_to), overwrite=overwrite,
-                             source=source)
+                             source=source, known=label_names if named is not None else ())
         if label_from is not None or label_guess is not None:
             if label_from is not None:
                 ctl.labels.load(label_from)

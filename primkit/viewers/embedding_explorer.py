@@ -8,6 +8,12 @@ descriptor space, not on the map) turn blue, and the row below the map shows it 
 neighbours with their distances.
 
     primkit view embedding chairs/ --model chair --parts back,seat
+    primkit view embedding chairs/ --model chair --parts arms      # by label, as embed --parts arms
+
+With the model's labeller (``labeller``) and ``parts`` naming only its names (``arms``;
+:func:`primkit.segmentation.bylabel.by_label`), the similarity looks at each shape's labelled
+regions, whichever cuboids hold them, as ``primkit embed --parts arms`` does (:func:`label_table`);
+otherwise at the part indices the names select.
 """
 
 from __future__ import annotations
@@ -22,7 +28,7 @@ from .. import embedding
 
 from . import common
 
-__all__ = ["EmbeddingExplorer", "embedding_explorer"]
+__all__ = ["EmbeddingExplorer", "embedding_explorer", "label_table"]
 
 GREY, ORANGE, BLUE = "lightgrey", "#f28e2b", "#4e79a7"
 MAP_WIDTH = 8.0  # the map's larger side, in canonical shape sizes
@@ -95,9 +101,27 @@ def _rgb(color):
     return Color(color).float_rgb
 
 
+def label_table(labeller, chosen, shapes) -> "embedding.CuboidTable":
+    """Each shape's regions of the labels ``chosen`` (names of ``labeller``) as boxes, one slot per
+    label (:func:`primkit.embedding.label_boxes` of the shape's canonical grid named voxel by voxel,
+    :func:`primkit.segmentation.bylabel.labelled_voxels`): what ``embed --parts arms`` describes.
+    ``shapes``: abstractions (or the viewers' point shapes, :class:`primkit.viewers.common.PointShape`)."""
+    from ..segmentation.bylabel import labelled_voxels
+
+    slot = np.full(len(labeller.names) + 1, -1, np.int64)  # a label's slot among the chosen; -1 (last): none
+    slot[[list(labeller.names).index(n) for n in chosen]] = np.arange(len(chosen))
+    points, labels = [], []
+    for s in shapes:
+        grid = getattr(s, "abstraction", s).canonical_shape().occupancy
+        p, lab = labelled_voxels(labeller, grid, s.result.canonical)
+        points.append(p)
+        labels.append(slot[lab])
+    return embedding.label_boxes(points, labels, chosen, names=[s.name for s in shapes])
+
+
 def embedding_explorer(shapes, part_names=None, *, parts="all", neighbors: int = 4, style: str = "thumbnails",
                        coords=None, off_screen: bool = False, window_size=(1280, 900), title: str = "",
-                       random_state: int = 0) -> EmbeddingExplorer:
+                       random_state: int = 0, labeller=None) -> EmbeddingExplorer:
     """Build the explorer.
 
     Parameters
@@ -105,13 +129,22 @@ def embedding_explorer(shapes, part_names=None, *, parts="all", neighbors: int =
     shapes : list of primkit.model.abstraction.Abstraction (at least 3)
     parts : the parts the similarity looks at (:class:`primkit.embedding.PartDescriptor`)
     coords : (s, 2) float, optional: a map computed elsewhere (default t-SNE of the descriptors)
+    labeller : primkit.segmentation.labeller.Labeller, optional
+        The model's labeller: ``parts`` naming only its names goes by label (:func:`label_table`).
     """
     if len(shapes) < 3:
         raise ValueError(f"a map needs at least 3 shapes, got {len(shapes)}")
     if style not in ("thumbnails", "points"):
         raise ValueError(f"style must be 'thumbnails' or 'points', got {style!r}")
-    results = [s.result for s in shapes]
-    X = embedding.PartDescriptor(parts=parts, part_names=part_names).fit_transform(results)
+    from ..segmentation.bylabel import by_label
+
+    chosen = by_label(parts, None if labeller is None else labeller.names)
+    if chosen is not None:  # each shape's labelled regions
+        X = embedding.PartDescriptor(parts=None).fit_transform(label_table(labeller, chosen, shapes))
+        what = f"labels {','.join(chosen)}, each shape's labelled regions"
+    else:
+        X = embedding.PartDescriptor(parts=parts, part_names=part_names).fit_transform([s.result for s in shapes])
+        what = str(parts)
     k = min(neighbors, len(shapes) - 1)
     near = embedding.nearest_neighbors(X, k=k)
     if coords is None:
@@ -132,7 +165,7 @@ def embedding_explorer(shapes, part_names=None, *, parts="all", neighbors: int =
         map_actors.append(p.add_mesh(poly, color=GREY, smooth_shading=False))
     explorer = EmbeddingExplorer(p, [s.name for s in shapes], coords, positions, near, map_actors, list(shapes))
     explorer.info_actor = p.add_text("click a shape", position=(10, window_size[1] - 40), font_size=10, color="black")
-    p.add_text(f"t-SNE of part descriptors ({parts})", position="upper_right", font_size=9, color="black")
+    p.add_text(f"t-SNE of part descriptors ({what})", position="upper_right", font_size=9, color="black")
     explorer.select(0)
     # frame the map and the row under it (with room for the labels, and for the title line above
     # the map: 0.3 left a thumbnail under the title)

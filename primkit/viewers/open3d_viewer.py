@@ -10,6 +10,14 @@ per point) and the coloured parts (``<name>.parts.ply``) into the export folder,
 existing file.
 
     primkit view open3d chair.ply --model chair
+    primkit view open3d chair.ply --model chair --semantic     # the surface coloured by name
+
+With ``names=True`` (``--semantic``) and a model that has a labeller
+(:mod:`primkit.segmentation.labeller`, e.g. the bundled chair model), the surface is drawn by name
+instead of by part: one geometry per name, ``label j <name>`` (the faces or points whose
+``label`` attribute is ``j``, :mod:`primkit.plugins.open3d_geometry`), in the label palette's
+colours (:func:`primkit.viz.palette.label_colors`), and a ``colour by name`` button switches
+between names and parts; a picture (``--png``) gets a legend of the names under it.
 
 The geometry is Open3D's tensor geometry (:mod:`primkit.plugins.open3d_geometry`): part ``k``'s
 surface is ``select_faces_by_mask(triangle["part"] == k)`` of the segmented mesh (for a cloud,
@@ -34,11 +42,11 @@ import numpy as np
 from .. import io
 from ..plugins.open3d_geometry import O3DSegmentation, segment_geometry
 from ..viz.camera import CAMERA
-from ..viz.palette import part_colors
+from ..viz.palette import label_colors, part_colors
 
 __all__ = ["Open3DViewer", "ExportedFiles", "open3d_viewer"]
 
-SURFACE, CUBOIDS = "surface", "cuboids"
+SURFACE, CUBOIDS, LABEL = "surface", "cuboids", "label"
 
 
 def _material(shader: str, color, *, line_width: float = 1.0, point_size: float = 4.0):
@@ -80,6 +88,7 @@ class Open3DViewer:
     show_surface: bool = True
     show_cuboids: bool = True
     messages: list = field(default_factory=list)
+    by_name: bool = False  # the surface coloured by the labeller's names (when the geometry has them)
 
     # ---- the scene ------------------------------------------------------------------------------
 
@@ -104,6 +113,21 @@ class Open3DViewer:
             return o3d.t.geometry.TriangleMesh(part.vertex.positions, part.triangle.indices)
         return o3d.t.geometry.PointCloud(g.select_by_mask(g.point["part"][:, 0] == k).point.positions)
 
+    @property
+    def named(self) -> bool:
+        """Whether the surface is drawn by name: asked for, and the model has a labeller."""
+        return self.by_name and self.segmentation.label_names is not None
+
+    def _named_surface_of(self, j: int):
+        """The faces (or points) the labeller names ``j``, positions only."""
+        import open3d as o3d
+
+        g = self.segmentation.geometry
+        if type(g).__name__ == "TriangleMesh":
+            part = g.select_faces_by_mask(g.triangle["label"] == j)
+            return o3d.t.geometry.TriangleMesh(part.vertex.positions, part.triangle.indices)
+        return o3d.t.geometry.PointCloud(g.select_by_mask(g.point["label"][:, 0] == j).point.positions)
+
     def _cuboid_of(self, k: int):
         mesh, edges = self.segmentation.cuboid_mesh, self.segmentation.cuboid_edges
         return mesh.select_faces_by_mask(mesh.triangle["part"] == k), _lines_of(edges, k)
@@ -111,18 +135,28 @@ class Open3DViewer:
     def visible(self, name: str) -> bool:
         """Whether the geometry ``name`` is shown (its part not hidden, its kind switched on)."""
         kind, k = name.split()[:2]
+        if kind == LABEL:
+            return self.show_surface
         if int(k) in self.hidden:
             return False
         return self.show_surface if kind == SURFACE else self.show_cuboids
 
     def geometries(self) -> list[dict]:
         """The named geometries of the scene, as ``open3d.visualization.draw`` takes them:
-        ``surface k`` (part ``k``'s faces or points), ``cuboids k`` (its cuboid) and ``edges k``."""
+        ``surface k`` (part ``k``'s faces or points), or by name ``label j <name>`` (:attr:`named`),
+        ``cuboids k`` (its cuboid) and ``edges k``."""
         palette = part_colors(max(self.segmentation.cuboids.count, 1)) / 255.0
         mesh = type(self.segmentation.geometry).__name__ == "TriangleMesh"
         out = []
         labels = self.segmentation.labelled.face_labels if mesh else self.segmentation.labelled.point_labels
-        for k in sorted(set(np.unique(labels).tolist()) - {-1}):
+        if self.named:
+            names = self.segmentation.label_names
+            colours = label_colors(len(names)) / 255.0
+            for j in sorted(set(np.unique(self.segmentation.labelled.labels).tolist()) - {-1}):
+                material = _material("defaultLit" if mesh else "defaultUnlit", [*colours[j], 1.0])
+                out.append({"name": f"{LABEL} {j} {names[j]}", "geometry": self._named_surface_of(j),
+                            "material": material, "group": SURFACE, "is_visible": self.visible(f"{LABEL} {j}")})
+        for k in [] if self.named else sorted(set(np.unique(labels).tolist()) - {-1}):
             colour = [*palette[k], 1.0]
             material = _material("defaultLit" if mesh else "defaultUnlit", colour)
             out.append({"name": f"{SURFACE} {k}", "geometry": self._surface_of(k), "material": material,
@@ -151,8 +185,10 @@ class Open3DViewer:
         """``(label, callable(window))`` pairs, one button each."""
         names = self.segmentation.part_names
         acts = [(f"part {k} {names[k]}", lambda w, k=k: self.toggle_part(w, k)) for k in self.parts]
-        return acts + [("surface", self.toggle_surface), ("cuboids", self.toggle_cuboids),
-                       (f"refine +{self.refine_step}", self.refine), ("export", self.export)]
+        acts += [("surface", self.toggle_surface), ("cuboids", self.toggle_cuboids)]
+        if self.segmentation.label_names is not None:
+            acts.append(("colour by name", self.toggle_names))
+        return acts + [(f"refine +{self.refine_step}", self.refine), ("export", self.export)]
 
     def toggle_part(self, window, k: int) -> bool:
         """Hide part ``k`` (its surface and cuboid) if shown, show it if hidden; returns whether it is shown."""
@@ -169,6 +205,17 @@ class Open3DViewer:
         self.show_cuboids = not self.show_cuboids
         self._apply(window)
         return self.show_cuboids
+
+    def toggle_names(self, window) -> bool:
+        """Colour the surface by name if by part, by part if by name (the geometries are swapped);
+        returns whether it is by name."""
+        for name in self._names():
+            window.remove_geometry(name)
+        self.by_name = not self.by_name
+        for g in self.geometries():
+            window.add_geometry(g)
+        window.post_redraw()
+        return self.named
 
     def refine(self, window) -> int:
         """Refine the cuboids by ``refine_step`` more steps (from the network's answer: refine=total)
@@ -304,7 +351,7 @@ class Open3DViewer:
         if offscreen:
             from PIL import Image
 
-            image = self.render(width=width, height=height)
+            image = self._with_legend(self.render(width=width, height=height))
             with io.atomic_output(path, overwrite=overwrite) as tmp:
                 Image.fromarray(image).save(tmp, format="PNG")
             return path
@@ -326,6 +373,16 @@ class Open3DViewer:
         return path
 
 
+    def _with_legend(self, image: np.ndarray) -> np.ndarray:
+        """``image`` with a legend of the names under it when the surface is drawn by name."""
+        if not self.named:
+            return image
+        from ..segmentation.outputs import legend_strip
+
+        names = self.segmentation.label_names
+        return np.vstack([image, legend_strip(names, label_colors(len(names)), image.shape[1])])
+
+
 def _lines_of(edges, k: int):
     """The lines of part ``k`` of a tensor line set (with their attributes; all points kept)."""
     import open3d as o3d
@@ -340,18 +397,23 @@ def _lines_of(edges, k: int):
 
 
 def open3d_viewer(shape, model="chair", *, name: str = "shape", refine_step: int = 100,
-                  export_folder="primkit-export", **options) -> Open3DViewer:
+                  export_folder="primkit-export", names: bool = False, labeller="auto", **options) -> Open3DViewer:
     """Build the Open3D viewer of one shape.
 
     Parameters
     ----------
     shape : ``(vertices, faces)`` or ``(n, 3)`` points (the input's frame), or an Open3D mesh or cloud
     model : a bundled model's name, a model file or an Abstractor
+    names : draw the surface by name at start (the model's labeller; by part when it has none)
+    labeller : ``"auto"`` (the model file's, when ``model`` is a file or a bundled name), None, or a
+        :class:`primkit.segmentation.labeller.Labeller`; with one, a ``colour by name`` button
     options : :func:`primkit.abstract`'s (``up``, ``front``, ``align``, ``refine``, ...)
     """
     from ..model.abstraction import load_model
+    from ..plugins.common import resolve_labeller
     from ..viz.interop import mesh_to_o3d_tensor, points_to_o3d_tensor
 
+    options["labeller"] = resolve_labeller(model, labeller)
     abstractor = load_model(model)
     if type(shape).__module__.split(".")[0] == "open3d":
         from ..viz.interop import mesh_from_o3d, points_from_o3d
@@ -368,4 +430,4 @@ def open3d_viewer(shape, model="chair", *, name: str = "shape", refine_step: int
         source = points_to_o3d_tensor(shape)
     seg = segment_geometry(source, abstractor, **options)
     return Open3DViewer(name, shape, source, abstractor, seg, options=dict(options), refine_step=refine_step,
-                        export_folder=Path(export_folder))
+                        export_folder=Path(export_folder), by_name=bool(names))
