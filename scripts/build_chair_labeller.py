@@ -4,13 +4,14 @@ The labeller (:mod:`primkit.segmentation.labeller`) is learned from the first ``
 **validation** chairs of ``scripts/partnet_chairs.py``'s split (the chairs the model's index names
 were learned from; never the test part), abstracted and segmented as ``primkit segment`` does
 with default flags, exactly as ``primkit name-parts CHAIRS --model chair --labels
-../shared/data/partnet_chair_boxes`` learns one. Only the labeller and the card change: the
+../shared/data/partnet_chair_boxes --mirror`` learns one (each chair's left-right mirror learned
+from too, chosen on the validation chairs: docs/labeller.md). Only the labeller and the card change: the
 network's weights, the part names and every other metadata key are copied unchanged (checked). Run again on a
 bundled file that has a labeller, it replaces it (and the card's part about it).
 
 Usage (from the repository root)::
 
-    python -m scripts.build_chair_labeller -o chair-labelled.safetensors [--chairs 100] [--cache DIR]
+    python -m scripts.build_chair_labeller -o chair-labelled.safetensors [--chairs 100] [--cache DIR] [--no-mirror]
     python -m scripts.labeller_curve model --model chair-labelled.safetensors --part test   # its figures
     cp chair-labelled.safetensors primkit/model/bundled/chair.safetensors
 """
@@ -27,6 +28,7 @@ from primkit.model.modelfile import read_metadata
 from primkit.segmentation import Segmenter
 from primkit.segmentation.labeller import LABELLER_KEY, read_labeller, write_labeller
 from primkit.segmentation.segmenter import fit_labeller
+from primkit.segmentation.selftrain import learn_labeller
 
 from scripts.build_labellers import check_unchanged
 from scripts.partnet_chairs import split
@@ -42,7 +44,7 @@ TERMS = ("the labeller was learned from PartNet's part annotations (Mo et al., C
 LABELLER_SECTION = "\n\nPart labeller "
 
 
-def build(output: Path, chairs: int = 100, cache=None, *, overwrite: bool = False) -> Path:
+def build(output: Path, chairs: int = 100, cache=None, *, mirror: bool = True, overwrite: bool = False) -> Path:
     source = bundled_models()["chair"]
     meta = read_metadata(source)
     meta.pop(LABELLER_KEY, None)  # built again: write_labeller replaces the labeller, the card's part is redone
@@ -61,17 +63,22 @@ def build(output: Path, chairs: int = 100, cache=None, *, overwrite: bool = Fals
         occupied = np.argwhere(s.grid.occupancy)  # np.argwhere order, as the labeller reads a grid
         truth = archive.get(s.name, s.grid.occupancy.shape).labels[tuple(occupied.T)]
         learned.append((s, by_name[s.name], truth))
-    labeller = fit_labeller(learned, NAMES, segmenter.abstractor.parts,
-                            info={"learned_from": f"the first {chairs} PartNet validation chairs of "
-                                                  "scripts/partnet_chairs.py's split",
-                                  "shape_ids": [s.name for s in segs]})
+    info = {"learned_from": f"the first {chairs} PartNet validation chairs of scripts/partnet_chairs.py's split",
+            "shape_ids": [s.name for s in segs]}
+    if mirror:  # each chair's left-right mirror too, abstracted again (docs/labeller.md)
+        labeller = learn_labeller(learned, NAMES, segmenter.abstractor.parts, mirror=True, segmenter=segmenter,
+                                  info=info)
+    else:
+        labeller = fit_labeller(learned, NAMES, segmenter.abstractor.parts, info=info)
     card = dict(meta["card"])
     card["labeller"] = {"shapes": chairs, "labels": NAMES, "data": "partnet_chair_boxes voxel labels, validation part",
-                        "terms": TERMS, "command": "python -m scripts.build_chair_labeller",
+                        "terms": TERMS, "mirrored": int(labeller.info.get("mirrored", 0)),
+                        "command": "python -m scripts.build_chair_labeller" + (" --mirror" if mirror else ""),
                         "settings": labeller.settings.to_dict()}
     card["text"] = card["text"].rstrip("\n") + (
         f"{LABELLER_SECTION}(`segment --semantic` names each voxel, face or point with it): learned from the first "
-        f"{chairs} PartNet validation chairs (scripts/partnet_chairs.py's split; never the test part) with "
+        f"{chairs} PartNet validation chairs (scripts/partnet_chairs.py's split; never the test part)"
+        f"{' and their left-right mirrors' if mirror else ''} with "
         f"`python -m scripts.build_chair_labeller`; docs/labeller.md gives its figures. Terms: {TERMS}.\n")
     out = write_labeller(source, output, labeller, {"card": card}, overwrite=overwrite)
     check_unchanged(source, out, meta)  # the network and every other key unchanged
@@ -86,9 +93,11 @@ def main(argv=None) -> int:
     ap.add_argument("-o", "--output", type=Path, required=True)
     ap.add_argument("--chairs", type=int, default=100, help="the first N validation chairs (default 100)")
     ap.add_argument("--cache", type=Path, default=None, help="the abstractions' cache folder")
+    ap.add_argument("--mirror", action=argparse.BooleanOptionalAction, default=True,
+                    help="learn from each chair's left-right mirror too (name-parts --mirror; the default: chosen on validation)")
     ap.add_argument("--force", action="store_true")
     args = ap.parse_args(argv)
-    build(args.output, args.chairs, args.cache, overwrite=args.force)
+    build(args.output, args.chairs, args.cache, mirror=args.mirror, overwrite=args.force)
     return 0
 
 

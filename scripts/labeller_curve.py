@@ -79,6 +79,41 @@ def prepare(scratch: Path, model: str = "chair") -> None:
     (scratch / "chairs.json").write_text(json.dumps({**meta, "cuboids": {n: d["cuboids"] for n, d in store.items()}}))
 
 
+def prepare_mirror(scratch: Path, model: str = "chair") -> None:
+    """``prepare`` for the validation chairs' left-right mirrors (:func:`primkit.segmentation.mirror.mirror_shape`
+    of each grid in its abstraction's frame, abstracted again), in ``scratch/mirror``; the labels carried over."""
+    from primkit.model.abstraction import abstract_shapes
+    from primkit.segmentation import Segmenter
+    from primkit.segmentation.mirror import mirror_shape
+
+    validation, _, archive = split()
+    segmenter = Segmenter(model)
+    results, errors = segmenter.abstract_files(validation, cache_dir=scratch / "prep", progress=False)
+    grids, truths, names = [], [], []
+    for r in results:
+        grid = io.read_voxels(r.source)
+        mirrored, order = mirror_shape(grid, r.frame)
+        truth = archive.get(r.name, grid.occupancy.shape).labels[tuple(np.argwhere(grid.occupancy).T)]
+        grids.append(mirrored)
+        truths.append(truth[order])
+        names.append(r.name)
+    found = abstract_shapes(grids, segmenter.abstractor, names=names, progress=False).results
+    store = {}
+    for r, grid, truth in zip(found, grids, truths):
+        elements, index = grid_elements(grid, r.frame)
+        store[r.name] = {"points": elements.points.astype(np.float32), "normals": elements.normals.astype(np.float32),
+                         "truth": truth.astype(np.int8),
+                         "nearest": primitives.assign_points(elements.points, r.canonical).astype(np.int16),
+                         "index": index.astype(np.int8), "cuboids": r.canonical.to_dict()}
+    out = scratch / "mirror"
+    out.mkdir(exist_ok=True)
+    np.savez(out / "chairs.npz", **{f"{n}/{k}": v for n, d in store.items() for k, v in d.items() if k != "cuboids"})
+    meta = {"validation": list(store), "test": [], "index_names": [str(n) for n in segmenter.part_names],
+            "model": model, "parts": segmenter.abstractor.parts}
+    (out / "chairs.json").write_text(json.dumps({**meta, "cuboids": {n: d["cuboids"] for n, d in store.items()}}))
+    print(f"mirrored and abstracted {len(store)} validation chairs into {out}; errors: {errors}")
+
+
 class Chairs:
     """The cached chairs (``prepare``)."""
 
@@ -175,7 +210,22 @@ def learn_and_label(chairs, train, evaluate, settings, *, position_only=False, *
     keep = _columns(chairs.parts, settings)
     data = [(chairs.full_features(n)[:, keep] if not position_only else chairs.arrays[n]["points"].astype(float),
              chairs.arrays[n]["truth"].astype(np.int64)) for n in train]
-    labeller = _fit(data, chairs.parts, settings, position_only, **{**FIT, **fit})
+    if MIRROR["chairs"] is not None and not position_only:  # each labelled chair mirrored left-right too
+        mirrored = MIRROR["chairs"]
+        data += [(mirrored.full_features(n)[:, keep], mirrored.arrays[n]["truth"].astype(np.int64)) for n in train]
+        if settings.prior_weight is None:  # the prior's weight follows the chairs labelled, not their mirrors
+            settings = replace(settings, prior_weight=min(0.4, 4.0 / len(train)))
+    if SELF_TRAINING["pool"] and not position_only:  # self-training: unlabelled validation chairs 0-99
+        labeller = _fit_self_trained(chairs, data, train, keep, settings, **{**FIT, **fit})
+    else:
+        labeller = _fit(data, chairs.parts, settings, position_only, **{**FIT, **fit})
+    return label_with(chairs, labeller, evaluate, settings, keep, position_only)
+
+
+def label_with(chairs, labeller, evaluate, settings, keep, position_only=False) -> dict:
+    """Label ``evaluate`` with a fitted labeller as the library does: name -> label codes."""
+    from primkit.segmentation.labeller import decide, grid_neighbours, grid_sampling
+
     known = np.array([NAMES.index(k) for k in labeller.names])
     out = {}
     for n in evaluate:
@@ -196,6 +246,30 @@ def learn_and_label(chairs, train, evaluate, settings, *, position_only=False, *
                 proba = proba[idx].mean(axis=1)
         out[n] = known[decide(proba, settings.min_share)]
     return out
+
+
+#: mirror augmentation (``--mirror``): the validation chairs mirrored left-right, abstracted again
+#: (``prepare-mirror``), as :class:`Chairs`
+MIRROR = {"chairs": None}
+#: self-training (``--self-train``): the unlabelled pool (validation chairs 0-99 of the seed-0 order
+#: not learned from; their labels never read) and :class:`primkit.segmentation.selftrain.SelfTraining`
+SELF_TRAINING = {"pool": False, "how": None}
+
+
+def _fit_self_trained(chairs, data, train, keep, settings, **fit):
+    from primkit.segmentation.labeller import grid_neighbours
+    from primkit.segmentation.selftrain import UnlabelledShape, fit_self_trained
+
+    taken = set(train)
+    pool = []
+    for c in order(chairs.validation, 0)[:100]:
+        if c in taken:
+            continue
+        a = chairs.arrays[c]  # its "truth" is not read
+        pool.append(UnlabelledShape(chairs.full_features(c)[:, keep], a["points"].astype(float),
+                                    grid_neighbours(a["index"].astype(np.int64), (32, 32, 32))))
+    return fit_self_trained(data, pool, NAMES, chairs.parts, self_training=SELF_TRAINING["how"], settings=settings,
+                            **fit)
 
 
 def _fit(data, parts, settings, position_only, **fit):
@@ -419,7 +493,7 @@ def model_figures(model: str, part: str) -> dict:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("command", choices=["prepare", "sweep", "curve", "coseg", "model"])
+    ap.add_argument("command", choices=["prepare", "prepare-mirror", "sweep", "curve", "coseg", "model"])
     ap.add_argument("--model", default="chair", help="model: the model file whose labeller is scored")
     ap.add_argument("--scratch", type=Path, default=Path("/tmp/33-scratch"))
     ap.add_argument("--part", choices=["validation", "test"], default="validation")
@@ -435,12 +509,27 @@ def main(argv=None) -> int:
                          "give each its own --scratch (the features are cached there)")
     ap.add_argument("--profile", action=argparse.BooleanOptionalAction, default=LabellerSettings().profile,
                     help="curve, coseg: the shape-profile features (LabellerSettings.profile)")
+    ap.add_argument("--mirror", action="store_true",
+                    help="curve: learn from the labelled chairs' mirrors too (run prepare-mirror first)")
+    ap.add_argument("--self-train", default=None, metavar="ROUNDS:THRESHOLD:WEIGHT",
+                    help="curve: self-training with the validation chairs 0-99 not learned from, unlabelled "
+                    "(primkit.segmentation.selftrain.SelfTraining), e.g. 1:0.9:0.5")
     args = ap.parse_args(argv)
     KNN["how"] = args.knn
+    if args.mirror:
+        MIRROR["chairs"] = Chairs(args.scratch / "mirror")
+    if args.self_train:
+        from primkit.segmentation.selftrain import SelfTraining
+
+        rounds, threshold, weight = args.self_train.split(":")
+        SELF_TRAINING.update(pool=True, how=SelfTraining(int(rounds), float(threshold), float(weight)))
     args.scratch.mkdir(parents=True, exist_ok=True)
     sizes = [int(s) for s in args.sizes.split(",")] if args.sizes else None
     if args.command == "prepare":
         prepare(args.scratch)
+        return 0
+    if args.command == "prepare-mirror":
+        prepare_mirror(args.scratch)
         return 0
     if args.command == "sweep":
         out = sweep(args.scratch, sizes or [10, 40], args.only)

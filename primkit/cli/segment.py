@@ -157,7 +157,22 @@ def _cmd_name_parts(args) -> int:
         print(f"wrote {out} with part names")
         return report_errors(failed)
     try:
-        labeller = fit_labeller(shapes.learned, shapes.names, segmenter.abstractor.parts, seed=args.seed)
+        if args.unlabelled or args.mirror:  # more to learn from: the mirrors, unlabelled shapes (docs/labeller.md)
+            from ..segmentation.selftrain import learn_labeller
+
+            pool, found = [], []
+            if args.unlabelled:  # abstracted and segmented as the labelled shapes
+                found, pool_errors = segmenter.abstract_files(collect(args.unlabelled), cache_dir=args.cache,
+                                                              workers=args.workers, progress=progress_of(args))
+                pool, pool_errors = segmenter.segment_results(found, workers=args.workers, errors=pool_errors,
+                                                              progress=progress_of(args))
+                failed += list(pool_errors)
+            by_name = {r.name: r for r in found}
+            labeller = learn_labeller(shapes.learned, shapes.names, segmenter.abstractor.parts,
+                                      unlabelled=[(s, by_name[s.name]) for s in pool], mirror=args.mirror,
+                                      segmenter=segmenter, seed=args.seed, progress=progress_of(args))
+        else:
+            labeller = fit_labeller(shapes.learned, shapes.names, segmenter.abstractor.parts, seed=args.seed)
     except ValueError as exc:
         err(f"cannot learn a labeller: {exc}")
         return 2
@@ -251,5 +266,10 @@ def register(sub) -> None:
                    help="only name the part indices (one name each); by default a labeller is learned as well, "
                    "naming each face, voxel or point on its own (segment --semantic uses it)")
     p.add_argument("--seed", type=int, default=0, help="the labeller's random state")
+    p.add_argument("--unlabelled", nargs="+", default=None, metavar="PATH",
+                   help="unlabelled shapes (files or folders) of the same kind: the labeller names them, learns again "
+                   "from the elements it is sure of (self-training, docs/labeller.md); their labels are never read")
+    p.add_argument("--mirror", action="store_true",
+                   help="learn from each labelled shape's left-right mirror too (abstracted again; docs/labeller.md)")
     add_force(p)
     p.set_defaults(func=_cmd_name_parts)

@@ -1153,9 +1153,10 @@ class Labeller:
 
         Parameters
         ----------
-        shapes : iterable of (features (n_i, d) float, labels (n_i,) int)
+        shapes : iterable of (features (n_i, d) float, labels (n_i,) int[, weight float])
             Each shape's :func:`frame_features` and labels (indices into ``names``; negative:
-            unlabelled, left out).
+            unlabelled, left out), and optionally what the shape weighs (default 1; a
+            pseudo-labelled shape of :mod:`primkit.segmentation.selftrain` weighs less).
         names : sequence of str
         parts : int
             The model's slots.
@@ -1170,19 +1171,20 @@ class Labeller:
         settings = settings or LabellerSettings()
         rng = np.random.default_rng(seed)
         Xs, ys, ws, priors = [], [], [], []
-        for X, y in shapes:
-            X, y = np.asarray(X, float), np.asarray(y, np.int64)
+        for shape in shapes:
+            X, y = np.asarray(shape[0], float), np.asarray(shape[1], np.int64)
+            weight = float(shape[2]) if len(shape) > 2 else 1.0
             keep = np.flatnonzero((y >= 0) & (y < len(names)))
             if len(keep) and X.shape[1] == feature_count(parts, settings):  # every labelled element
                 counts = np.zeros((parts, len(names)))
-                np.add.at(counts, (nearest_index(X[keep], parts), y[keep]), 1.0 / len(keep))
+                np.add.at(counts, (nearest_index(X[keep], parts), y[keep]), weight / len(keep))
                 priors.append(counts)
             if len(keep) > per_shape:
                 keep = rng.choice(keep, per_shape, replace=False)
             if len(keep):
                 Xs.append(X[keep])
                 ys.append(y[keep])
-                ws.append(np.full(len(keep), 1.0 / len(keep)))
+                ws.append(np.full(len(keep), weight / len(keep)))
         if not Xs:
             raise ValueError("no labelled element to learn from")
         if settings.prior_weight is None:
