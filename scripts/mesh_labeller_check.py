@@ -103,6 +103,10 @@ def build(scratch: Path) -> None:
         print(f"{name}: {len(results)} meshes abstracted in {time.perf_counter() - t0:.0f} s; errors {errors}", flush=True)
 
 
+#: surface samples per mesh (:func:`mesh_elements`' ``samples``; ``--samples``)
+SAMPLES = {"count": 20000}
+
+
 def load(scratch: Path, name: str, files=None, conventions=None):
     """Each mesh of a set: (name, features, truth, elements, graph, vertices, faces)."""
     segmenter = Segmenter("chair")
@@ -119,7 +123,7 @@ def load(scratch: Path, name: str, files=None, conventions=None):
             folder = Path(r.source).parents[1]
             seg = folder / "gt" / f"{Path(r.source).stem}.seg"
             truth = read_ground_truth(seg, len(mesh.faces), conventions[folder.name], NAMES[:3]).labels
-        elements = mesh_elements(mesh.vertices, mesh.faces, r.frame)
+        elements = mesh_elements(mesh.vertices, mesh.faces, r.frame, samples=SAMPLES["count"])
         shapes.append({"name": r.name, "elements": elements, "canonical": r.canonical, "truth": truth,
                        "vertices": mesh.vertices, "faces": mesh.faces, "graph": face_graph(mesh.vertices, mesh.faces),
                        "parts": segmenter.abstractor.parts})
@@ -290,9 +294,11 @@ def main(argv=None):
     parser.add_argument("--draws", type=int, default=DRAWS)
     parser.add_argument("--only", default=None, help="comma-separated decisions to run")
     parser.add_argument("--per-shape", type=int, default=1000)
+    parser.add_argument("--samples", type=int, default=20000, help="surface samples per mesh")
     parser.add_argument("--json", type=Path)
     args = parser.parse_args(argv)
     only = args.only.split(";") if args.only else None
+    SAMPLES["count"] = args.samples
     if args.command == "build":
         build(args.scratch)
         return
