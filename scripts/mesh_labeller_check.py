@@ -51,7 +51,7 @@ DRAWS = 8
 
 
 def _contour(occupancy):
-    """``(vertices (n, 3), faces (f, 3))`` of an occupancy grid's surface, in voxel index units
+    """An occupancy grid's surface (pyvista ``PolyData`` of triangles), in voxel index units
     (voxel ``(i, j, k)`` centred at ``(i, j, k) + 0.5``)."""
     import pyvista as pv
 
@@ -208,10 +208,10 @@ def timing(scratch: Path, sets, repeats: int = 3) -> dict:
     return out
 
 
-def run(scratch: Path, sets, draws: int = DRAWS, fit=None, only=None) -> dict:
+def run(scratch: Path, sets, draws: int = DRAWS, fit=None, only=None, prior_weight=None) -> dict:
     from primkit.segmentation.labeller import LabellerSettings
 
-    settings = LabellerSettings()
+    settings = LabellerSettings(prior_weight=prior_weight)
     fit = fit or {}
     decisions = _decisions()
     if only:
@@ -294,6 +294,7 @@ def main(argv=None):
     parser.add_argument("--draws", type=int, default=DRAWS)
     parser.add_argument("--only", default=None, help="comma-separated decisions to run")
     parser.add_argument("--per-shape", type=int, default=1000)
+    parser.add_argument("--prior-weight", type=float, default=None, help="the labeller's (default: by shape count)")
     parser.add_argument("--samples", type=int, default=20000, help="surface samples per mesh")
     parser.add_argument("--json", type=Path)
     args = parser.parse_args(argv)
@@ -305,7 +306,8 @@ def main(argv=None):
     if args.command == "time":
         out = timing(args.scratch, args.sets.split(","))
     elif args.command == "run":
-        out = run(args.scratch, args.sets.split(","), args.draws, {"per_shape": args.per_shape}, only)
+        out = run(args.scratch, args.sets.split(","), args.draws, {"per_shape": args.per_shape}, only,
+                  args.prior_weight)
     else:
         out = coseg(args.scratch, args.draws, only)
     if args.json:
