@@ -89,10 +89,11 @@ def face_graph(vertices, faces) -> FaceGraph:
 
 def surface_weights(points, context, context_faces, radius: float):
     """``(f, f)`` sparse row-stochastic weights of an area-weighted mean over the surface within
-    ``radius`` of each face: row ``i`` weighs face ``j`` by the number of the surface samples
-    ``context`` (``(c, 3)``, spread evenly over the area, each on face ``context_faces[j]``) within
-    ``radius`` of face ``i``'s centroid ``points[i]``, plus 1 for face ``i`` itself (a face with
-    no sample that near keeps its own).
+    ``radius`` of each face: row ``i`` weighs face ``j`` by how many of the surface samples
+    ``context`` (``(c, 3)`` float, spread evenly over the area; sample ``s`` lies on face
+    ``context_faces[s]``, ``(c,) int``) lie on face ``j`` within ``radius`` of face ``i``'s
+    centroid ``points[i]`` (``(f, 3)`` float, the same frame), plus 1 for face ``i`` itself (a face
+    with no sample that near keeps its own).
 
     Why not the labeller's ``k`` nearest centroids: a fixed count of faces covers a different area
     wherever the triangles differ in size; a fixed radius over evenly spread samples covers the
