@@ -134,11 +134,11 @@ def features(shape, settings):
     return element_features(shape["elements"], shape["canonical"], settings)
 
 
-def _weights(shape, radius):
-    key = ("weights", radius)
+def _weights(shape, radius, stride=1):
+    key = ("weights", radius, stride)
     if key not in shape:
         e = shape["elements"]
-        shape[key] = surface_weights(e.points, e.context, e.context_faces, radius)
+        shape[key] = surface_weights(e.points, e.context[::stride], e.context_faces[::stride], radius)
     return shape[key]
 
 
@@ -166,6 +166,10 @@ def _decisions():
         out[f"knn + cut {c}"] = then_cut(knn, c)
         out[f"area r0.05 + cut {c}"] = then_cut(area(0.05, 2), c)
     out["default (meshlabels)"] = lambda lab, shape, p: label_faces_from(lab, shape, p)
+    for stride in (2, 4):
+        out[f"default, 1 sample in {stride}"] = (lambda st: lambda lab, shape, p: cut_faces(
+            surface_smooth(p, _weights(shape, 0.05, st), lab.settings.smooth), shape["graph"], 0.1,
+            min_share=lab.settings.min_share))(stride)
     return out
 
 
