@@ -100,7 +100,8 @@ def build(scratch: Path) -> None:
         files = sorted((scratch / name).glob("*.off"))
         t0 = time.perf_counter()
         results, errors = segmenter.abstract_files(files, cache_dir=scratch / "prep" / name, progress=False)
-        print(f"{name}: {len(results)} meshes abstracted in {time.perf_counter() - t0:.0f} s; errors {errors}", flush=True)
+        print(f"{name}: {len(results)} meshes abstracted in {time.perf_counter() - t0:.0f} s; errors {errors}",
+              flush=True)
 
 
 #: surface samples per mesh (:func:`mesh_elements`' ``samples``; ``--samples``)

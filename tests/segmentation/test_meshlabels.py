@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from primkit.segmentation import labeller as lab
-from primkit.segmentation.meshlabels import (FaceGraph, MeshLabelling, cut_faces, face_graph, face_unary, surface_smooth,
-                                             surface_weights)
+from primkit.segmentation.meshlabels import (FaceGraph, MeshLabelling, cut_faces, face_graph, face_unary,
+                                             surface_smooth, surface_weights)
 
 
 def _strip(n=4):
