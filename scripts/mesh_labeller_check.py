@@ -297,7 +297,7 @@ def main(argv=None):
     parser.add_argument("--scratch", type=Path, default=Path("/tmp/33m-scratch"))
     parser.add_argument("--sets", default=",".join(SETS))
     parser.add_argument("--draws", type=int, default=DRAWS)
-    parser.add_argument("--only", default=None, help="comma-separated decisions to run")
+    parser.add_argument("--only", default=None, help="the decisions to run, separated by ;")
     parser.add_argument("--per-shape", type=int, default=1000)
     parser.add_argument("--prior-weight", type=float, default=None, help="the labeller's (default: by shape count)")
     parser.add_argument("--samples", type=int, default=20000, help="surface samples per mesh")
