@@ -1469,6 +1469,9 @@ class Elements:
     neighbours : (n, k) int or None, each element's neighbourhood for smoothing (a grid's
         :func:`grid_neighbours`; None: its nearest elements)
     grid_index : (n, 3) int or None, a grid's voxel indices (for ``LabellerSettings.grid_sample``)
+    context_faces : (c,) int or None, a mesh's context samples' faces (the face each lies on; with
+        ``faces`` and ``vertices``, the mesh in the input frame, for
+        :func:`primkit.segmentation.meshlabels.label_faces`)
     """
 
     points: np.ndarray
@@ -1476,6 +1479,9 @@ class Elements:
     context: np.ndarray | None = None
     neighbours: np.ndarray | None = None
     grid_index: np.ndarray | None = None
+    context_faces: np.ndarray | None = None
+    vertices: np.ndarray | None = None
+    faces: np.ndarray | None = None
 
 
 def _rotate(frame, vectors):
@@ -1499,9 +1505,12 @@ def mesh_elements(vertices, faces, frame, samples: int = 20000, seed=0) -> Eleme
     import trimesh
 
     mesh = trimesh.Trimesh(np.asarray(vertices, float), np.asarray(faces, np.int64), process=False)
-    context, _ = trimesh.sample.sample_surface(mesh, samples, seed=seed) if len(faces) else (np.zeros((0, 3)), None)
+    context, where = trimesh.sample.sample_surface(mesh, samples, seed=seed) if len(faces) else (np.zeros((0, 3)), None)
+    enough = len(context) >= 3
     return Elements(frame.to_canonical(mesh.triangles_center), _rotate(frame, mesh.face_normals),
-                    frame.to_canonical(context) if len(context) >= 3 else None)
+                    frame.to_canonical(context) if enough else None,
+                    context_faces=np.asarray(where, np.int64) if enough else None,
+                    vertices=mesh.vertices, faces=mesh.faces)
 
 
 def point_elements(points, frame, normals=None) -> Elements:
@@ -1522,9 +1531,15 @@ def element_features(elements: Elements, canonical: primitives.Cuboids, settings
 
 def label_elements(labeller: Labeller, elements: Elements, canonical: primitives.Cuboids) -> np.ndarray:
     """``(n,) int``: each element's label (index into ``labeller.names``); -1 everywhere when no
-    cuboid is present."""
+    cuboid is present. A mesh's faces (elements with ``faces``) are labelled over the mesh's
+    surface (:func:`primkit.segmentation.meshlabels.label_faces`), other elements by
+    :meth:`Labeller.predict`."""
     if not canonical.existence.any():
         return np.full(len(elements.points), -1, np.int64)
+    if elements.faces is not None and len(elements.points):  # a mesh: over its surface (meshlabels)
+        from .meshlabels import label_faces
+
+        return label_faces(labeller, elements, canonical)
     return labeller.predict(elements.points, canonical, elements.normals, elements.context, elements.neighbours,
                             elements.grid_index)
 

@@ -367,7 +367,7 @@ def test_decide_drops_labels_below_their_share():
 @pytest.mark.integration  # fits a labeller on whole chairs through name-parts
 def test_a_learned_labeller_names_the_faces_the_segmenter_writes(chairs, tmp_path):
     """fit_labeller on abstracted labelled meshes; the segmenter's ``named`` is the labeller's
-    prediction on the shape's elements, and --semantic codes are those names' 1-based codes."""
+    labelling of the mesh's faces (:func:`primkit.segmentation.meshlabels.label_faces`), and --semantic codes are those names' 1-based codes."""
     from primkit import io
     from primkit.segmentation import Segmenter
     from primkit.segmentation.segmenter import apply_labeller, fit_labeller, shape_elements
@@ -385,7 +385,9 @@ def test_a_learned_labeller_names_the_faces_the_segmenter_writes(chairs, tmp_pat
                             max_iter=20)
     named = apply_labeller(segs[3], labeller, results[3])
     elements, _ = shape_elements(segs[3], results[3].frame)
-    want = labeller.predict(elements.points, results[3].canonical, elements.normals, elements.context)
+    from primkit.segmentation.meshlabels import label_faces
+
+    want = label_faces(labeller, elements, results[3].canonical)  # a mesh: labelled over its surface
     assert np.array_equal(named.named, want)
     # the shapes it did not learn from: 0.64-0.97 of faces each, mean 0.83 (0.86 without growing
     # unsized parts, min_extent=None); one chair alone is too noisy a bound
