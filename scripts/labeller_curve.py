@@ -423,7 +423,7 @@ def curve(scratch: Path, part: str, sizes, draws: int, settings: LabellerSetting
 def coseg(scratch: Path, settings: LabellerSettings, draws: int = 8) -> dict:
     """Learn from 3 of the 10 COSEG chairs, label the other 7 (faces right, mean over draws)."""
     from primkit.segmentation import Segmenter, read_ground_truth
-    from primkit.segmentation.labeller import decide
+    from primkit.segmentation.labeller import label_elements
 
     shared = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "coseg_chairs"
     conventions = {"large_chairs": "back,seat,legs", "chairs_101-120": "legs,seat,back"}
@@ -438,7 +438,7 @@ def coseg(scratch: Path, settings: LabellerSettings, draws: int = 8) -> dict:
                                   conventions[folder.name], ["back", "seat", "legs"])
         el = mesh_elements(mesh.vertices, mesh.faces, r.frame)
         X = frame_features(el.points, r.canonical, el.normals, settings, el.context)
-        shapes.append((r.name, X, truth.labels, el.points))
+        shapes.append((r.name, X, truth.labels, el, r.canonical))
     import itertools
 
     triples = list(itertools.combinations(range(len(shapes)), 3))
@@ -449,12 +449,11 @@ def coseg(scratch: Path, settings: LabellerSettings, draws: int = 8) -> dict:
         labeller = Labeller.fit([(shapes[i][1], shapes[i][2]) for i in pick], ["back", "seat", "legs"],
                                 segmenter.abstractor.parts, settings=settings, **FIT)
         right = []
-        for i, (name, X, y, points) in enumerate(shapes):
+        order = np.array([["back", "seat", "legs"].index(k) for k in labeller.names])
+        for i, (name, X, y, el, canonical) in enumerate(shapes):
             if i in pick:
                 continue
-            proba = labeller.smooth(labeller.classify(X), points)  # as Labeller.predict
-            codes = np.array([["back", "seat", "legs"].index(k) for k in labeller.names])[decide(proba, settings.min_share)]
-            right.append(float(np.mean(codes == y)))
+            right.append(float(np.mean(order[label_elements(labeller, el, canonical)] == y)))  # as segment --semantic
         rows.append({"learned_from": [shapes[i][0] for i in pick], "faces_right": right, "mean": float(np.mean(right))})
         print(f"draw {d}: learned from {rows[-1]['learned_from']}: faces right on the other 7 "
               f"{np.round(right, 3).tolist()} mean {rows[-1]['mean']:.3f}", flush=True)
