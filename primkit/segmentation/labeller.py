@@ -233,12 +233,10 @@ class TreeEnsemble:
         out[:] = self.baseline
         if len(X):
             packed = self.packed()
-            if packed is not None and stop is not None and self.in_rounds():
-                rounds, margin, taper = stop
-                _early_kernel()(X, *packed, self.tree_class, len(self.baseline), int(rounds), float(margin),
-                                float(taper), out)
-            elif packed is not None:
-                _packed_kernel()(X, *packed, self.tree_class, out)
+            if packed is not None:
+                rounds, margin, taper = stop if stop is not None and self.in_rounds() else (NEVER, 0.0, 0.0)
+                _packed_kernel()(X, *packed, self.tree_class, len(self.baseline), int(rounds), float(margin),
+                                 float(taper), out)
             else:
                 _kernel()(X, self.feature, self.threshold, self.missing_left, self.left, self.right, self.is_leaf,
                           self.value, self.tree_start, self.tree_class, out)
@@ -330,6 +328,16 @@ def _kernel():
 PACKED_LEAF = 0xFFFF
 PACKED_NODES = 1 << 24
 
+#: The labeller's early stop in the tree walk (:meth:`TreeEnsemble.raw_predict`'s ``stop``, no
+#: taper): after at least 15 rounds, a sample whose two best raw scores lie 2.5 apart (odds of 12
+#: to 1 between them) walks no further trees: about 44 rounds of 100 on average on a chair's
+#: voxels, a quarter of them walking all. Chosen on the PartNet validation chairs
+#: (``docs/labeller.md``, "Cost": 99.85% of the voxels keep the label the full walk gives).
+EARLY_STOP = (15, 2.5, 0.0)
+
+#: :func:`_packed_kernel`'s ``rounds`` for a walk that never stops early (every tree)
+NEVER = np.iinfo(np.int64).max
+
 _PACKED = None
 
 
@@ -340,56 +348,19 @@ def _packed_kernel():
     through the trees in order, so the float64 sums are identical), reading two arrays per node
     instead of seven: on the bundled chair labeller (24,400 nodes) about a third less time.
     Tried and slower here: a branch-free walk of every tree to its full depth, blocks of samples
-    walked tree by tree (both in ``docs/labeller.md``)."""
+    walked tree by tree (both in ``docs/labeller.md``).
+
+    With an early stop (:meth:`TreeEnsemble.raw_predict`): the trees in rounds of ``k``, the same
+    sums as the full walk over the rounds a sample walks; after each round ``r`` from ``rounds``
+    on, the sample stops when its two best scores (``k`` = 1: the score and 0) differ by more
+    than ``margin + taper * (R - r) / R``. ``rounds`` = :data:`NEVER` walks every tree (one
+    integer test a tree more than a walk without the stop)."""
     global _PACKED
     if _PACKED is None:
         import numba
 
         @numba.njit(cache=True, nogil=True)
-        def walk_packed(X, meta, split_or_value, missing_left, roots, tree_class, out):
-            for i in range(X.shape[0]):
-                for t in range(roots.shape[0]):
-                    node = roots[t]
-                    m = meta[node]
-                    while (m & 0xFFFF) != 0xFFFF:
-                        x = X[i, m & 0xFFFF]
-                        if x <= split_or_value[node]:
-                            node = (m >> 16) & 0xFFFFFF
-                        elif x > split_or_value[node]:
-                            node = (m >> 40) & 0xFFFFFF
-                        elif missing_left[node] == 1:  # NaN
-                            node = (m >> 16) & 0xFFFFFF
-                        else:
-                            node = (m >> 40) & 0xFFFFFF
-                        m = meta[node]
-                    out[i, tree_class[t]] += split_or_value[node]
-
-        _PACKED = walk_packed
-    return _PACKED
-
-
-#: The labeller's early stop in the tree walk (:meth:`TreeEnsemble.raw_predict`'s ``stop``, no
-#: taper): after at least 15 rounds, a sample whose two best raw scores lie 2.5 apart (odds of 12
-#: to 1 between them) walks no further trees: about 44 rounds of 100 on average on a chair's
-#: voxels, a quarter of them walking all. Chosen on the PartNet validation chairs
-#: (``docs/labeller.md``, "Cost": 99.85% of the voxels keep the label the full walk gives).
-EARLY_STOP = (15, 2.5, 0.0)
-
-_EARLY = None
-
-
-def _early_kernel():
-    """:func:`_packed_kernel` with an early stop (:meth:`TreeEnsemble.raw_predict`): the trees in
-    rounds of ``k``, the same sums as the full walk over the rounds a sample walks; after each
-    round ``r`` from ``rounds`` on, the sample stops when its two best scores (``k`` = 1: the
-    score and 0) differ by more than ``margin + taper * (R - r) / R``. Compiled on first use
-    (cached on disk)."""
-    global _EARLY
-    if _EARLY is None:
-        import numba
-
-        @numba.njit(cache=True, nogil=True)
-        def walk_early(X, meta, split_or_value, missing_left, roots, tree_class, k, rounds, margin, taper, out):
+        def walk_packed(X, meta, split_or_value, missing_left, roots, tree_class, k, rounds, margin, taper, out):
             trees = roots.shape[0]
             total = trees // k
             for i in range(X.shape[0]):
@@ -424,8 +395,8 @@ def _early_kernel():
                         if gap > margin + taper * (total - (t + 1) // k) / total:
                             break
 
-        _EARLY = walk_early
-    return _EARLY
+        _PACKED = walk_packed
+    return _PACKED
 
 
 _FILL = None
