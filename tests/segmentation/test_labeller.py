@@ -43,16 +43,21 @@ def test_exported_trees_give_sklearns_probabilities(classes):
     assert ensemble.classes == classes
 
 
+def _leaf(ensemble, t, x):
+    """The leaf of tree ``t`` that sample ``x`` reaches, walked in plain Python on the exported arrays."""
+    base, node = ensemble.tree_start[t], ensemble.tree_start[t]
+    while not ensemble.is_leaf[node]:
+        v = x[ensemble.feature[node]]
+        left = ensemble.missing_left[node] if np.isnan(v) else v <= ensemble.threshold[node]
+        node = base + (ensemble.left[node] if left else ensemble.right[node])
+    return node
+
+
 def _walk_one(ensemble, x):
     """A plain Python walk of the exported arrays (the reference for the Numba kernel)."""
     raw = ensemble.baseline.copy()
     for t in range(len(ensemble.tree_class)):
-        base, node = ensemble.tree_start[t], ensemble.tree_start[t]
-        while not ensemble.is_leaf[node]:
-            v = x[ensemble.feature[node]]
-            left = ensemble.missing_left[node] if np.isnan(v) else v <= ensemble.threshold[node]
-            node = base + (ensemble.left[node] if left else ensemble.right[node])
-        raw[ensemble.tree_class[t]] += ensemble.value[node]
+        raw[ensemble.tree_class[t]] += ensemble.value[_leaf(ensemble, t, x)]
     return raw
 
 
@@ -747,18 +752,13 @@ def test_a_labeller_learns_a_grids_local_shape_as_it_reads_it():
 
 
 def _stopped_walk(ensemble, x, rounds, margin, taper):
-    """A plain Python walk with the early stop (the reference for :func:`lab._early_kernel`): the
+    """A plain Python walk with the early stop (the reference for :func:`lab._packed_kernel` with a stop): the
     trees in rounds of ``k``, the scores after each round from ``rounds`` on checked."""
     k = len(ensemble.baseline)
     total = len(ensemble.tree_class) // k
     raw = ensemble.baseline.copy()
     for t in range(len(ensemble.tree_class)):
-        base, node = ensemble.tree_start[t], ensemble.tree_start[t]
-        while not ensemble.is_leaf[node]:
-            v = x[ensemble.feature[node]]
-            left = ensemble.missing_left[node] if np.isnan(v) else v <= ensemble.threshold[node]
-            node = base + (ensemble.left[node] if left else ensemble.right[node])
-        raw[ensemble.tree_class[t]] += ensemble.value[node]
+        raw[ensemble.tree_class[t]] += ensemble.value[_leaf(ensemble, t, x)]
         if (t + 1) % k == 0 and (t + 1) // k >= rounds:
             top = np.sort(raw)[::-1]
             if (abs(raw[0]) if k == 1 else top[0] - top[1]) > margin + taper * (total - (t + 1) // k) / total:

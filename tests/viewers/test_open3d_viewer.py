@@ -22,28 +22,6 @@ from primkit.segmentation.points import segment_points
 from primkit.viewers.open3d_viewer import open3d_viewer
 
 
-class RecordingWindow:
-    """What an action can ask of Open3D's ``O3DVisualizer``, recorded."""
-
-    def __init__(self):
-        self.shown, self.added, self.removed, self.boxes = {}, [], [], []
-
-    def show_geometry(self, name, visible):
-        self.shown[name] = bool(visible)
-
-    def add_geometry(self, d):
-        self.added.append(d["name"])
-
-    def remove_geometry(self, name):
-        self.removed.append(name)
-
-    def post_redraw(self):
-        pass
-
-    def show_message_box(self, title, text):
-        self.boxes.append((title, text))
-
-
 @pytest.fixture(scope="module")
 def model():
     return load_model("chair")
@@ -55,7 +33,7 @@ def chair(tmp_path_factory):
     return path, io.read_mesh(path)
 
 
-def test_parts_toggle_refine_and_export(chair, model, tmp_path):
+def test_parts_toggle_refine_and_export(chair, model, tmp_path, recording_window):
     path, mesh = chair
     viewer = open3d_viewer((mesh.vertices, mesh.faces), model, name="c", refine_step=30, export_folder=tmp_path / "x")
     cub = viewer.segmentation.cuboids
@@ -69,7 +47,7 @@ def test_parts_toggle_refine_and_export(chair, model, tmp_path):
         assert len(names[f"surface {k}"]["geometry"].triangle.indices) == int((labels == k).sum())
     assert [a for a, _ in viewer.actions()][-4:] == ["surface", "cuboids", "refine +30", "export"]
 
-    w = RecordingWindow()
+    w = recording_window()
     k = int(cub.present[0])
     assert viewer.toggle_part(w, k) is False
     assert {n for n, v in w.shown.items() if not v} == {n for n in names if n.split()[1] == str(k)}
@@ -95,7 +73,7 @@ def test_parts_toggle_refine_and_export(chair, model, tmp_path):
     assert {p: p.stat().st_mtime_ns for p in paths} == stamp
 
 
-def test_point_cloud_in_the_viewer(chair, model, tmp_path):
+def test_point_cloud_in_the_viewer(chair, model, tmp_path, recording_window):
     _, mesh = chair
     points = mesh.vertices[::2]
     viewer = open3d_viewer(points, model, name="cloud", export_folder=tmp_path)
@@ -104,7 +82,7 @@ def test_point_cloud_in_the_viewer(chair, model, tmp_path):
         if g["name"].startswith("surface"):
             k = int(g["name"].split()[1])
             assert len(g["geometry"].point.positions) == int((labels == k).sum())
-    written = viewer.export(RecordingWindow())
+    written = viewer.export(recording_window())
     assert np.array_equal(np.load(written.labels), labels)
     assert written.parts.suffix == ".ply" and len(io.read_points(written.parts).points) == len(points)
 

@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 
 from primkit import io
-from primkit.model.abstraction import Abstraction
 from primkit.model.bundled import resolve_model
 from primkit.segmentation import labeller as lab
 from primkit.viz.palette import UNLABELLED, label_colors
@@ -21,16 +20,6 @@ NAMES = ["back", "seat", "legs", "arms"]
 @pytest.fixture(scope="module")
 def labeller():
     return lab.read_labeller(resolve_model("chair"))
-
-
-@pytest.fixture(scope="module")
-def shapes(chairs, prepared_chairs):
-    from primkit.model.abstractor import Abstractor
-
-    model = Abstractor.load("chair")
-    results = model.predict(prepared_chairs[:4])
-    return [Abstraction(r, given=io.Mesh(c.vertices, c.faces), shape=p)
-            for r, c, p in zip(results, chairs[:4], prepared_chairs[:4])], model
 
 
 def _named(labeller, s):
@@ -127,7 +116,7 @@ def test_collection_browser_names_mode(shapes, labeller):
     plain.plotter.close()
 
 
-def test_open3d_viewer_colours_by_name(chairs, labeller, tmp_path):
+def test_open3d_viewer_colours_by_name(chairs, labeller, tmp_path, recording_window):
     pytest.importorskip("open3d")
     from primkit.model.abstraction import abstract
     from primkit.viewers.open3d_viewer import open3d_viewer
@@ -144,20 +133,7 @@ def test_open3d_viewer_colours_by_name(chairs, labeller, tmp_path):
         assert np.allclose(np.asarray(g["material"].base_color)[:3] * 255, label_colors(4)[j])
     assert "colour by name" in [label for label, _ in viewer.actions()]
 
-    class Window:
-        def __init__(self):
-            self.added, self.removed = [], []
-
-        def add_geometry(self, d):
-            self.added.append(d["name"])
-
-        def remove_geometry(self, name):
-            self.removed.append(name)
-
-        def post_redraw(self):
-            pass
-
-    w = Window()
+    w = recording_window()
     assert viewer.toggle_names(w) is False  # now by part
     assert all(n.startswith(("surface", "cuboids")) for n in w.added)
     assert set(w.removed) >= {g["name"] for g in surfaces}

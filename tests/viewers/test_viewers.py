@@ -12,8 +12,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from primkit import io
-from primkit.model.abstraction import Abstraction
 from primkit.viewers import abstraction_viewer as av_module
 from primkit.viewers import collection_browser as cb_module
 from primkit.viewers import common as common_module
@@ -21,16 +19,6 @@ from primkit.viewers import deformation_viewer as dv_module
 from primkit.viewers import embedding_explorer as ee_module
 
 ROOT = Path(__file__).resolve().parents[2]
-
-
-@pytest.fixture(scope="module")
-def shapes(chairs, prepared_chairs):
-    from primkit.model.abstractor import Abstractor
-
-    model = Abstractor.load("chair")
-    results = model.predict(prepared_chairs[:4])
-    return [Abstraction(r, given=io.Mesh(c.vertices, c.faces), shape=p)
-            for r, c, p in zip(results, chairs[:4], prepared_chairs[:4])], model
 
 
 def _click_widget(widget, state):
