@@ -37,7 +37,8 @@ from primkit import io, primitives
 from primkit.segmentation import VoxelGroundTruth, evaluate_voxels
 from primkit.segmentation.labeller import (Labeller, LabellerSettings, frame_features, grid_elements, grid_local_shape,
                                            mesh_elements)
-from primkit.segmentation.profile import profile_features
+from primkit.segmentation.profile import PROFILE_FEATURES, profile_features
+from primkit.segmentation.sides import side_features
 
 from scripts.partnet_chairs import MEAN_OVER, split
 
@@ -130,15 +131,17 @@ class Chairs:
             self.arrays.setdefault(name, {})[field] = z[key]
 
     def full_features(self, name):
-        """Every feature (normals, local shape and the shape profile), float32; all but the profile
-        cached under ``scratch/features`` (the profile costs milliseconds: computed each time)."""
+        """Every feature (normals, local shape, the shape profile and the side features), float32;
+        all but the last two cached under ``scratch/features`` (they cost milliseconds: computed
+        each time)."""
         path = self.scratch / "features" / f"{name}.npy"
         if not path.is_file():
             path.parent.mkdir(exist_ok=True)
-            np.save(path, self.features(name, LabellerSettings(neighbours=16, normals=True, profile=False))
+            np.save(path, self.features(name, LabellerSettings(neighbours=16, normals=True, profile=False, sides=False))
                     .astype(np.float32))
-        profile = profile_features(self.arrays[name]["points"].astype(float))
-        return np.hstack([np.load(path), profile.astype(np.float32)])
+        points = self.arrays[name]["points"].astype(float)
+        return np.hstack([np.load(path), profile_features(points).astype(np.float32),
+                          side_features(points).astype(np.float32)])
 
     def features(self, name, settings, position_only=False):
         a = self.arrays[name]
@@ -323,15 +326,17 @@ def line(label, s):
 
 def _columns(parts, settings):
     """The columns of the full feature vector (normals and local shape) that ``settings`` read."""
-    full = LabellerSettings(neighbours=16, normals=True, profile=True)
+    full = LabellerSettings(neighbours=16, normals=True, profile=True, sides=True)
     keep = np.ones(_feature_count(parts, full), bool)
-    start = _feature_count(parts, replace(full, neighbours=0, normals=False, profile=False))
+    start = _feature_count(parts, replace(full, neighbours=0, normals=False, profile=False, sides=False))
     if not settings.normals:
         keep[start : start + 4] = False
     if not settings.neighbours:
         keep[start + 4 : start + 13] = False
     if not settings.profile:
-        keep[start + 13 :] = False
+        keep[start + 13 : start + 13 + PROFILE_FEATURES] = False
+    if not settings.sides:
+        keep[start + 13 + PROFILE_FEATURES :] = False
     return keep
 
 
@@ -508,6 +513,8 @@ def main(argv=None) -> int:
                          "give each its own --scratch (the features are cached there)")
     ap.add_argument("--profile", action=argparse.BooleanOptionalAction, default=LabellerSettings().profile,
                     help="curve, coseg: the shape-profile features (LabellerSettings.profile)")
+    ap.add_argument("--sides", action=argparse.BooleanOptionalAction, default=LabellerSettings().sides,
+                    help="curve, coseg: the side features (LabellerSettings.sides)")
     ap.add_argument("--mirror", action="store_true",
                     help="curve: learn from the labelled chairs' mirrors too (run prepare-mirror first)")
     ap.add_argument("--self-train", default=None, metavar="ROUNDS:THRESHOLD:WEIGHT",
@@ -535,11 +542,11 @@ def main(argv=None) -> int:
     elif args.command == "model":
         out = model_figures(args.model, args.part)
     elif args.command == "curve":
-        out = curve(args.scratch, args.part, sizes or SIZES, args.draws, LabellerSettings(grid_sample=args.grid_sample,
-                                                                                     profile=args.profile),
+        out = curve(args.scratch, args.part, sizes or SIZES, args.draws,
+                    LabellerSettings(grid_sample=args.grid_sample, profile=args.profile, sides=args.sides),
                     args.labeller_only)
     else:
-        out = coseg(args.scratch, LabellerSettings(profile=args.profile))
+        out = coseg(args.scratch, LabellerSettings(profile=args.profile, sides=args.sides))
     if args.json:
         args.json.write_text(json.dumps(out, indent=1))
     return 0

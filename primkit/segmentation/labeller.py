@@ -15,7 +15,9 @@ sits in the shape's abstraction, which means the same thing on every shape of a 
   elements (how flat, thin or round it is there, and which way); on a voxel grid the nearest
   voxels are found on the grid (:func:`grid_local_shape`), elsewhere by a k-d tree.
 * where it sits in the shape's own occupancy (:mod:`primkit.segmentation.profile`: its place in the
-  bounding box, how full its horizontal slab is, what lies above, below, in front and behind it).
+  bounding box, how full its horizontal slab is, what lies above, below, in front and behind it)
+  and against its seat (:mod:`primkit.segmentation.sides`: how far beside the densest slab's middle,
+  whether its column rises above it: arms against seat edges and back wings).
 
 A gradient-boosted tree ensemble (scikit-learn's ``HistGradientBoostingClassifier``) learns the
 labels from a few labelled shapes; its class probabilities are blended with the index-naming
@@ -50,6 +52,7 @@ import numpy as np
 from .. import primitives
 from ..model.modelfile import ModelFileError
 from .profile import PROFILE_FEATURES, profile_features
+from .sides import SIDE_FEATURES, side_features
 
 __all__ = [
     "LABELLER_FORMAT",
@@ -75,8 +78,9 @@ __all__ = [
 LABELLER_FORMAT = "primkit-labeller"
 #: Version of the labeller's arrays and description; newer ones are refused on load. Version 2
 #: stores feature and child indices as int16 (version 1: int64) and may carry ``labeller.prior``;
-#: version 3 adds the ``profile`` setting (the shape-profile features; versions 1-2 read it false).
-LABELLER_FORMAT_VERSION = 3
+#: version 3 adds the ``profile`` setting (the shape-profile features; versions 1-2 read it false);
+#: version 4 the ``sides`` setting (the side features; versions 1-3 read it false).
+LABELLER_FORMAT_VERSION = 4
 #: Prefix of a labeller's tensors in a model file (beside the network's weights).
 LABELLER_PREFIX = "labeller."
 #: Metadata key of a labeller's description in a model file.
@@ -91,6 +95,7 @@ ABSENT = 1.0e4
 #: the bytes per node: the bundled chair model's labeller fits the wheel).
 STORED = {1: {}, 2: {"feature": np.int16, "left": np.int16, "right": np.int16}}
 STORED[3] = STORED[2]  # the same arrays; the description's settings gained ``profile``
+STORED[4] = STORED[2]  # the same arrays; the description's settings gained ``sides``
 
 #: Bounds on what a stored labeller may ask for (a hostile file allocates nothing beyond them).
 MAX_NODES = 50_000_000
@@ -488,7 +493,10 @@ class LabellerSettings:
         validation chairs from 3, 10 and 40); files without the key read 0.
     profile : bool
         Whether the shape-profile features (:func:`primkit.segmentation.profile.profile_features`)
-        end the feature vector; files without the key (format versions 1-2) read false.
+        follow the frame's; files without the key (format versions 1-2) read false.
+    sides : bool
+        Whether the side features (:func:`primkit.segmentation.sides.side_features`) end the
+        feature vector (after the profile's); files without the key (format versions 1-3) read false.
     """
 
     neighbours: int = 16
@@ -499,16 +507,17 @@ class LabellerSettings:
     grid_sample: int = 4
     prior_weight: float | None = None
     profile: bool = True
+    sides: bool = True
 
     #: the values ``grid_sample`` may take
     GRID_SAMPLES = (1, 2, 4, 8)
     #: what a key absent from a stored description reads (files written before it existed)
-    OLD_DEFAULTS = {"grid_sample": 1, "prior_weight": 0.0, "profile": False}
+    OLD_DEFAULTS = {"grid_sample": 1, "prior_weight": 0.0, "profile": False, "sides": False}
 
     def to_dict(self) -> dict:
         return {"neighbours": self.neighbours, "smooth_neighbours": self.smooth_neighbours, "smooth": self.smooth,
                 "normals": self.normals, "min_share": self.min_share, "grid_sample": self.grid_sample,
-                "prior_weight": self.prior_weight, "profile": self.profile}
+                "prior_weight": self.prior_weight, "profile": self.profile, "sides": self.sides}
 
     @classmethod
     def from_dict(cls, d: dict) -> "LabellerSettings":
@@ -535,7 +544,7 @@ class LabellerSettings:
 def feature_count(parts: int, settings: LabellerSettings) -> int:
     """Length of the feature vector of a model with ``parts`` slots."""
     return 3 + parts + 3 + 3 * parts + parts + (4 if settings.normals else 0) + (9 if settings.neighbours else 0) \
-        + (PROFILE_FEATURES if settings.profile else 0)
+        + (PROFILE_FEATURES if settings.profile else 0) + (SIDE_FEATURES if settings.sides else 0)
 
 
 def _neighbours(points: np.ndarray, k: int) -> np.ndarray:
@@ -861,6 +870,8 @@ def frame_features(points, cuboids: primitives.Cuboids, normals=None, settings: 
             columns.append(np.hstack([shares, np.abs(vectors[:, :, 2]), np.abs(vectors[:, :, 0])]))
     if settings.profile:
         columns.append(profile_features(points, context))
+    if settings.sides:
+        columns.append(side_features(points, context))
     return np.hstack(columns)
 
 

@@ -795,7 +795,7 @@ def test_the_frame_columns_are_numpys_cuboid_frames():
     rng = np.random.default_rng(21)
     c = _cuboids(rng, m=20, absent=(2, 7, 19))
     points = rng.uniform(-0.6, 0.6, (700, 3))
-    F = frame_features(points, c, None, LabellerSettings(neighbours=0, normals=False, profile=False))
+    F = frame_features(points, c, None, LabellerSettings(neighbours=0, normals=False, profile=False, sides=False))
     local = primitives.world_to_local(points, c) / c.half_extents[:, None, :]  # (m, n, 3)
     local[~c.existence] = lab.ABSENT
     dist = primitives.point_cuboid_distance(points, c)

@@ -69,8 +69,8 @@ def test_the_profile_ends_the_frame_features():
     c = primitives.Cuboids(rng.uniform(0.05, 0.3, (5, 3)), rng.normal(size=(5, 4)), rng.uniform(-0.4, 0.4, (5, 3)),
                            np.array([True, True, False, True, True]))
     points, context = rng.uniform(-0.5, 0.5, (60, 3)), rng.uniform(-0.5, 0.5, (300, 3))
-    on = LabellerSettings(neighbours=8, profile=True)
-    off = LabellerSettings(neighbours=8, profile=False)
+    on = LabellerSettings(neighbours=8, profile=True, sides=False)
+    off = LabellerSettings(neighbours=8, profile=False, sides=False)
     a, b = frame_features(points, c, None, on, context), frame_features(points, c, None, off, context)
     assert a.shape == (60, lab.feature_count(5, on)) and lab.feature_count(5, on) == lab.feature_count(5, off) + 10
     np.testing.assert_array_equal(a[:, : b.shape[1]], b)
@@ -103,7 +103,7 @@ def _as_version_2(path, out):
 
 
 def test_a_version_2_labeller_loads_without_the_profile(tmp_path):
-    labeller, c, points = _labeller(LabellerSettings(neighbours=8, smooth=0, profile=False))
+    labeller, c, points = _labeller(LabellerSettings(neighbours=8, smooth=0, profile=False, sides=False))
     path = lab.write_labeller(resolve_model("chair"), tmp_path / "v3.safetensors", labeller)
     got = lab.read_labeller(_as_version_2(path, tmp_path / "v2.safetensors"))
     assert got.settings.profile is False
@@ -112,7 +112,7 @@ def test_a_version_2_labeller_loads_without_the_profile(tmp_path):
 
 def test_a_profile_labeller_passed_off_as_version_2_is_refused(tmp_path):
     """Read as version 2 its settings lack the profile, so its trees read 10 features too many."""
-    labeller, _, _ = _labeller(LabellerSettings(neighbours=8, smooth=0, profile=True))
+    labeller, _, _ = _labeller(LabellerSettings(neighbours=8, smooth=0, profile=True, sides=False))
     path = lab.write_labeller(resolve_model("chair"), tmp_path / "v3.safetensors", labeller)
     assert lab.read_labeller(path).settings.profile is True
     with pytest.raises(lab.ModelFileError) as err:

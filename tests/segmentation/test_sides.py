@@ -1,0 +1,147 @@
+"""The labeller's side features against a per-element brute force, on a hand-built armchair and
+sofa, their place in the feature vector, and labeller files from before them (format version 3)
+still loading."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from primkit import primitives
+from primkit.model.bundled import resolve_model
+from primkit.segmentation import labeller as lab
+from primkit.segmentation.labeller import Labeller, LabellerSettings, frame_features
+from primkit.segmentation.profile import profile_features
+from primkit.segmentation.sides import SIDE_FEATURES, side_features
+
+
+def _brute(points, context, bins):
+    """Each column of the module's table for one element at a time, by scanning the context
+    points' cells (no histogram, no reductions over a grid)."""
+    lo, hi = context.min(axis=0), context.max(axis=0)
+    ext = np.maximum(hi - lo, 1e-9)
+    cell = lambda p: np.clip(np.floor((p - lo) / ext * bins), 0, bins - 1).astype(int)  # noqa: E731
+    cc = cell(context)
+    slabs = [np.sum(cc[:, 1] == j) for j in range(bins)]
+    seat = int(np.argmax(slabs))
+    in_seat = cc[cc[:, 1] == seat]
+    z_lo, z_hi = in_seat[:, 2].min(), in_seat[:, 2].max()
+    x_lo, x_hi = in_seat[:, 0].min(), in_seat[:, 0].max()
+    out = []
+    for p in points:
+        i, j, k = cell(p)
+        r = (p - lo) / ext * bins
+        column = cc[(cc[:, 0] == i) & (cc[:, 2] == k), 1]
+        top, bottom = (column.max(), column.min()) if len(column) else (seat, seat)
+        slab = cc[cc[:, 1] == j, 2]
+        width = slab.max() - slab.min() + 1 if len(slab) else 0
+        out.append([(top - seat) / bins, (bottom - seat) / bins,
+                    abs(r[2] - (z_lo + z_hi + 1) / 2) / ((z_hi - z_lo + 1) / 2),
+                    width / (z_hi - z_lo + 1), (r[0] - x_lo) / (x_hi - x_lo + 1)])
+    return np.array(out)
+
+
+@pytest.mark.parametrize("bins", [5, 24])
+def test_side_features_read_as_a_brute_force_does(bins):
+    rng = np.random.default_rng(bins)
+    context = rng.normal(size=(700, 3)) * [0.3, 0.5, 0.2]
+    points = np.vstack([context[:50], rng.normal(size=(40, 3)) * 0.4])  # some outside the context's box
+    got = side_features(points, context, bins=bins)
+    assert got.shape == (90, SIDE_FEATURES)
+    np.testing.assert_allclose(got, _brute(points, context, bins), atol=1e-12)
+    np.testing.assert_allclose(side_features(context[:60], None, bins), _brute(context[:60], context[:60], bins),
+                               atol=1e-12)
+
+
+def _chair(sofa: bool):
+    """A 12 x 12 x 12 cell chair (x front, y up, z across): a seat plate at y = 5 over z 2-9, a back
+    at x = 0 up to y = 11, and either thin arms on posts (x 6-10 at y 8, posts at x = 10) or a
+    sofa's solid side blocks (z 0-1 and 10-11, y 0-8, x 1-11)."""
+    g = np.mgrid[0:12, 0:12, 0:12].reshape(3, -1).T
+    x, y, z = g.T
+    seat = (y == 5) & (z >= 2) & (z <= 9) & (x >= 1)
+    back = (x == 0) & (y >= 5) & (z >= 2) & (z <= 9)
+    legs = (y < 5) & np.isin(x, [1, 11]) & np.isin(z, [2, 9])
+    if sofa:
+        arms = ((z <= 1) | (z >= 10)) & (y <= 8) & (x >= 1)
+    else:
+        arms = ((z == 1) | (z == 10)) & (((y == 8) & (x >= 6) & (x <= 10)) | ((x == 10) & (y >= 5) & (y < 8)))
+    keep = seat | back | legs | arms
+    return (g[keep] + 0.5) / 12.0, arms[keep], seat[keep], back[keep]
+
+
+@pytest.mark.parametrize("sofa", [False, True])
+def test_arms_rise_beside_the_seat_where_its_middle_does_not(sofa):
+    points, arms, seat, back = _chair(sofa)
+    f = side_features(points, bins=12)
+    assert np.all(f[arms, 0] > 0)  # every arm column rises above the seat
+    middle = seat & (np.abs(points[:, 2] - 0.5) < 0.1)
+    np.testing.assert_array_equal(f[middle, 0], 0.0)  # the seat's middle: nothing above it
+    assert f[arms, 2].min() > f[middle, 2].max()
+    assert np.all(f[back, 4] < f[seat, 4].min())  # the back behind the seat's span
+
+
+def test_the_side_features_end_the_frame_features():
+    rng = np.random.default_rng(3)
+    c = primitives.Cuboids(rng.uniform(0.05, 0.3, (5, 3)), rng.normal(size=(5, 4)), rng.uniform(-0.4, 0.4, (5, 3)),
+                           np.array([True, True, False, True, True]))
+    points, context = rng.uniform(-0.5, 0.5, (60, 3)), rng.uniform(-0.5, 0.5, (300, 3))
+    on, off = LabellerSettings(neighbours=8, sides=True), LabellerSettings(neighbours=8, sides=False)
+    a, b = frame_features(points, c, None, on, context), frame_features(points, c, None, off, context)
+    assert a.shape == (60, lab.feature_count(5, on)) and lab.feature_count(5, on) == lab.feature_count(5, off) + 5
+    np.testing.assert_array_equal(a[:, : b.shape[1]], b)
+    np.testing.assert_array_equal(a[:, -15:-5], profile_features(points, context))
+    np.testing.assert_array_equal(a[:, b.shape[1]:], side_features(points, context))
+
+
+def _labeller(settings):
+    rng = np.random.default_rng(0)
+    shapes = []
+    for _ in range(3):
+        c = primitives.Cuboids(rng.uniform(0.05, 0.3, (5, 3)), rng.normal(size=(5, 4)),
+                               rng.uniform(-0.4, 0.4, (5, 3)), np.ones(5, bool))
+        points = rng.uniform(-0.5, 0.5, (300, 3))
+        y = (points[:, 1] > 0).astype(int) + (primitives.assign_points(points, c) == 1)
+        shapes.append((frame_features(points, c, None, settings), y))
+    return Labeller.fit(shapes, ["a", "b", "c"], 5, settings=settings, max_iter=10), c, points
+
+
+def _as_version_3(path, out):
+    """A labeller file as format version 3 wrote it (no ``sides`` key in its settings)."""
+    from safetensors import safe_open
+    from safetensors.numpy import load_file, save_file
+
+    with safe_open(str(path), framework="numpy") as f:
+        meta = json.loads(f.metadata()["primkit"])
+    meta["labeller"]["format_version"] = 3
+    del meta["labeller"]["settings"]["sides"]
+    save_file(load_file(str(path)), str(out), metadata={"primkit": json.dumps(meta)})
+    return out
+
+
+def test_a_version_3_labeller_loads_without_the_sides(tmp_path):
+    labeller, c, points = _labeller(LabellerSettings(neighbours=8, smooth=0, sides=False))
+    path = lab.write_labeller(resolve_model("chair"), tmp_path / "v4.safetensors", labeller)
+    got = lab.read_labeller(_as_version_3(path, tmp_path / "v3.safetensors"))
+    assert got.settings.sides is False
+    np.testing.assert_array_equal(got.predict(points, c), labeller.predict(points, c))
+
+
+def test_a_sides_labeller_passed_off_as_version_3_is_refused(tmp_path):
+    """Read as version 3 its settings lack the sides, so its trees read 5 features too many."""
+    labeller, _, _ = _labeller(LabellerSettings(neighbours=8, smooth=0, sides=True))
+    path = lab.write_labeller(resolve_model("chair"), tmp_path / "v4.safetensors", labeller)
+    assert lab.read_labeller(path).settings.sides is True
+    with pytest.raises(lab.ModelFileError) as err:
+        lab.read_labeller(_as_version_3(path, tmp_path / "v3.safetensors"))
+    assert "features" in str(err.value) and len(str(err.value).splitlines()) == 1
+
+
+def test_bad_inputs_are_refused_in_one_line():
+    with pytest.raises(ValueError, match=r"\(n, 3\)"):
+        side_features(np.zeros((4, 2)))
+    with pytest.raises(ValueError, match="empty"):
+        side_features(np.zeros((4, 3)), np.zeros((0, 3)))
+    assert side_features(np.zeros((0, 3))).shape == (0, SIDE_FEATURES)
