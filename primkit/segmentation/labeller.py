@@ -507,7 +507,7 @@ class LabellerSettings:
     grid_sample: int = 4
     prior_weight: float | None = None
     profile: bool = True
-    sides: bool = True
+    sides: bool = False
 
     #: the values ``grid_sample`` may take
     GRID_SAMPLES = (1, 2, 4, 8)
