@@ -18,6 +18,7 @@ from .labeller import (Labeller, LabellerSettings, element_features, grid_elemen
                        mesh_elements, point_elements, read_labeller)
 from . import evaluation, graphcut, outputs
 from .meshes import Segmentation, SegmentationFiles, segment_mesh
+from .meshlabels import face_graph, label_faces
 from .points import PointSegmentation, segment_points
 from .voxels import VoxelSegmentation, segment_voxels
 
@@ -32,6 +33,7 @@ def _segment_file(job):
     """
     path, cuboids, name, names, labeller, result, *rest = job
     how = rest[0] if rest else None  # the labelling (graphcut.Labelling or None)
+    graph = None
     try:
         shape = io.read_shape(path)
         if isinstance(shape, io.VoxelGrid):
@@ -39,11 +41,12 @@ def _segment_file(job):
         elif isinstance(shape, io.PointCloud):
             seg = segment_points(shape, cuboids, name=name, source=str(path), part_names=names, labelling=how)
         elif isinstance(shape, io.Mesh):
+            graph = _face_graph(shape, labeller)
             seg = segment_mesh(shape.vertices, shape.faces, cuboids, name=name, source=str(path), part_names=names,
-                               labelling=how)
+                               labelling=how, graph=graph)
         else:
             raise io.ShapeFileError(path, f"a {type(shape).__name__} has no faces or voxels to label")
-        return (seg if labeller is None else apply_labeller(seg, labeller, result)), None
+        return (seg if labeller is None else apply_labeller(seg, labeller, result, graph=graph)), None
     except (io.ShapeFileError, ValueError) as exc:
         return None, str(exc).splitlines()[0]
 
@@ -59,11 +62,22 @@ def shape_elements(seg, frame):
     return mesh_elements(seg.vertices, seg.faces, frame), None
 
 
-def apply_labeller(seg, labeller: Labeller, result):
+def _face_graph(mesh, labeller):
+    """A mesh's face adjacency (:func:`~primkit.segmentation.meshlabels.face_graph`) when a labeller
+    will cut over it too: built once, for the part-index cut and the labeller's; None otherwise."""
+    return face_graph(mesh.vertices, mesh.faces) if labeller is not None and len(mesh.faces) else None
+
+
+def apply_labeller(seg, labeller: Labeller, result, *, graph=None):
     """``seg`` with each element named by ``labeller`` (``named``, ``label_names``); ``result`` is
-    its :class:`primkit.model.abstractor.AbstractionResult` (the canonical cuboids and the frame)."""
+    its :class:`primkit.model.abstractor.AbstractionResult` (the canonical cuboids and the frame).
+    ``graph``: a mesh's :func:`~primkit.segmentation.meshlabels.face_graph` when it is already built
+    (the part-index cut's, :func:`~primkit.segmentation.segment_mesh`'s ``graph``); None: built here."""
     elements, index = shape_elements(seg, result.frame)
-    codes = label_elements(labeller, elements, result.canonical)
+    if graph is not None and result.canonical.existence.any() and len(elements.points):
+        codes = label_faces(labeller, elements, result.canonical, graph=graph)  # label_elements' mesh branch
+    else:
+        codes = label_elements(labeller, elements, result.canonical)
     if index is not None:
         named = np.full(seg.labels.shape, -1, np.int64)
         named[tuple(index.T)] = codes
@@ -368,6 +382,7 @@ def segment(shape, model="chair", *, labelling=None, **options) -> Segmentation 
     if isinstance(labeller, str) and labeller == "auto":
         labeller = None if not isinstance(model, (str, Path)) else read_labeller(_model_path(model))
     a = abstract(shape, abstractor, **options)
+    graph = None
     if isinstance(a.given, io.VoxelGrid) or (a.given is None and a.prepared.kind == "voxels"):
         grid = a.given if a.given is not None else io.read_voxels(a.source)
         seg = segment_voxels(grid, a.cuboids, name=a.name, source=a.source, part_names=abstractor.part_names,
@@ -378,6 +393,7 @@ def segment(shape, model="chair", *, labelling=None, **options) -> Segmentation 
                              labelling=labelling)
     else:
         mesh = a.mesh
+        graph = _face_graph(mesh, labeller)
         seg = segment_mesh(mesh.vertices, mesh.faces, a.cuboids, name=a.name, source=a.source,
-                           part_names=abstractor.part_names, labelling=labelling)
-    return seg if labeller is None else apply_labeller(seg, labeller, a.result)
+                           part_names=abstractor.part_names, labelling=labelling, graph=graph)
+    return seg if labeller is None else apply_labeller(seg, labeller, a.result, graph=graph)
