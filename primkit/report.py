@@ -42,7 +42,7 @@ import numpy as np
 
 from . import data, deformation, embedding, io
 from .geometry import voxel_boundary_mesh
-from .segmentation import face_labels
+from .segmentation import face_labels, resolve_labeller
 from .viz import web
 from .viz.interop import mesh_from_o3d, mesh_to_o3d
 from .viz.palette import label_colors, label_element_colors, part_colors
@@ -127,18 +127,6 @@ def _named(labeller, vertices, faces, result):
 
     identity = CanonicalFrame(np.eye(3), np.zeros(3), 1.0)  # the mesh is drawn in the canonical frame already
     return label_elements(labeller, mesh_elements(vertices, faces, identity), result.canonical)
-
-
-def _labeller(model, labeller):
-    """``"auto"``: the labeller of ``model``'s file (None for a model object or a file without one)."""
-    if not (isinstance(labeller, str) and labeller == "auto"):
-        return labeller
-    if not isinstance(model, (str, Path)):
-        return None
-    from .model.bundled import resolve_model
-    from .segmentation.labeller import read_labeller
-
-    return read_labeller(resolve_model(model))
 
 
 def _face_labels(vertices, faces, cuboids) -> np.ndarray:
@@ -327,7 +315,7 @@ def build_report(paths, model, output, *, refine: int = 0, align=None, up=None, 
                           cache=cache_dir, workers=workers, progress=progress, adapt=adapt)
     if not out.shapes:
         raise ValueError("no usable shapes for the report")
-    labeller = _labeller(model, labeller)
+    labeller = resolve_labeller(model, labeller)
     shapes = []
     for a in out:
         v, f, cub = _canonical_mesh(a)

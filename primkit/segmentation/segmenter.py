@@ -22,7 +22,8 @@ from .meshlabels import face_graph, label_faces
 from .points import PointSegmentation, segment_points
 from .voxels import VoxelSegmentation, segment_voxels
 
-__all__ = ["Segmenter", "SegmentationRun", "segment", "apply_labeller", "shape_elements", "fit_labeller"]
+__all__ = ["Segmenter", "SegmentationRun", "segment", "apply_labeller", "shape_elements", "fit_labeller",
+           "resolve_labeller"]
 
 
 def _segment_file(job):
@@ -140,9 +141,7 @@ class Segmenter:
                  labeller="auto", labelling=None):
         self.model = model
         self.abstractor = load_model(model)
-        if isinstance(labeller, str) and labeller == "auto":
-            labeller = None if not isinstance(model, (str, Path)) else read_labeller(_model_path(model))
-        self.labeller = labeller
+        self.labeller = resolve_labeller(model, labeller)
         self.labelling = graphcut.as_labelling(labelling)
         self.up, self.front = up, front
         self.predict_options = {"align": align, "refine": refine, "existence_threshold": existence_threshold,
@@ -367,6 +366,16 @@ def _model_path(model):
     return resolve_model(model)
 
 
+def resolve_labeller(model, labeller="auto"):
+    """The labeller to name elements with: ``labeller`` itself (a
+    :class:`~primkit.segmentation.labeller.Labeller`, or None: none), or for ``"auto"`` the one in
+    ``model``'s file (a path or a bundled model's name; :func:`~primkit.segmentation.labeller.read_labeller`),
+    None when the file has none or ``model`` is an object rather than a file."""
+    if not (isinstance(labeller, str) and labeller == "auto"):
+        return labeller
+    return read_labeller(_model_path(model)) if isinstance(model, (str, Path)) else None
+
+
 def segment(shape, model="chair", *, labelling=None, **options) -> Segmentation | VoxelSegmentation | PointSegmentation:
     """Co-segment one mesh, voxel grid or point cloud: a path, an :class:`primkit.io.Mesh`,
     :class:`~primkit.io.VoxelGrid` or :class:`~primkit.io.PointCloud`, ``(vertices, faces)``,
@@ -378,9 +387,7 @@ def segment(shape, model="chair", *, labelling=None, **options) -> Segmentation 
     >>> seg.face_labels                                           # doctest: +SKIP
     """
     abstractor = load_model(model)
-    labeller = options.pop("labeller", "auto")
-    if isinstance(labeller, str) and labeller == "auto":
-        labeller = None if not isinstance(model, (str, Path)) else read_labeller(_model_path(model))
+    labeller = resolve_labeller(model, options.pop("labeller", "auto"))
     a = abstract(shape, abstractor, **options)
     graph = None
     if isinstance(a.given, io.VoxelGrid) or (a.given is None and a.prepared.kind == "voxels"):
