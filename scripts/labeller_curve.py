@@ -247,7 +247,10 @@ def label_with(chairs, labeller, evaluate, settings, keep, position_only=False) 
             idx = near[:, : settings.smooth_neighbours]
             for _ in range(settings.smooth):
                 proba = proba[idx].mean(axis=1)
-        out[n] = known[decide(proba, settings.min_share)]
+        labels = decide(proba, settings.min_share)
+        if isinstance(labeller, Labeller):  # its presence rule, as Labeller.predict applies it
+            labels = labeller.present(labels, proba, a["points"].astype(float))
+        out[n] = known[labels]
     return out
 
 
@@ -513,6 +516,8 @@ def main(argv=None) -> int:
                          "give each its own --scratch (the features are cached there)")
     ap.add_argument("--profile", action=argparse.BooleanOptionalAction, default=LabellerSettings().profile,
                     help="curve, coseg: the shape-profile features (LabellerSettings.profile)")
+    ap.add_argument("--presence", action=argparse.BooleanOptionalAction, default=True,
+                    help="curve: the arms presence rule (primkit.segmentation.presence; Labeller.fit's default)")
     ap.add_argument("--sides", action=argparse.BooleanOptionalAction, default=LabellerSettings().sides,
                     help="curve, coseg: the side features (LabellerSettings.sides)")
     ap.add_argument("--mirror", action="store_true",
@@ -522,6 +527,8 @@ def main(argv=None) -> int:
                     "(primkit.segmentation.selftrain.SelfTraining), e.g. 1:0.9:0.5")
     args = ap.parse_args(argv)
     KNN["how"] = args.knn
+    if not args.presence:
+        FIT["presence"] = None
     if args.mirror:
         MIRROR["chairs"] = Chairs(args.scratch / "mirror")
     if args.self_train:

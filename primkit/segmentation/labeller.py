@@ -51,6 +51,7 @@ import numpy as np
 
 from .. import primitives
 from ..model.modelfile import ModelFileError
+from .presence import PresenceRule, apply_presence, side_region
 from .profile import PROFILE_FEATURES, profile_features
 from .sides import SIDE_FEATURES, side_features
 
@@ -79,7 +80,8 @@ LABELLER_FORMAT = "primkit-labeller"
 #: Version of the labeller's arrays and description; newer ones are refused on load. Version 2
 #: stores feature and child indices as int16 (version 1: int64) and may carry ``labeller.prior``;
 #: version 3 adds the ``profile`` setting (the shape-profile features; versions 1-2 read it false);
-#: version 4 the ``sides`` setting (the side features; versions 1-3 read it false).
+#: version 4 the ``sides`` setting (the side features; versions 1-3 read it false) and may carry
+#: ``presence`` (:class:`primkit.segmentation.presence.PresenceRule`; versions 1-3: none).
 LABELLER_FORMAT_VERSION = 4
 #: Prefix of a labeller's tensors in a model file (beside the network's weights).
 LABELLER_PREFIX = "labeller."
@@ -1117,6 +1119,9 @@ class Labeller:
         How :meth:`classify` walks the trees (:meth:`TreeEnsemble.raw_predict`'s ``stop``; not
         stored: a way of labelling, not part of what was learned): :data:`EARLY_STOP`, or None
         for every tree (the exact ``predict_proba``).
+    presence : PresenceRule or None
+        Whether a shape has its label at all, read from the shape's side region after the
+        decision (:mod:`primkit.segmentation.presence`; voxels and points, not a mesh's faces).
     """
 
     names: list
@@ -1126,11 +1131,12 @@ class Labeller:
     info: dict = field(default_factory=dict)
     prior: np.ndarray | None = None
     early_stop: tuple | None = EARLY_STOP
+    presence: PresenceRule | None = None
 
     @classmethod
     def fit(cls, shapes, names, parts: int, *, settings: LabellerSettings | None = None, per_shape: int = 1000,
             max_iter: int = 100, learning_rate: float = 0.1, max_leaf_nodes: int = 31, seed=0,
-            info: dict | None = None, **options) -> "Labeller":
+            info: dict | None = None, presence="auto", **options) -> "Labeller":
         """Learn a labeller from labelled shapes.
 
         Parameters
@@ -1147,6 +1153,9 @@ class Labeller:
             shape weighs the same whatever its element count.
         max_iter, learning_rate, max_leaf_nodes, options : the classifier's (``l2_regularization``, ...).
         seed : int, the subsets' and the classifier's random state.
+        presence : PresenceRule, None or "auto"
+            The presence rule kept with the labeller; "auto": :class:`PresenceRule`'s defaults
+            when the learned labels include ``"arms"`` (chosen on PartNet validation chairs), else none.
         """
         from sklearn.ensemble import HistGradientBoostingClassifier
 
@@ -1183,9 +1192,11 @@ class Labeller:
                                                random_state=int(seed), **options)
         model.fit(X, np.searchsorted(present, y), sample_weight=w * len(Xs))
         kept = [str(names[k]) for k in present]
+        if presence == "auto":
+            presence = PresenceRule() if PresenceRule().label in kept else None
         return cls(kept, int(parts), TreeEnsemble.from_sklearn(model), settings,
                    {**(info or {}), "shapes": len(Xs), "elements": int(len(y))},
-                   index_prior(priors, present, parts))
+                   index_prior(priors, present, parts), presence=presence)
 
     def features(self, points, cuboids, normals=None, context=None, *, local_shape=None) -> np.ndarray:
         """:func:`frame_features` with this labeller's settings (canonical frame)."""
@@ -1254,8 +1265,16 @@ class Labeller:
         """``(n,) int``: each element's label (an index into :attr:`names`)."""
         if len(points) == 0:
             return np.zeros(0, np.int64)
-        return decide(self.predict_proba(points, cuboids, normals, context, neighbours, grid_index),
-                      self.settings.min_share)
+        proba = self.predict_proba(points, cuboids, normals, context, neighbours, grid_index)
+        return self.present(decide(proba, self.settings.min_share), proba, points, context)
+
+    def present(self, labels, proba, points, context=None) -> np.ndarray:
+        """``labels`` after :attr:`presence` (unchanged without one or when the labeller does
+        not know its label; ``points``, ``context`` canonical, as :func:`side_region` reads them)."""
+        if self.presence is None or self.presence.label not in self.names or len(labels) == 0:
+            return labels
+        return apply_presence(labels, proba, side_region(points, context), self.names.index(self.presence.label),
+                              self.presence)
 
     # -- storage ------------------------------------------------------------------------------
 
@@ -1278,6 +1297,8 @@ class Labeller:
                        "settings": {**self.settings.to_dict(), "prior_weight": self.settings.prior_weight or 0.0},
                        "classifier": "scikit-learn HistGradientBoostingClassifier, trees exported to arrays",
                        "info": self.info}
+        if self.presence is not None:
+            description["presence"] = self.presence.to_dict()
         return arrays, description
 
     @classmethod
@@ -1324,7 +1345,16 @@ class Labeller:
         elif settings.prior_weight > 0:
             raise ValueError(f"{where}: prior_weight {settings.prior_weight} but no prior")
         info = description.get("info", {})
-        return cls(list(names), parts, ensemble, settings, info if isinstance(info, dict) else {}, prior)
+        presence = description.get("presence")
+        if presence is not None:
+            try:
+                presence = PresenceRule.from_dict(presence)
+            except ValueError as exc:
+                raise ValueError(f"{where}: {exc}") from None
+            if presence.label not in names:
+                raise ValueError(f"{where}: the presence rule's label {presence.label!r} is not among the names")
+        return cls(list(names), parts, ensemble, settings, info if isinstance(info, dict) else {}, prior,
+                   presence=presence)
 
 
 def decide(proba, min_share: float = 0.0) -> np.ndarray:

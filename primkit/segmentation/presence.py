@@ -1,0 +1,105 @@
+"""Whether a shape has arms at all: a label's presence read from the shape's own geometry.
+
+A labeller decides each element on its own (then smooths and drops a label given to under
+``min_share`` of the elements). Learned from a few labelled chairs it misses arms it has not seen
+(a sofa's solid side blocks, called seat and back) and finds arms that are not there (a back's
+wings, a seat's edge). Whether a chair has arms shows in its shape: something rises beside the
+seat, over the seat's front-to-back span. :func:`side_region` marks those elements with the side
+and profile features (:mod:`primkit.segmentation.sides`, :mod:`primkit.segmentation.profile`,
+canonical frame: +Y up, +X front); a :class:`PresenceRule` then, after the labeller's decision,
+
+* takes the label away from a shape whose side region holds under ``veto`` of its elements (they
+  take their next most probable label, as the rare-label rule does), and
+* gives it to the side region's elements of a shape that has none of it but whose side region
+  holds at least ``add`` of its elements.
+
+The region's bounds and the two shares were chosen on PartNet validation chairs
+(``docs/labeller.md``, "Arms from shape context").
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .profile import profile_features
+from .sides import side_features
+
+__all__ = ["SIDE_ACROSS", "SIDE_RISE", "SIDE_ABOVE", "SIDE_FRONT", "PresenceRule", "side_region", "apply_presence"]
+
+#: An element of the side region lies further across from the densest slab's middle than this
+#: many of its half widths (side feature 2),
+SIDE_ACROSS = 0.85
+#: in a column whose top rises more than this above the densest slab (side feature 0, in box heights),
+SIDE_RISE = 0.1
+#: itself more than this above the densest slab's centre (profile column 5, in box heights),
+SIDE_ABOVE = 0.05
+#: and past this share of the densest slab's front-to-back span from its back (side feature 4).
+SIDE_FRONT = 0.25
+
+
+def side_region(points, context=None) -> np.ndarray:
+    """``(n,) bool``: the elements that rise beside the seat (the module notes; ``points`` and
+    ``context`` as :func:`primkit.segmentation.sides.side_features` takes them, canonical frame)."""
+    sides, profile = side_features(points, context), profile_features(points, context)
+    return (sides[:, 2] > SIDE_ACROSS) & (sides[:, 0] > SIDE_RISE) & (profile[:, 5] > SIDE_ABOVE) \
+        & (sides[:, 4] > SIDE_FRONT)
+
+
+@dataclass(frozen=True)
+class PresenceRule:
+    """When a label is taken from a shape or given to it (the module notes).
+
+    label : str
+        The label the rule decides (e.g. ``"arms"``).
+    veto : float
+        The label is taken away when the side region holds under this share of the elements.
+    add : float
+        The label goes to the side region's elements when the shape has none of it and the region
+        holds at least this share (above 1: never).
+    """
+
+    label: str = "arms"
+    veto: float = 0.01
+    add: float = 0.1
+
+    def __post_init__(self):
+        if not isinstance(self.label, str) or not self.label:
+            raise ValueError("presence label must be a non-empty string")
+        for key in ("veto", "add"):
+            value = getattr(self, key)
+            if not isinstance(value, (int, float)) or isinstance(value, bool) or not 0 <= value <= 2:
+                raise ValueError(f"presence {key} must be a number in [0, 2]")
+
+    def to_dict(self) -> dict:
+        return {"label": self.label, "veto": float(self.veto), "add": float(self.add)}
+
+    @classmethod
+    def from_dict(cls, d) -> "PresenceRule":
+        """The inverse of :meth:`to_dict`; ValueError (one line) on anything else."""
+        if not isinstance(d, dict) or set(d) != {"label", "veto", "add"}:
+            raise ValueError("presence must be a JSON object with label, veto and add")
+        return cls(d["label"], d["veto"], d["add"])
+
+
+def apply_presence(labels, proba, region, label: int, rule: PresenceRule) -> np.ndarray:
+    """``(n,) int``: ``labels`` (each element's decided label) after ``rule``.
+
+    ``proba`` : (n, classes) float, the probabilities ``labels`` were decided from (an element
+    whose label is taken away takes its most probable other label); ``region`` : (n,) bool,
+    :func:`side_region`; ``label`` : the rule's label's class index.
+    """
+    labels = np.asarray(labels, np.int64)
+    region = np.asarray(region, bool)
+    if len(labels) == 0:
+        return labels
+    share = float(np.mean(region))
+    has = np.any(labels == label)
+    if has and share < rule.veto:
+        others = np.array(proba, float)
+        others[:, label] = -np.inf
+        return np.where(labels == label, np.argmax(others, axis=1), labels).astype(np.int64)
+    if not has and share >= rule.add:
+        return np.where(region, label, labels).astype(np.int64)
+    return labels

@@ -1,0 +1,155 @@
+"""The arms presence rule: the side region on hand-built chairs, the rule against a plain
+per-element loop, its place in Labeller.predict, and its storage (round trip, hostile values,
+files from before it)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from primkit import primitives
+from primkit.model.bundled import resolve_model
+from primkit.segmentation import labeller as lab
+from primkit.segmentation.labeller import Labeller, LabellerSettings, decide, frame_features
+from primkit.segmentation.presence import PresenceRule, apply_presence, side_region
+
+
+def _chair(arms: str):
+    """A 24-cell chair (x front, y up, z across): a seat plate at y = 10 over z 4-19 (x 2-23), a
+    back at x = 0-1 up to y = 23, four legs, and ``arms``: "none", "rests" (bars at y = 16 over x
+    12-21 beside the seat, on posts at x = 21) or "sofa" (solid side blocks z 0-3 and 20-23 up to
+    y = 16)."""
+    g = np.mgrid[0:24, 0:24, 0:24].reshape(3, -1).T
+    x, y, z = g.T
+    inside = (z >= 4) & (z <= 19)
+    seat = (y == 10) & inside & (x >= 2)
+    back = (x <= 1) & (y >= 10) & inside
+    legs = (y < 10) & np.isin(x, [2, 23]) & np.isin(z, [4, 19])
+    side = (z == 2) | (z == 21)
+    if arms == "rests":
+        arm = side & (((y == 16) & (x >= 12) & (x <= 21)) | ((x == 21) & (y >= 10) & (y < 16)))
+    elif arms == "sofa":
+        arm = ((z <= 3) | (z >= 20)) & (y <= 16) & (x >= 2)
+    else:
+        arm = np.zeros(len(g), bool)
+    keep = seat | back | legs | arm
+    return (g[keep] + 0.5) / 24.0 - 0.5, arm[keep]
+
+
+@pytest.mark.parametrize("arms", ["rests", "sofa"])
+def test_the_side_region_lies_on_the_arms(arms):
+    points, arm = _chair(arms)
+    region = side_region(points)
+    assert region.any() and np.all(arm[region])  # only arm elements, and some
+    assert np.mean(region) >= PresenceRule().veto
+
+
+def test_a_chair_without_arms_has_no_side_region():
+    points, _ = _chair("none")
+    assert not side_region(points).any()
+
+
+def _loop(labels, proba, region, label, rule):
+    """The rule one element at a time."""
+    share = sum(region) / len(region)
+    has = any(v == label for v in labels)
+    out = []
+    for i, v in enumerate(labels):
+        if has and share < rule.veto and v == label:
+            out.append(max((c for c in range(proba.shape[1]) if c != label), key=lambda c: proba[i, c]))
+        elif not has and share >= rule.add and region[i]:
+            out.append(label)
+        else:
+            out.append(v)
+    return np.array(out)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_the_rule_is_a_per_element_loop(seed):
+    rng = np.random.default_rng(seed)
+    n = 200
+    proba = rng.dirichlet(np.ones(4), n)
+    labels = np.argmax(proba, axis=1)
+    if seed % 2:
+        labels[labels == 3] = 0  # no arms decided
+    region = rng.random(n) < [0.0, 0.005, 0.05, 0.2, 0.5, 0.008][seed]
+    rule = PresenceRule("arms", 0.01, 0.1)
+    got = apply_presence(labels, proba, region, 3, rule)
+    np.testing.assert_array_equal(got, _loop(labels, proba, region, 3, rule))
+    share = region.mean()
+    if share < 0.01:
+        assert not np.any(got == 3)
+    if not np.any(labels == 3) and share >= 0.1:
+        np.testing.assert_array_equal(got == 3, region)
+
+
+def _fit(names, presence="auto"):
+    rng = np.random.default_rng(0)
+    settings = LabellerSettings(neighbours=8, smooth=0)
+    shapes = []
+    for _ in range(3):
+        c = primitives.Cuboids(rng.uniform(0.05, 0.3, (5, 3)), rng.normal(size=(5, 4)),
+                               rng.uniform(-0.4, 0.4, (5, 3)), np.ones(5, bool))
+        points = rng.uniform(-0.5, 0.5, (300, 3))
+        y = (points[:, 1] > 0).astype(int) + (primitives.assign_points(points, c) == 1)
+        shapes.append((frame_features(points, c, None, settings), y))
+    return Labeller.fit(shapes, names, 5, settings=settings, max_iter=10, presence=presence), c, points
+
+
+def test_fit_keeps_the_rule_when_it_learns_arms():
+    assert _fit(["back", "seat", "arms"])[0].presence == PresenceRule()
+    assert _fit(["back", "seat", "legs"])[0].presence is None
+    assert _fit(["back", "seat", "arms"], presence=None)[0].presence is None
+
+
+def test_predict_applies_the_rule_after_the_decision():
+    labeller, c, _ = _fit(["back", "seat", "arms"], presence=PresenceRule("arms", 0.01, 0.0))  # add: always
+    points, _ = _chair("rests")
+    proba = labeller.predict_proba(points, c)
+    plain = decide(proba, labeller.settings.min_share)
+    want = apply_presence(plain, proba, side_region(points), 2, labeller.presence)
+    np.testing.assert_array_equal(labeller.predict(points, c), want)
+    from dataclasses import replace
+
+    np.testing.assert_array_equal(replace(labeller, presence=None).predict(points, c), plain)
+
+
+def _rewrite(path, out, change):
+    from safetensors import safe_open
+    from safetensors.numpy import load_file, save_file
+
+    with safe_open(str(path), framework="numpy") as f:
+        meta = json.loads(f.metadata()["primkit"])
+    change(meta["labeller"])
+    save_file(load_file(str(path)), str(out), metadata={"primkit": json.dumps(meta)})
+    return out
+
+
+def test_the_rule_is_stored_and_read_back(tmp_path):
+    labeller, c, points = _fit(["back", "seat", "arms"], presence=PresenceRule("arms", 0.02, 0.3))
+    path = lab.write_labeller(resolve_model("chair"), tmp_path / "l.safetensors", labeller)
+    got = lab.read_labeller(path)
+    assert got.presence == PresenceRule("arms", 0.02, 0.3)
+    np.testing.assert_array_equal(got.predict(points, c), labeller.predict(points, c))
+
+    def as_version_3(d):
+        d["format_version"] = 3
+        del d["settings"]["sides"]
+        del d["presence"]
+
+    old = lab.read_labeller(_rewrite(path, tmp_path / "v3.safetensors", as_version_3))
+    assert old.presence is None
+
+
+@pytest.mark.parametrize("presence", [{"label": "arms", "veto": -1, "add": 0.1}, {"label": "arms", "veto": "x", "add": 0},
+                                      {"label": "arms", "veto": 0.1}, [1, 2], {"label": "wings", "veto": 0, "add": 0},
+                                      {"label": "", "veto": 0, "add": 0}, {"label": "arms", "veto": 0, "add": 1e300}])
+def test_a_hostile_rule_is_refused_in_one_line(tmp_path, presence):
+    labeller, _, _ = _fit(["back", "seat", "arms"])
+    path = lab.write_labeller(resolve_model("chair"), tmp_path / "l.safetensors", labeller)
+    bad = _rewrite(path, tmp_path / "bad.safetensors", lambda d: d.update(presence=presence))
+    with pytest.raises(lab.ModelFileError) as err:
+        lab.read_labeller(bad)
+    assert "presence" in str(err.value) and len(str(err.value).splitlines()) == 1
