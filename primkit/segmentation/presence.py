@@ -23,8 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .profile import profile_features
-from .sides import side_features
+from .sides import side_columns
 
 __all__ = ["SIDE_ACROSS", "SIDE_RISE", "SIDE_ABOVE", "SIDE_FRONT", "PresenceRule", "side_region", "apply_presence"]
 
@@ -42,8 +41,8 @@ SIDE_FRONT = 0.25
 def side_region(points, context=None) -> np.ndarray:
     """``(n,) bool``: the elements that rise beside the seat (the module notes; ``points`` and
     ``context`` as :func:`primkit.segmentation.sides.side_features` takes them, canonical frame)."""
-    sides, profile = side_features(points, context), profile_features(points, context)
-    return (sides[:, 2] > SIDE_ACROSS) & (sides[:, 0] > SIDE_RISE) & (profile[:, 5] > SIDE_ABOVE) \
+    sides = side_columns(points, context)  # the side features, then the profile's height (column 5)
+    return (sides[:, 2] > SIDE_ACROSS) & (sides[:, 0] > SIDE_RISE) & (sides[:, 5] > SIDE_ABOVE) \
         & (sides[:, 4] > SIDE_FRONT)
 
 

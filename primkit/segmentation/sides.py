@@ -52,12 +52,19 @@ def side_features(points, context=None, bins: int = PROFILE_BINS) -> np.ndarray:
     bins : int
         Cells a side of the binning grid (over each axis of the bounding box).
     """
+    return side_columns(points, context, bins)[:, :SIDE_FEATURES]
+
+
+def side_columns(points, context=None, bins: int = PROFILE_BINS) -> np.ndarray:
+    """``(n, 6)``: :func:`side_features` and, last, each element's height above the densest slab's
+    centre in the box's height (the profile's column 5, :func:`primkit.segmentation.profile.profile_features`,
+    from the same histogram: what :func:`primkit.segmentation.presence.side_region` reads)."""
     points = np.asarray(points, float)
     ctx = points if context is None else np.asarray(context, float)
     if points.ndim != 2 or points.shape[1] != 3 or ctx.ndim != 2 or ctx.shape[1] != 3:
         raise ValueError(f"`points` and `context` must be (n, 3) float, got {points.shape} and {ctx.shape}")
     if len(points) == 0:
-        return np.zeros((0, SIDE_FEATURES))
+        return np.zeros((0, SIDE_FEATURES + 1))
     if len(ctx) == 0:
         raise ValueError("`context` is empty: no shape to read the sides from")
     lo = ctx.min(axis=0)
@@ -79,10 +86,11 @@ def side_features(points, context=None, bins: int = PROFILE_BINS) -> np.ndarray:
     x_lo, x_hi = np.argmax(along), bins - 1 - np.argmax(along[::-1])
     rel = (points - lo) / extent * bins  # in cells
     i, j, k = np.clip(rel.astype(np.int64), 0, bins - 1).T
-    out = np.empty((len(points), SIDE_FEATURES))
+    out = np.empty((len(points), SIDE_FEATURES + 1))
     out[:, 0] = (top[i, k] - seat) / bins
     out[:, 1] = (bottom[i, k] - seat) / bins
     out[:, 2] = np.abs(rel[:, 2] - middle) / half
     out[:, 3] = width[j] / width[seat]
     out[:, 4] = (rel[:, 0] - x_lo) / (x_hi - x_lo + 1)
+    out[:, 5] = (points[:, 1] - lo[1]) / extent[1] - (seat + 0.5) / bins
     return out

@@ -145,3 +145,14 @@ def test_bad_inputs_are_refused_in_one_line():
     with pytest.raises(ValueError, match="empty"):
         side_features(np.zeros((4, 3)), np.zeros((0, 3)))
     assert side_features(np.zeros((0, 3))).shape == (0, SIDE_FEATURES)
+
+
+def test_the_last_side_column_is_the_profiles_height():
+    rng = np.random.default_rng(5)
+    context = rng.normal(size=(500, 3)) * [0.3, 0.5, 0.2]
+    points = np.vstack([context[:40], rng.normal(size=(30, 3)) * 0.4])
+    from primkit.segmentation.sides import side_columns
+
+    got = side_columns(points, context)
+    np.testing.assert_array_equal(got[:, :SIDE_FEATURES], side_features(points, context))
+    np.testing.assert_allclose(got[:, 5], profile_features(points, context)[:, 5], atol=1e-12)
