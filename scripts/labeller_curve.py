@@ -20,7 +20,9 @@ Scores (as ``scripts/partnet_chairs.py`` and ``primkit segment --gt``,
 when a label is absent from both, averaged over chairs; the mean over back, seat and legs; arm IoU;
 arm detection F1 (a chair *has* arms when at least 2% of its voxels are arm, is *predicted* to when
 at least 1% are). Beside the labeller: today's naming (the bundled model's one name per index) and a
-position-only labeller (the same classifier on the canonical position alone).
+position-only labeller (the same classifier on the canonical position alone). The labeller's arms
+presence rule (:mod:`primkit.segmentation.presence`, on as ``Labeller.fit`` keeps it) is left out
+with ``--no-presence``; the side features (``LabellerSettings.sides``) are read with ``--sides``.
 """
 
 from __future__ import annotations

@@ -23,7 +23,8 @@ A gradient-boosted tree ensemble (scikit-learn's ``HistGradientBoostingClassifie
 labels from a few labelled shapes; its class probabilities are blended with the index-naming
 prior (the shares of the labels on each cuboid index over the labelled shapes, ``prior_weight``),
 then averaged over each element's nearest neighbours (``smooth`` rounds), and each element takes
-the most probable label.
+the most probable label; a labeller that knows ``arms`` then asks the shape whether it has any
+(:mod:`primkit.segmentation.presence`: what rises beside the seat).
 
 Storage without code: the fitted trees are exported to plain arrays (:class:`TreeEnsemble`: per
 node the feature, threshold, children, leaf value and the side missing values go to) and saved as
