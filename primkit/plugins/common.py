@@ -9,13 +9,12 @@ a voxel grid a part index per voxel (:func:`primkit.segmentation.label_voxels`).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from .. import io
 from ..model.abstraction import Abstraction, abstract_shapes
-from ..segmentation import label_voxels, point_labels, segment_mesh, segment_points, voxel_centres
+from ..segmentation import label_voxels, point_labels, resolve_labeller, segment_mesh, segment_points, voxel_centres
 
 __all__ = ["Labelled", "label_shapes", "label_shape", "resolve_labeller"]
 
@@ -107,20 +106,7 @@ def label_shapes(shapes, model="chair", *, names=None, progress_bar: bool = Fals
     return labelled
 
 
-def resolve_labeller(model, labeller):
-    """The labeller to use: ``"auto"``, the model file's (None when it has none or ``model`` is an
-    object, not a file); None; or a Labeller given."""
-    if not (isinstance(labeller, str) and labeller == "auto"):
-        return labeller
-    if not isinstance(model, (str, Path)):
-        return None
-    from ..model.bundled import resolve_model
-    from ..segmentation.labeller import read_labeller
-
-    return read_labeller(resolve_model(model))
-
-
-_labeller = resolve_labeller
+_labeller = resolve_labeller  # "auto": the model file's labeller (primkit.segmentation.resolve_labeller)
 
 
 def _named(a: Abstraction, labeller):
