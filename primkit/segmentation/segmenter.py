@@ -18,7 +18,7 @@ from .labeller import (Labeller, LabellerSettings, element_features, grid_elemen
                        mesh_elements, point_elements, read_labeller)
 from . import evaluation, graphcut, outputs
 from .meshes import Segmentation, SegmentationFiles, segment_mesh
-from .meshlabels import face_graph, label_faces
+from .meshlabels import face_graph
 from .points import PointSegmentation, segment_points
 from .voxels import VoxelSegmentation, segment_voxels
 
@@ -75,10 +75,7 @@ def apply_labeller(seg, labeller: Labeller, result, *, graph=None):
     ``graph``: a mesh's :func:`~primkit.segmentation.meshlabels.face_graph` when it is already built
     (the part-index cut's, :func:`~primkit.segmentation.segment_mesh`'s ``graph``); None: built here."""
     elements, index = shape_elements(seg, result.frame)
-    if graph is not None and result.canonical.existence.any() and len(elements.points):
-        codes = label_faces(labeller, elements, result.canonical, graph=graph)  # label_elements' mesh branch
-    else:
-        codes = label_elements(labeller, elements, result.canonical)
+    codes = label_elements(labeller, elements, result.canonical, graph=graph)
     if index is not None:
         named = np.full(seg.labels.shape, -1, np.int64)
         named[tuple(index.T)] = codes

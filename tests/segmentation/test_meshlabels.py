@@ -202,3 +202,11 @@ def test_segment_semantic_builds_the_face_graph_once_and_names_as_before(abstrac
     assert segment(tmp_path / "c.ply", "chair").named is not None and built == [len(shapes[0].faces)]
     built.clear()
     assert segment(tmp_path / "c.ply", "chair", labeller=None).named is None and built == [len(shapes[0].faces)]
+    built.clear()
+    from primkit.plugins.common import label_shape  # the pyvista, VTK and Open3D path: once too, the same names
+
+    want = segment(tmp_path / "c.ply", "chair")
+    built.clear()
+    got = label_shape(io.read_mesh(tmp_path / "c.ply"), "chair")
+    assert built == [len(shapes[0].faces)]
+    assert np.array_equal(got.labels, want.named) and np.array_equal(got.face_labels, want.face_labels)
