@@ -242,7 +242,7 @@ def label_with(chairs, labeller, evaluate, settings, keep, position_only=False) 
                 proba = proba[idx].mean(axis=1)
         labels = decide(proba, settings.min_share)
         if isinstance(labeller, Labeller):  # its presence rule, as Labeller.predict applies it
-            labels = labeller.present(labels, proba, a["points"].astype(float))
+            labels = labeller.present(labels, proba, chairs.arrays[n]["points"].astype(float))
         out[n] = known[labels]
     return out
 
