@@ -156,3 +156,13 @@ def test_the_column_range_is_numpys_min_and_max():
         low, high = lab._column_range(a)
         np.testing.assert_array_equal(low, a.min(axis=0))
         np.testing.assert_array_equal(high, a.max(axis=0))
+
+
+def test_the_profile_refuses_points_that_are_not_finite():
+    from primkit.segmentation.profile import profile_features
+
+    points = np.random.default_rng(9).normal(size=(50, 3))
+    context = points.copy()
+    context[7, 1] = np.nan
+    with pytest.raises(ValueError, match="finite"):
+        profile_features(points, context)
