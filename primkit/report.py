@@ -18,7 +18,9 @@ the report is as before.
 
 The 3D scene is drawn by plotly.js (:mod:`primkit.viz.web`): each shape's co-segmented surface
 beside its cuboids with their edges, a legend entry per part index that toggles that part on every
-shape, and the camera convention of every primkit picture; the plot's height follows the page's
+shape, and the camera convention of every primkit picture (with a labeller, the surface is coloured
+by name instead, as the thumbnail by name, and the legend's names come first and toggle that name's
+surface on every shape; the cuboids keep their part colours); the plot's height follows the page's
 width so that every shape stays in view (:func:`_frame_scene`). The library (from the installed
 ``plotly`` package) and the data are inlined, so the page opens without a network; the data's JSON
 is escaped so that no shape name can end its script element. The meshes are decimated for it with
@@ -42,7 +44,7 @@ import numpy as np
 
 from . import data, deformation, embedding, io
 from .geometry import voxel_boundary_mesh
-from .segmentation import face_labels
+from .segmentation import face_labels, resolve_labeller
 from .viz import web
 from .viz.interop import mesh_from_o3d, mesh_to_o3d
 from .viz.palette import label_colors, label_element_colors, part_colors
@@ -129,18 +131,6 @@ def _named(labeller, vertices, faces, result):
     return label_elements(labeller, mesh_elements(vertices, faces, identity), result.canonical)
 
 
-def _labeller(model, labeller):
-    """``"auto"``: the labeller of ``model``'s file (None for a model object or a file without one)."""
-    if not (isinstance(labeller, str) and labeller == "auto"):
-        return labeller
-    if not isinstance(model, (str, Path)):
-        return None
-    from .model.bundled import resolve_model
-    from .segmentation.labeller import read_labeller
-
-    return read_labeller(resolve_model(model))
-
-
 def _face_labels(vertices, faces, cuboids) -> np.ndarray:
     if not cuboids.existence.any():
         return np.full(len(faces), -1, np.int64)
@@ -162,15 +152,19 @@ def _decimate(vertices, faces, labels, target: int):
     return small.vertices, small.faces, labels[nearest]
 
 
-def page_scene_figure(shapes, part_names, part_count: int, faces_per_shape: int = SCENE_FACES) -> dict:
+def page_scene_figure(shapes, part_names, part_count: int, faces_per_shape: int = SCENE_FACES,
+                      label_names=None) -> dict:
     """The plotly figure of the page's 3D scene (:func:`primkit.viz.web.scene_figure`): each
-    :class:`ReportShape` decimated to about ``faces_per_shape`` triangles, with its labels and cuboids."""
+    :class:`ReportShape` decimated to about ``faces_per_shape`` triangles, with its cuboids and its
+    surface coloured by part index, or with ``label_names`` (the model's labeller's) by name
+    (:attr:`ReportShape.named`), as the thumbnails by name."""
+    by_name = bool(label_names) and all(s.named is not None for s in shapes)
     items = []
     for s in shapes:
-        v, f, lab = _decimate(s.vertices, s.faces, s.labels, faces_per_shape)
+        v, f, lab = _decimate(s.vertices, s.faces, s.named if by_name else s.labels, faces_per_shape)
         items.append((s.name, v, f, lab, s.cuboids))
     names = list(part_names) + default_part_names(part_count)[len(part_names):]
-    figure = web.scene_figure(items, names, count=part_count)
+    figure = web.scene_figure(items, names, count=part_count, label_names=list(label_names) if by_name else None)
     _frame_scene(figure)
     return figure
 
@@ -327,7 +321,7 @@ def build_report(paths, model, output, *, refine: int = 0, align=None, up=None, 
                           cache=cache_dir, workers=workers, progress=progress, adapt=adapt)
     if not out.shapes:
         raise ValueError("no usable shapes for the report")
-    labeller = _labeller(model, labeller)
+    labeller = resolve_labeller(model, labeller)
     shapes = []
     for a in out:
         v, f, cub = _canonical_mesh(a)
@@ -366,7 +360,7 @@ def write_report(output, shapes, results, part_names, *, overwrite: bool = False
     except Exception as exc:  # noqa: BLE001
         notes["deformation"] = f"deformation not drawn: {type(exc).__name__}: {exc}"
     count = results[0].canonical.count if results else 20
-    scene = page_scene_figure(shapes, part_names, count)
+    scene = page_scene_figure(shapes, part_names, count, label_names=label_names)
     summary = _summary_json(shapes, part_names, similarity, deform, notes, meta or {}, label_names)
     with io.atomic_output(out / "report.json", overwrite=overwrite) as tmp:
         Path(tmp).write_text(json.dumps(summary, indent=1))
@@ -453,7 +447,7 @@ def _page(shapes, part_names, thumbs, similarity, deform, notes, scene, out: Pat
     else:
         dfm = f"<p class='note'>{esc(notes.get('deformation', ''))}</p>"
     triangles = sum(len(t["i"]) for t in scene["data"] if t["type"] == "mesh3d")
-    # the plot's height follows its width (see _frame_scene), so every shape stays in view
+    by_name = any("label" in t.get("meta", {}) for t in scene["data"])
     # the plot's height follows its width (see _frame_scene), so every shape stays in view
     ready = (_FIT_SCENE + 'fit().then(function(){ '
              'document.getElementById("status").textContent = gd.data.length + " traces, " + ' + json.dumps(triangles)
@@ -463,6 +457,9 @@ def _page(shapes, part_names, thumbs, similarity, deform, notes, scene, out: Pat
         title=f"primkit report: {len(shapes)} shapes", meta=esc(json.dumps(meta)), cards="".join(cards),
         rows="".join(rows), convention=esc(conv), usage=usage, similarity=sim, deformation=dfm,
         names_heading=", names (the model's labeller)" if label_names else "",
+        scene_colours=("its names (the model's labeller, the colours of the thumbnails by name), beside its cuboids in "
+                       "the colours of their parts" if by_name else "the colours of its parts, beside its cuboids"),
+        toggle="a name or a part" if by_name else "a part",
         scene=web.figure_div(scene, "scene"), scene_script=web.figure_script("scene", ready=ready))
 
 
@@ -514,8 +511,8 @@ img.map{{max-width:900px;width:100%}} img.wide{{max-width:700px}} .note{{color:#
 primitive <i>k</i> is the same part on every shape and has the same colour everywhere. Shapes are
 drawn in the model's canonical frame (upright, front +X), all at one scale. Settings: <code>{meta}</code></p>
 <h2>Interactive 3D scene</h2>
-<p>Each shape's surface in the colours of its parts, beside its cuboids. Drag to turn, scroll to zoom,
-click a part in the legend to hide it on every shape. <span id="status"></span></p>
+<p>Each shape's surface in {scene_colours}. Drag to turn, scroll to zoom,
+click {toggle} in the legend to hide it on every shape. <span id="status"></span></p>
 {scene}
 <h2>Shapes: mesh, cuboids, co-segmentation{names_heading}</h2>
 <div class="cards">{cards}</div>

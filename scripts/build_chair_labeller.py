@@ -1,17 +1,17 @@
 """Put a part labeller into the bundled chair model (``primkit/model/bundled/chair.safetensors``).
 
-The labeller (:mod:`primkit.segmentation.labeller`) is learned from the first ``--chairs`` PartNet
-**validation** chairs of ``scripts/partnet_chairs.py``'s split (the chairs the model's index names
-were learned from; never the test part), abstracted and segmented as ``primkit segment`` does
-with default flags, exactly as ``primkit name-parts CHAIRS --model chair --labels
-../shared/data/partnet_chair_boxes --mirror`` learns one (each chair's left-right mirror learned
-from too, chosen on the validation chairs: docs/labeller.md). Only the labeller and the card change: the
+The labeller (:mod:`primkit.segmentation.labeller`) is learned from the PartNet **validation**
+chairs of ``scripts/partnet_chairs.py``'s split (all 219 by default, ``--chairs N``: the first N;
+never the test part), abstracted and segmented as ``primkit segment`` does with default flags,
+exactly as ``primkit name-parts CHAIRS --model chair --labels ../shared/data/partnet_chair_boxes
+--mirror`` learns one (each chair's left-right mirror learned from too: better arms on the
+validation chairs, docs/labeller.md; ``--no-mirror`` leaves them out). Only the labeller and the card change: the
 network's weights, the part names and every other metadata key are copied unchanged (checked). Run again on a
 bundled file that has a labeller, it replaces it (and the card's part about it).
 
 Usage (from the repository root)::
 
-    python -m scripts.build_chair_labeller -o chair-labelled.safetensors [--chairs 100] [--cache DIR] [--mirror]
+    python -m scripts.build_chair_labeller -o chair-labelled.safetensors [--chairs N] [--cache DIR] [--no-mirror]
     python -m scripts.labeller_curve model --model chair-labelled.safetensors --part test   # its figures
     cp chair-labelled.safetensors primkit/model/bundled/chair.safetensors
 """
@@ -44,13 +44,14 @@ TERMS = ("the labeller was learned from PartNet's part annotations (Mo et al., C
 LABELLER_SECTION = "\n\nPart labeller "
 
 
-def build(output: Path, chairs: int = 100, cache=None, *, mirror: bool = False, overwrite: bool = False) -> Path:
+def build(output: Path, chairs: int | None = None, cache=None, *, mirror: bool = True, overwrite: bool = False) -> Path:
     source = bundled_models()["chair"]
     meta = read_metadata(source)
     meta.pop(LABELLER_KEY, None)  # built again: write_labeller replaces the labeller, the card's part is redone
     meta["card"] = {k: v for k, v in meta["card"].items() if k != "labeller"}
     meta["card"]["text"] = meta["card"]["text"].split(LABELLER_SECTION)[0]
     validation, _, archive = split()
+    chairs = len(validation) if chairs is None else chairs
     files = validation[:chairs]
     segmenter = Segmenter(source, labeller=None)
     results, errors = segmenter.abstract_files(files, cache_dir=cache, progress=False)
@@ -73,7 +74,7 @@ def build(output: Path, chairs: int = 100, cache=None, *, mirror: bool = False, 
     card = dict(meta["card"])
     card["labeller"] = {"shapes": chairs, "labels": NAMES, "data": "partnet_chair_boxes voxel labels, validation part",
                         "terms": TERMS, "mirrored": int(labeller.info.get("mirrored", 0)),
-                        "command": "python -m scripts.build_chair_labeller" + (" --mirror" if mirror else ""),
+                        "command": "python -m scripts.build_chair_labeller" + (" --mirror" if mirror else " --no-mirror"),
                         "settings": labeller.settings.to_dict()}
     card["text"] = card["text"].rstrip("\n") + (
         f"{LABELLER_SECTION}(`segment --semantic` names each voxel, face or point with it): learned from the first "
@@ -91,11 +92,11 @@ def build(output: Path, chairs: int = 100, cache=None, *, mirror: bool = False, 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("-o", "--output", type=Path, required=True)
-    ap.add_argument("--chairs", type=int, default=100, help="the first N validation chairs (default 100)")
+    ap.add_argument("--chairs", type=int, default=None, help="the first N validation chairs (default: all 219)")
     ap.add_argument("--cache", type=Path, default=None, help="the abstractions' cache folder")
-    ap.add_argument("--mirror", action=argparse.BooleanOptionalAction, default=False,
-                    help="learn from each chair's left-right mirror too (name-parts --mirror; better arms on validation, "
-                         "but not the shipped file: docs/labeller.md)")
+    ap.add_argument("--mirror", action=argparse.BooleanOptionalAction, default=True,
+                    help="learn from each chair's left-right mirror too (name-parts --mirror; better arms on the "
+                         "validation chairs: docs/labeller.md)")
     ap.add_argument("--force", action="store_true")
     args = ap.parse_args(argv)
     build(args.output, args.chairs, args.cache, mirror=args.mirror, overwrite=args.force)

@@ -22,6 +22,7 @@ Usage (from the repository root; 10-15 minutes on two loaded cores)::
 
     python -m scripts.build_labellers --install           # rebuild both bundled labellers in place
     python -m scripts.build_labellers -o DIR [--categories table] [--pictures docs/images]
+    python -m scripts.build_labellers --install --refigure  # the same trees, the card's figures measured again
 
 ``--pictures`` also draws 12 held-out ShapeNetVox32 shapes (real, unlabelled) named by the new
 labeller, to look at (``labeller-real-CATEGORY.png``; red, blue, green, orange: the labels in order).
@@ -168,23 +169,52 @@ def learn(category: str, train, **options):
 
 
 def build(category: str, output: Path, work: Path, *, overwrite: bool = False) -> tuple[Path, dict]:
+    """Learn ``category``'s labeller again, measure it on the held-out seed and write the model
+    file with it and its card to ``output``."""
+    train = prepare(category, "train", work)
+    labeller = learn(category, train)
+    return write_card(category, labeller, len(train), held_out_figures(category, labeller, work), output,
+                      overwrite=overwrite)
+
+
+def refigure(category: str, output: Path, work: Path, *, overwrite: bool = False) -> tuple[Path, dict]:
+    """The bundled labeller as it is (its trees untouched), measured again on the held-out seed
+    with today's code, and its card's figures replaced: for when the way its names are decided
+    changes but not what it learned (e.g. a mesh's faces labelled over the surface, meshlabels.py)."""
+    labeller = read_labeller(bundled_models()[category])
+    out = write_card(category, labeller, labeller.info["shapes"], held_out_figures(category, labeller, work), output,
+                     overwrite=overwrite)
+    same = read_labeller(out[0])
+    assert same.to_tensors()[0].keys() == labeller.to_tensors()[0].keys() and all(
+        np.array_equal(a, same.to_tensors()[0][k]) for k, a in labeller.to_tensors()[0].items())
+    return out
+
+
+def held_out_figures(category: str, labeller, work: Path) -> dict:
+    """The card's ``held_out_procedural``: :func:`measure` of ``labeller`` and of one name per index
+    on the test seed's shapes."""
+    names = label_names(category)
+    test = prepare(category, "test", work)
+    return {"labeller": measure(test, names, lambda s, r: labeller_codes(s, labeller, r, names)),
+            "index_names": measure(test, names, lambda s, r: index_codes(s, names)),
+            "seed": SEEDS["test"]}
+
+
+def write_card(category: str, labeller, shapes: int, figures: dict, output: Path, *,
+               overwrite: bool = False) -> tuple[Path, dict]:
+    """Copy the bundled model of ``category`` to ``output`` with ``labeller`` (learned from ``shapes``
+    procedural shapes) and a card that says so, with the held-out ``figures``."""
     source = bundled_models()[category]
     meta = read_metadata(source)
     meta.pop(LABELLER_KEY, None)  # built again: write_labeller replaces the labeller, the card's part is redone
     meta["card"] = {k: v for k, v in meta["card"].items() if k != "labeller"}
     meta["card"]["text"] = meta["card"]["text"].split(LABELLER_SECTION)[0]
     names = label_names(category)
-    train = prepare(category, "train", work)
-    labeller = learn(category, train)
-    test = prepare(category, "test", work)
-    figures = {"labeller": measure(test, names, lambda s, r: labeller_codes(s, labeller, r, names)),
-               "index_names": measure(test, names, lambda s, r: index_codes(s, names)),
-               "seed": SEEDS["test"]}
     generator = (f"primkit.synthetic.generate({category!r}, {COUNTS['train']}, seed={SEEDS['train']}) "
                  f"(primkit {primkit.__version__}'s generator; each face labelled with its part's group)")
     card = dict(meta["card"])
     card["labeller"] = {
-        "shapes": len(train), "labels": names, "data": "procedural shapes: " + generator,
+        "shapes": shapes, "labels": names, "data": "procedural shapes: " + generator,
         "procedural": True, "generator": "primkit.synthetic.generate", "seeds": dict(SEEDS), "counts": dict(COUNTS),
         "terms": TERMS, "command": "python -m scripts.build_labellers --install", "classifier": dict(CLASSIFIER),
         "settings": {**labeller.settings.to_dict(), "prior_weight": labeller.settings.prior_weight},
@@ -266,21 +296,24 @@ def main(argv=None) -> int:
     ap.add_argument("--categories", nargs="+", default=list(CATEGORIES), choices=CATEGORIES)
     ap.add_argument("--work", type=Path, default=None, help="a folder for the procedural shapes and the cache")
     ap.add_argument("--pictures", type=Path, default=None, help="draw held-out ShapeNetVox32 shapes named here")
+    ap.add_argument("--refigure", action="store_true",
+                    help="keep the bundled labellers' trees; measure them again and write only their cards' figures")
     ap.add_argument("--force", action="store_true")
     args = ap.parse_args(argv)
+    make = refigure if args.refigure else build
     with tempfile.TemporaryDirectory() as tmp:
         work = args.work or Path(tmp)
         for category in args.categories:
             if args.install:
                 target = bundled_models()[category]
-                out, _ = build(category, work / f"{category}.safetensors", work, overwrite=True)
+                out, _ = make(category, work / f"{category}.safetensors", work, overwrite=True)
                 with io.atomic_output(target, overwrite=True) as tmp_target:  # work may be another file system
                     shutil.copyfile(out, tmp_target)
                 print(f"installed {target}")
                 model = target
             else:
                 args.output.mkdir(parents=True, exist_ok=True)
-                model, _ = build(category, args.output / f"{category}.safetensors", work, overwrite=args.force)
+                model, _ = make(category, args.output / f"{category}.safetensors", work, overwrite=args.force)
             if args.pictures:
                 args.pictures.mkdir(parents=True, exist_ok=True)
                 real_picture(category, model, args.pictures / f"labeller-real-{category}.png", work)

@@ -10,7 +10,7 @@ import pytest
 from primkit import primitives, synthetic
 from primkit.cli import main
 from primkit.embedding import PartDescriptor, label_boxes, region_box
-from primkit.segmentation.bylabel import by_label, labelled_voxels
+from primkit.segmentation.bylabel import by_label, label_regions, labelled_voxels
 
 
 def _rot_z(deg):
@@ -116,6 +116,27 @@ def test_labelled_arms_boxes_match_the_chairs_arm_faces(armed_chairs):
         assert np.all(np.abs(c[[0, 2]] - (lo + hi)[[0, 2]] / 2) < 3 / 32), i
         checked += 1
     assert checked >= 3
+
+
+def test_label_regions_are_each_shapes_voxels_of_the_chosen_labels(armed_chairs):
+    """What ``embed --parts arms,back`` and the embedding explorer box: each voxel's slot among the
+    chosen labels (arms 0, back 1, any other label or none -1), against labelled_voxels."""
+    from primkit.model.abstraction import abstract_shapes
+    from primkit.model.bundled import resolve_model
+    from primkit.segmentation.labeller import read_labeller
+
+    _, paths = armed_chairs
+    labeller = read_labeller(resolve_model("chair"))
+    assert labeller.names == ["back", "seat", "legs", "arms"]
+    out = list(abstract_shapes(paths[:3], "chair"))
+    grids = [a.canonical_shape().occupancy for a in out]
+    points, slots = label_regions(labeller, ["arms", "back"], grids, [a.result.canonical for a in out])
+    assert len(points) == len(slots) == 3
+    for a, p, s in zip(out, points, slots):
+        want_p, named = labelled_voxels(labeller, a.canonical_shape().occupancy, a.result.canonical)
+        assert np.array_equal(p, want_p) and len(p) == a.canonical_shape().occupancy.sum()
+        assert np.array_equal(s, np.where(named == 3, 0, np.where(named == 0, 1, -1)))
+        assert (s == 1).any() and (s == -1).any()  # every chair has a back, and seat or legs
 
 
 def test_embed_parts_by_label_and_by_index(armed_chairs, tmp_path):

@@ -32,6 +32,17 @@ def report_dir(tmp_path_factory):
     return out
 
 
+@pytest.fixture(scope="module")
+def report_by_part(report_dir):
+    """The same shapes' report without the model's labeller: the 3D scene coloured by part index."""
+    from primkit.report import build_report
+
+    out = report_dir.parent / "by-part"
+    build_report(sorted((report_dir.parent / "in").glob("*.ply")), "chair", out, cache_dir=report_dir.parent / "cache",
+                 labeller=None)
+    return out
+
+
 def _scene(page: str) -> dict:
     m = re.search(r'<script id="scene-data" type="application/json">(.*?)</script>', page, re.S)
     return json.loads(m.group(1))
@@ -58,7 +69,10 @@ def test_report_files_and_numbers(report_dir):
         surface = [t for t in traces if t["meta"]["kind"] == "surface"]
         cuboids = [t for t in traces if t["meta"]["kind"] == "cuboid"]
         edges = [t for t in traces if t["meta"]["kind"] == "edges"]
-        assert {t["meta"]["part"] for t in surface} <= set(info["parts"])  # faces take present parts only
+        # with the chair model's labeller the surface goes by name, every face once (decimated: at most 3000 and a few)
+        assert all(0 <= t["meta"]["label"] < len(summary["label_names"]) for t in surface)
+        assert {summary["label_names"][t["meta"]["label"]] for t in surface} <= set(info["labels"])
+        assert len({t["meta"]["label"] for t in surface}) == len(surface) and 1000 < sum(len(t["i"]) for t in surface) < 3100
         assert sorted(t["meta"]["part"] for t in cuboids) == sorted(info["parts"])
         assert sorted(t["meta"]["part"] for t in edges) == sorted(info["parts"])
         for t in surface + cuboids:
@@ -135,8 +149,19 @@ def _colour_counts(img: np.ndarray, colours: np.ndarray) -> np.ndarray:
     return (close & saturated).sum(axis=(0, 1))
 
 
+def test_without_a_labeller_the_scene_goes_by_part(report_by_part):
+    summary = json.loads((report_by_part / "report.json").read_text())
+    assert "label_names" not in summary and all("labels" not in s for s in summary["shapes"])
+    surface = [t for t in _scene((report_by_part / "index.html").read_text())["data"]
+               if t.get("meta", {}).get("kind") == "surface"]
+    for i, info in enumerate(summary["shapes"]):
+        assert {t["meta"]["part"] for t in surface if t["meta"]["shape"] == i} <= set(info["parts"])  # present parts only
+
+
 @needs_chromium
-def test_report_loads_in_headless_chromium(report_dir):
+def test_report_loads_in_headless_chromium(report_by_part):
+    """The report of a model without a labeller: its scene's surfaces in the parts' colours."""
+    report_dir = report_by_part
     from io import BytesIO
 
     from PIL import Image
@@ -149,6 +174,7 @@ def test_report_loads_in_headless_chromium(report_dir):
     assert got.ready_ms is not None, got.console
     assert any("primkit report ready: 4 shapes" in text for _, text in got.console)
     assert not got.problems(), got.problems()
+    assert "in the colours of its parts" in got.dom
     assert got.requests and all(u.startswith(("file:", "data:", "blob:")) for u in got.requests), got.requests
     assert re.search(r'id="status">\d+ traces, \d+ triangles', got.dom)
     # the 3D scene (its legend's swatches left out) shows every part in use in its own colour
@@ -250,3 +276,51 @@ def test_the_report_names_each_shape_with_the_models_labeller(report_dir):
             if want.get(n, 0) >= 0.05:
                 assert thumb.colour_pixels(label_colors(4)[j]) > 20, (s["name"], n)
         assert "names: " in page
+
+
+@needs_chromium
+def test_the_3d_scene_shows_each_surface_by_name(report_dir):
+    """With the chair model's labeller, the scene's surfaces are drawn in the names' colours (the
+    thumbnails by name's): with the cuboids hidden (Plotly.restyle, before the screenshot), every
+    name on at least 100 of the scene's triangles shows in its colour, and no part colour that is
+    not also a name's shows (the surfaces are not by part: the seat's and back's parts, 16 and 18,
+    olive and teal, would); the legend lists the names first."""
+    from io import BytesIO
+
+    from PIL import Image
+
+    from primkit.viz.palette import label_colors, part_colors
+
+    summary = json.loads((report_dir / "report.json").read_text())
+    names = summary["label_names"]
+    traces = _scene((report_dir / "index.html").read_text())["data"]
+    hide = [n for n, t in enumerate(traces) if t.get("meta", {}).get("kind") in ("cuboid", "edges")]
+    assert hide
+    ready = ("document.body.dataset.ready === '1' && (window.hid === undefined ? (window.hid = false, "
+             f"Plotly.restyle(document.getElementById('scene'), {{visible: false}}, {json.dumps(hide)})"
+             ".then(function(){ window.hid = true; }), false) : window.hid)")
+    box = "JSON.stringify(document.getElementById('scene').getBoundingClientRect())"
+    legend = "JSON.stringify(document.querySelector('#scene .legend').getBoundingClientRect())"
+    entries = "JSON.stringify(Array.from(document.querySelectorAll('#scene .legendtext')).map(e => e.textContent))"
+    got = load_page(report_dir / "index.html", ready=ready, width=1200, height=1100, evaluate=[box, legend, entries])
+    assert got.ready_ms is not None and not got.problems(), (got.console, got.problems())
+    assert "in its names (the model's labeller" in got.dom
+    shown = json.loads(got.values[entries])
+    triangles = {j: sum(len(t["i"]) for t in traces if t.get("meta", {}).get("kind") == "surface"
+                        and t["meta"]["label"] == j) for j in range(len(names))}
+    assert [n for n in shown if n in names] == [n for j, n in enumerate(names) if triangles[j]]  # names first, in order
+    assert shown[:sum(1 for j in triangles if triangles[j])] == [n for j, n in enumerate(names) if triangles[j]]
+    img = np.array(Image.open(BytesIO(got.screenshot)).convert("RGB"))
+    lg = json.loads(got.values[legend])
+    img[int(lg["top"]):int(lg["bottom"]) + 1, int(lg["left"]):int(lg["right"]) + 1] = 255
+    rect = json.loads(got.values[box])
+    scene = img[int(rect["top"]):int(rect["bottom"]), int(rect["left"]):int(rect["right"])]
+    big = [j for j in triangles if triangles[j] >= 100]
+    assert len(big) >= 3, triangles
+    counts = _colour_counts(scene, label_colors(len(names))[big].astype(int))
+    assert (counts >= 40).all(), dict(zip(big, counts))
+    # tab20's pairs 0-7 are the names' colours (tab10) and their light tints, which a name's edges
+    # blended with the white background also take; the other part colours must not show
+    parts = part_colors(20).astype(int)
+    others = [k for k in range(2 * len(names), 20) if np.ptp(parts[k]) >= 10]
+    assert (_colour_counts(scene, parts[others]) < 40).all(), dict(zip(others, _colour_counts(scene, parts[others])))

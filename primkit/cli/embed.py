@@ -102,11 +102,11 @@ def _describe(args, abstractor, results, grids, queries=None, query_grids=None):
 
 def _label_tables(args, results, grids, queries=None, query_grids=None):
     """With a model labeller and --parts naming only its labels: the boxes of those labels on each
-    shape (:func:`primkit.embedding.label_boxes` of :func:`primkit.segmentation.bylabel.labelled_voxels`),
+    shape (:func:`primkit.embedding.label_boxes` of :func:`primkit.segmentation.bylabel.label_regions`),
     for the collection and the queries; None otherwise (index-based parts)."""
     from ..embedding import label_boxes
     from ..model.bundled import resolve_model
-    from ..segmentation.bylabel import by_label, labelled_voxels
+    from ..segmentation.bylabel import by_label, label_regions
     from ..segmentation.labeller import read_labeller
 
     if args.parts is None:
@@ -115,15 +115,10 @@ def _label_tables(args, results, grids, queries=None, query_grids=None):
     chosen = by_label(args.parts, None if labeller is None else labeller.names)
     if chosen is None:
         return None
-    keep = [labeller.names.index(n) for n in chosen]
 
     def table(rs, gs):
-        pts, labs = [], []
-        for r, g in zip(rs, gs):
-            p, lab = labelled_voxels(labeller, g, r.canonical)
-            pts.append(p)
-            labs.append(np.array([keep.index(c) if c in keep else -1 for c in range(len(labeller.names))] + [-1])[lab])
-        return label_boxes(pts, labs, chosen, names=[r.name for r in rs])
+        regions = label_regions(labeller, chosen, gs, [r.canonical for r in rs])
+        return label_boxes(*regions, chosen, names=[r.name for r in rs])
 
     qtable = None
     if queries:

@@ -9,13 +9,13 @@ a voxel grid a part index per voxel (:func:`primkit.segmentation.label_voxels`).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from .. import io
 from ..model.abstraction import Abstraction, abstract_shapes
-from ..segmentation import label_voxels, point_labels, segment_mesh, segment_points, voxel_centres
+from ..segmentation import label_voxels, point_labels, resolve_labeller, segment_mesh, segment_points, voxel_centres
+from ..segmentation.meshlabels import face_graph
 
 __all__ = ["Labelled", "label_shapes", "label_shape", "resolve_labeller"]
 
@@ -59,12 +59,13 @@ class Labelled:
         return self.abstraction.cuboids
 
 
-def _labels(shape, cuboids) -> tuple:
+def _labels(shape, cuboids, graph=None) -> tuple:
     if isinstance(shape, io.Mesh):
         if not cuboids.existence.any():
             return np.full(len(shape.faces), -1, np.int64), np.full(len(shape.vertices), -1, np.int64)
         # the labelling `primkit segment` uses by default (the graph cut), so the filter agrees with it
-        return segment_mesh(shape.vertices, shape.faces, cuboids).face_labels, point_labels(shape.vertices, cuboids)
+        return (segment_mesh(shape.vertices, shape.faces, cuboids, graph=graph).face_labels,
+                point_labels(shape.vertices, cuboids))
     if isinstance(shape, io.PointCloud):
         if not cuboids.existence.any():
             return None, np.full(len(shape.points), -1, np.int64)
@@ -100,30 +101,20 @@ def label_shapes(shapes, model="chair", *, names=None, progress_bar: bool = Fals
         bar.set_description("primkit: labelling")
         labelled = []
         for a in out:
-            face, point, *voxels = _labels(a.given, a.cuboids)
+            # a mesh's face adjacency, built once for the part-index cut and the labeller's cut
+            graph = face_graph(a.given.vertices, a.given.faces) \
+                if labeller is not None and isinstance(a.given, io.Mesh) and len(a.given.faces) else None
+            face, point, *voxels = _labels(a.given, a.cuboids, graph)
             labelled.append(Labelled(a, face, point, list(out.model.part_names), voxels[0] if voxels else None,
-                                     *_named(a, labeller)))
+                                     *_named(a, labeller, graph)))
             bar.update(1)
     return labelled
 
 
-def resolve_labeller(model, labeller):
-    """The labeller to use: ``"auto"``, the model file's (None when it has none or ``model`` is an
-    object, not a file); None; or a Labeller given."""
-    if not (isinstance(labeller, str) and labeller == "auto"):
-        return labeller
-    if not isinstance(model, (str, Path)):
-        return None
-    from ..model.bundled import resolve_model
-    from ..segmentation.labeller import read_labeller
-
-    return read_labeller(resolve_model(model))
+_labeller = resolve_labeller  # "auto": the model file's labeller (primkit.segmentation.resolve_labeller)
 
 
-_labeller = resolve_labeller
-
-
-def _named(a: Abstraction, labeller):
+def _named(a: Abstraction, labeller, graph=None):
     """``(labels, label_names)`` of a shape's faces (mesh) or points (cloud), or ``(None, None)``."""
     if labeller is None or isinstance(a.given, io.VoxelGrid):
         return None, None
@@ -134,7 +125,7 @@ def _named(a: Abstraction, labeller):
         elements = mesh_elements(shape.vertices, shape.faces, a.result.frame)
     else:
         elements = point_elements(shape.points, a.result.frame)
-    return label_elements(labeller, elements, a.result.canonical), list(labeller.names)
+    return label_elements(labeller, elements, a.result.canonical, graph=graph), list(labeller.names)
 
 
 def label_shape(shape, model="chair", *, name: str = "shape", **options) -> Labelled:

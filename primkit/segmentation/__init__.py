@@ -30,7 +30,7 @@ from .evaluation import (PARTNET_LABEL_NAMES, PROTOCOLS, VOXEL_PROTOCOLS, Detect
 from .meshes import Segmentation, SegmentationFiles, face_labels, point_labels, segment_mesh, vertex_labels
 from .outputs import plan_segmentation, read_summary, summary_header, write_summary
 from .points import PointSegmentation, segment_points
-from .segmenter import SegmentationRun, Segmenter, segment
+from .segmenter import SegmentationRun, Segmenter, resolve_labeller, segment
 from .voxels import VoxelSegmentation, label_voxels, segment_voxels, voxel_centres
 
 __all__ = (meshes.__all__ + voxels.__all__ + points.__all__ + segmenter.__all__

@@ -4,8 +4,8 @@ Without a labeller a part name selects part *indices* (:func:`primkit.model.part
 the same on every shape. With one (:mod:`primkit.segmentation.labeller`), ``arms`` means the
 elements the labeller calls arms *on that shape*, whichever cuboids hold them:
 
-* ``embed --parts arms`` / ``similar --parts arms`` describe each shape's labelled region
-  (:func:`labelled_voxels` here, then :func:`primkit.embedding.label_boxes`);
+* ``embed --parts arms`` / ``similar --parts arms`` (and the embedding explorer) describe each
+  shape's labelled region (:func:`label_regions` here, then :func:`primkit.embedding.label_boxes`);
 * ``edit --scale arms=1.2`` edits the cuboids whose surface the labeller mostly calls arms on that
   mesh (:func:`primkit.segmentation.labeller.names_by_index`).
 
@@ -21,7 +21,7 @@ import numpy as np
 from .. import geometry, io
 from .labeller import grid_elements, label_elements, mesh_elements, point_elements
 
-__all__ = ["by_label", "labelled_voxels", "labelled_surface"]
+__all__ = ["by_label", "labelled_voxels", "label_regions", "labelled_surface"]
 
 
 def by_label(spec, label_names) -> list | None:
@@ -61,6 +61,27 @@ def labelled_voxels(labeller, occupancy, canonical) -> tuple[np.ndarray, np.ndar
     identity = geometry.CanonicalFrame(np.eye(3), np.zeros(3), 1.0)
     elements, _ = grid_elements(grid, identity)
     return elements.points, label_elements(labeller, elements, canonical)
+
+
+def label_regions(labeller, chosen, grids, canonicals) -> tuple[list, list]:
+    """Each shape's voxels named by ``labeller``, as :func:`primkit.embedding.label_boxes` reads
+    them for the labels ``chosen`` (some of ``labeller.names``, e.g. :func:`by_label`'s):
+    ``label_boxes(*label_regions(labeller, chosen, grids, canonicals), chosen)``.
+
+    ``grids``: each shape's canonical occupancy ``(R, R, R) bool`` (:func:`labelled_voxels`);
+    ``canonicals``: each shape's canonical cuboids. Returns ``(points, slots)``: per shape its
+    occupied voxels' centres ``(n_i, 3) float`` (canonical) and each voxel's position in
+    ``chosen`` ``(n_i,) int`` (-1: a label not chosen, or none).
+    """
+    names = list(labeller.names)
+    slot = np.full(len(names) + 1, -1, np.int64)  # a label's slot among the chosen; the last (label -1): none
+    slot[[names.index(n) for n in chosen]] = np.arange(len(chosen))
+    points, slots = [], []
+    for occupancy, canonical in zip(grids, canonicals):
+        p, named = labelled_voxels(labeller, occupancy, canonical)
+        points.append(p)
+        slots.append(slot[named])
+    return points, slots
 
 
 def labelled_surface(labeller, vertices, faces, result) -> np.ndarray:

@@ -1682,17 +1682,19 @@ def element_features(elements: Elements, canonical: primitives.Cuboids, settings
     return frame_features(elements.points, canonical, elements.normals, settings, elements.context, local_shape=shape)
 
 
-def label_elements(labeller: Labeller, elements: Elements, canonical: primitives.Cuboids) -> np.ndarray:
+def label_elements(labeller: Labeller, elements: Elements, canonical: primitives.Cuboids, *,
+                   graph=None) -> np.ndarray:
     """``(n,) int``: each element's label (index into ``labeller.names``); -1 everywhere when no
     cuboid is present. A mesh's faces (elements with ``faces``) are labelled over the mesh's
-    surface (:func:`primkit.segmentation.meshlabels.label_faces`), other elements by
-    :meth:`Labeller.predict`."""
+    surface (:func:`primkit.segmentation.meshlabels.label_faces`; ``graph``: the mesh's
+    :func:`~primkit.segmentation.meshlabels.face_graph` when it is already built), other elements
+    by :meth:`Labeller.predict`."""
     if not canonical.existence.any():
         return np.full(len(elements.points), -1, np.int64)
     if elements.faces is not None and len(elements.points):  # a mesh: over its surface (meshlabels)
         from .meshlabels import label_faces
 
-        return label_faces(labeller, elements, canonical)
+        return label_faces(labeller, elements, canonical, graph=graph)
     return labeller.predict(elements.points, canonical, elements.normals, elements.context, elements.neighbours,
                             elements.grid_index)
 

@@ -31,6 +31,7 @@ from .. import io, primitives
 from ..model import parts
 from ..primitives.palette import part_colors
 from . import graphcut
+from .meshlabels import FaceGraph, face_graph
 
 __all__ = [
     "point_labels",
@@ -182,11 +183,13 @@ class Segmentation:
         return paths
 
 
-def surface_face_labels(vertices, faces, cuboids: primitives.Cuboids, *, smoothness: float | None = None) -> np.ndarray:
+def surface_face_labels(vertices, faces, cuboids: primitives.Cuboids, *, smoothness: float | None = None,
+                        graph: FaceGraph | None = None) -> np.ndarray:
     """Primitive index of each face by a graph cut over face adjacency, started from
     :func:`face_labels` (:mod:`primkit.segmentation.graphcut`; ``smoothness`` None: its default).
 
-    vertices : (n, 3) float, faces : (f, 3) int  ->  (f,) int
+    vertices : (n, 3) float, faces : (f, 3) int  ->  (f,) int; ``graph``: the mesh's
+    :func:`~primkit.segmentation.meshlabels.face_graph` when it is already built (None: built here).
     """
     vertices = np.asarray(vertices, float)
     faces = np.asarray(faces, np.int64)
@@ -195,23 +198,26 @@ def surface_face_labels(vertices, faces, cuboids: primitives.Cuboids, *, smoothn
     if len(faces) == 0 or weight <= 0:
         return init
     samples = np.einsum("qc,fcd->fqd", _QUADRATURE[:4], vertices[faces])
-    edges, contact, mass = graphcut.mesh_graph(vertices, faces)
-    return graphcut.graphcut_labels(samples, edges, contact, mass, cuboids, init, weight)
+    graph = face_graph(vertices, faces) if graph is None else graph
+    return graphcut.graphcut_labels(samples, graph.edges, graph.contact, graph.mass, cuboids, init, weight)
 
 
 def segment_mesh(vertices, faces, cuboids: primitives.Cuboids, *, name: str = "shape", source: str = "",
-                 part_names=None, labelling=None) -> Segmentation:
+                 part_names=None, labelling=None, graph: FaceGraph | None = None) -> Segmentation:
     """Co-segment one mesh by its abstraction (cuboids in the mesh's frame).
 
     ``labelling``: ``"nearest"`` (:func:`face_labels`), ``"graphcut"`` (:func:`surface_face_labels`),
     a :class:`primkit.segmentation.graphcut.Labelling`, or None: the graph cut
-    (:data:`primkit.segmentation.graphcut.DEFAULT_LABELLING`)."""
+    (:data:`primkit.segmentation.graphcut.DEFAULT_LABELLING`). ``graph``: the mesh's
+    :func:`~primkit.segmentation.meshlabels.face_graph` when it is already built (a labeller's cut
+    goes over the same one: :func:`primkit.segmentation.segmenter.apply_labeller`); None: built
+    here when the graph cut needs it."""
     vertices = np.asarray(vertices, float)
     faces = np.asarray(faces, np.int64)
     names = list(part_names) if part_names is not None else parts.default_part_names(cuboids.count)
     how = graphcut.as_labelling(labelling)
-    labels = (surface_face_labels(vertices, faces, cuboids, smoothness=how.smoothness) if how.method_for("mesh") == "graphcut"
-              else face_labels(vertices, faces, cuboids))
+    labels = (surface_face_labels(vertices, faces, cuboids, smoothness=how.smoothness, graph=graph)
+              if how.method_for("mesh") == "graphcut" else face_labels(vertices, faces, cuboids))
     return Segmentation(name, source, vertices, faces, labels, vertex_labels(vertices, cuboids), cuboids, names)
 
 

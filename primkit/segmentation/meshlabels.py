@@ -154,13 +154,16 @@ def cut_faces(proba, graph: FaceGraph, smoothness: float, *, floor: float = 1e-3
     return labels.astype(np.int64)
 
 
-def label_faces(labeller, elements, canonical, how: MeshLabelling | None = None) -> np.ndarray:
+def label_faces(labeller, elements, canonical, how: MeshLabelling | None = None,
+                graph: FaceGraph | None = None) -> np.ndarray:
     """``(f,) int``: a mesh's face labels (indices into ``labeller.names``), by the module notes.
 
     ``elements``: the mesh's :class:`~primkit.segmentation.labeller.Elements` (canonical frame,
     from :func:`~primkit.segmentation.labeller.mesh_elements`: the faces, their surface samples
     and the samples' faces), ``canonical`` its canonical cuboids; ``how`` a :class:`MeshLabelling`
-    (None: :data:`DEFAULT_MESH_LABELLING`).
+    (None: :data:`DEFAULT_MESH_LABELLING`); ``graph`` the mesh's :func:`face_graph` when it is
+    already built (the part-index cut's, :func:`primkit.segmentation.segment_mesh`; None: built
+    here from ``elements.vertices`` and ``elements.faces``).
     """
     how = DEFAULT_MESH_LABELLING if how is None else how
     X = labeller.features(elements.points, canonical, elements.normals, elements.context)
@@ -170,6 +173,7 @@ def label_faces(labeller, elements, canonical, how: MeshLabelling | None = None)
         proba = surface_smooth(proba, weights, labeller.settings.smooth)
     else:
         proba = labeller.smooth(proba, elements.points)
-    graph = face_graph(elements.vertices, elements.faces) if how.smoothness > 0 and elements.faces is not None \
-        else FaceGraph(np.zeros((0, 2), np.int64), np.zeros(0), np.full(len(proba), 1.0 / max(len(proba), 1)))
+    if graph is None:
+        graph = face_graph(elements.vertices, elements.faces) if how.smoothness > 0 and elements.faces is not None \
+            else FaceGraph(np.zeros((0, 2), np.int64), np.zeros(0), np.full(len(proba), 1.0 / max(len(proba), 1)))
     return cut_faces(proba, graph, how.smoothness, floor=how.floor, min_share=labeller.settings.min_share)

@@ -18,10 +18,12 @@ from .labeller import (Labeller, LabellerSettings, element_features, grid_elemen
                        mesh_elements, point_elements, read_labeller)
 from . import evaluation, graphcut, outputs
 from .meshes import Segmentation, SegmentationFiles, segment_mesh
+from .meshlabels import face_graph
 from .points import PointSegmentation, segment_points
 from .voxels import VoxelSegmentation, segment_voxels
 
-__all__ = ["Segmenter", "SegmentationRun", "segment", "apply_labeller", "shape_elements", "fit_labeller"]
+__all__ = ["Segmenter", "SegmentationRun", "segment", "apply_labeller", "shape_elements", "fit_labeller",
+           "resolve_labeller"]
 
 
 def _segment_file(job):
@@ -32,6 +34,7 @@ def _segment_file(job):
     """
     path, cuboids, name, names, labeller, result, *rest = job
     how = rest[0] if rest else None  # the labelling (graphcut.Labelling or None)
+    graph = None
     try:
         shape = io.read_shape(path)
         if isinstance(shape, io.VoxelGrid):
@@ -39,11 +42,12 @@ def _segment_file(job):
         elif isinstance(shape, io.PointCloud):
             seg = segment_points(shape, cuboids, name=name, source=str(path), part_names=names, labelling=how)
         elif isinstance(shape, io.Mesh):
+            graph = _face_graph(shape, labeller)
             seg = segment_mesh(shape.vertices, shape.faces, cuboids, name=name, source=str(path), part_names=names,
-                               labelling=how)
+                               labelling=how, graph=graph)
         else:
             raise io.ShapeFileError(path, f"a {type(shape).__name__} has no faces or voxels to label")
-        return (seg if labeller is None else apply_labeller(seg, labeller, result)), None
+        return (seg if labeller is None else apply_labeller(seg, labeller, result, graph=graph)), None
     except (io.ShapeFileError, ValueError) as exc:
         return None, str(exc).splitlines()[0]
 
@@ -59,11 +63,19 @@ def shape_elements(seg, frame):
     return mesh_elements(seg.vertices, seg.faces, frame), None
 
 
-def apply_labeller(seg, labeller: Labeller, result):
+def _face_graph(mesh, labeller):
+    """A mesh's face adjacency (:func:`~primkit.segmentation.meshlabels.face_graph`) when a labeller
+    will cut over it too: built once, for the part-index cut and the labeller's; None otherwise."""
+    return face_graph(mesh.vertices, mesh.faces) if labeller is not None and len(mesh.faces) else None
+
+
+def apply_labeller(seg, labeller: Labeller, result, *, graph=None):
     """``seg`` with each element named by ``labeller`` (``named``, ``label_names``); ``result`` is
-    its :class:`primkit.model.abstractor.AbstractionResult` (the canonical cuboids and the frame)."""
+    its :class:`primkit.model.abstractor.AbstractionResult` (the canonical cuboids and the frame).
+    ``graph``: a mesh's :func:`~primkit.segmentation.meshlabels.face_graph` when it is already built
+    (the part-index cut's, :func:`~primkit.segmentation.segment_mesh`'s ``graph``); None: built here."""
     elements, index = shape_elements(seg, result.frame)
-    codes = label_elements(labeller, elements, result.canonical)
+    codes = label_elements(labeller, elements, result.canonical, graph=graph)
     if index is not None:
         named = np.full(seg.labels.shape, -1, np.int64)
         named[tuple(index.T)] = codes
@@ -126,9 +138,7 @@ class Segmenter:
                  labeller="auto", labelling=None):
         self.model = model
         self.abstractor = load_model(model)
-        if isinstance(labeller, str) and labeller == "auto":
-            labeller = None if not isinstance(model, (str, Path)) else read_labeller(_model_path(model))
-        self.labeller = labeller
+        self.labeller = resolve_labeller(model, labeller)
         self.labelling = graphcut.as_labelling(labelling)
         self.up, self.front = up, front
         self.predict_options = {"align": align, "refine": refine, "existence_threshold": existence_threshold,
@@ -353,6 +363,16 @@ def _model_path(model):
     return resolve_model(model)
 
 
+def resolve_labeller(model, labeller="auto"):
+    """The labeller to name elements with: ``labeller`` itself (a
+    :class:`~primkit.segmentation.labeller.Labeller`, or None: none), or for ``"auto"`` the one in
+    ``model``'s file (a path or a bundled model's name; :func:`~primkit.segmentation.labeller.read_labeller`),
+    None when the file has none or ``model`` is an object rather than a file."""
+    if not (isinstance(labeller, str) and labeller == "auto"):
+        return labeller
+    return read_labeller(_model_path(model)) if isinstance(model, (str, Path)) else None
+
+
 def segment(shape, model="chair", *, labelling=None, **options) -> Segmentation | VoxelSegmentation | PointSegmentation:
     """Co-segment one mesh, voxel grid or point cloud: a path, an :class:`primkit.io.Mesh`,
     :class:`~primkit.io.VoxelGrid` or :class:`~primkit.io.PointCloud`, ``(vertices, faces)``,
@@ -364,10 +384,9 @@ def segment(shape, model="chair", *, labelling=None, **options) -> Segmentation 
     >>> seg.face_labels                                           # doctest: +SKIP
     """
     abstractor = load_model(model)
-    labeller = options.pop("labeller", "auto")
-    if isinstance(labeller, str) and labeller == "auto":
-        labeller = None if not isinstance(model, (str, Path)) else read_labeller(_model_path(model))
+    labeller = resolve_labeller(model, options.pop("labeller", "auto"))
     a = abstract(shape, abstractor, **options)
+    graph = None
     if isinstance(a.given, io.VoxelGrid) or (a.given is None and a.prepared.kind == "voxels"):
         grid = a.given if a.given is not None else io.read_voxels(a.source)
         seg = segment_voxels(grid, a.cuboids, name=a.name, source=a.source, part_names=abstractor.part_names,
@@ -378,6 +397,7 @@ def segment(shape, model="chair", *, labelling=None, **options) -> Segmentation 
                              labelling=labelling)
     else:
         mesh = a.mesh
+        graph = _face_graph(mesh, labeller)
         seg = segment_mesh(mesh.vertices, mesh.faces, a.cuboids, name=a.name, source=a.source,
-                           part_names=abstractor.part_names, labelling=labelling)
-    return seg if labeller is None else apply_labeller(seg, labeller, a.result)
+                           part_names=abstractor.part_names, labelling=labelling, graph=graph)
+    return seg if labeller is None else apply_labeller(seg, labeller, a.result, graph=graph)

@@ -104,19 +104,13 @@ def _rgb(color):
 def label_table(labeller, chosen, shapes) -> "embedding.CuboidTable":
     """Each shape's regions of the labels ``chosen`` (names of ``labeller``) as boxes, one slot per
     label (:func:`primkit.embedding.label_boxes` of the shape's canonical grid named voxel by voxel,
-    :func:`primkit.segmentation.bylabel.labelled_voxels`): what ``embed --parts arms`` describes.
+    :func:`primkit.segmentation.bylabel.label_regions`): what ``embed --parts arms`` describes.
     ``shapes``: abstractions (or the viewers' point shapes, :class:`primkit.viewers.common.PointShape`)."""
-    from ..segmentation.bylabel import labelled_voxels
+    from ..segmentation.bylabel import label_regions
 
-    slot = np.full(len(labeller.names) + 1, -1, np.int64)  # a label's slot among the chosen; -1 (last): none
-    slot[[list(labeller.names).index(n) for n in chosen]] = np.arange(len(chosen))
-    points, labels = [], []
-    for s in shapes:
-        grid = getattr(s, "abstraction", s).canonical_shape().occupancy
-        p, lab = labelled_voxels(labeller, grid, s.result.canonical)
-        points.append(p)
-        labels.append(slot[lab])
-    return embedding.label_boxes(points, labels, chosen, names=[s.name for s in shapes])
+    grids = [getattr(s, "abstraction", s).canonical_shape().occupancy for s in shapes]
+    regions = label_regions(labeller, chosen, grids, [s.result.canonical for s in shapes])
+    return embedding.label_boxes(*regions, chosen, names=[s.name for s in shapes])
 
 
 def embedding_explorer(shapes, part_names=None, *, parts="all", neighbors: int = 4, style: str = "thumbnails",

@@ -410,7 +410,7 @@ def open3d_viewer(shape, model="chair", *, name: str = "shape", refine_step: int
     options : :func:`primkit.abstract`'s (``up``, ``front``, ``align``, ``refine``, ...)
     """
     from ..model.abstraction import load_model
-    from ..plugins.common import resolve_labeller
+    from ..segmentation import resolve_labeller
     from ..viz.interop import mesh_to_o3d_tensor, points_to_o3d_tensor
 
     options["labeller"] = resolve_labeller(model, labeller)

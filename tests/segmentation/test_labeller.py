@@ -599,9 +599,10 @@ def test_a_version_1_labeller_still_loads(labelled, tmp_path):
 
 @pytest.mark.shared
 def test_the_bundled_chair_labeller_learned_from_validation_chairs_only(shared_data):
-    """scripts/build_chair_labeller.py: the first 100 validation chairs of scripts/partnet_chairs.py's
+    """scripts/build_chair_labeller.py: the 219 validation chairs of scripts/partnet_chairs.py's
     split (rebuilt here from primkit.data: held-out files with PartNet labels, sorted by id, even
-    positions validation, odd test), never a test chair; the card states the PartNet terms."""
+    positions validation, odd test) and their mirrors, never a test chair; the card states the
+    PartNet terms."""
     from primkit import data
     from primkit.model.modelfile import read_metadata
     from primkit.segmentation import VoxelLabelArchive
@@ -615,11 +616,12 @@ def test_the_bundled_chair_labeller_learned_from_validation_chairs_only(shared_d
     validation = [data.shape_name(p) for p in labelled[0::2]]
     test = {data.shape_name(p) for p in labelled[1::2]}
     ids = got.info["shape_ids"]
-    assert ids == validation[:100] and not set(ids) & test
+    assert ids == validation and len(ids) == 219 and not set(ids) & test
     card = read_metadata(path)["card"]
     labelled = got.info.get("labelled_shapes", got.info["shapes"])  # (shapes: with the chairs' mirrors, if any)
-    assert card["labeller"]["shapes"] == labelled == 100
-    assert got.info["shapes"] == 100 + got.info.get("mirrored", 0) == 100 + card["labeller"].get("mirrored", 0)
+    assert card["labeller"]["shapes"] == labelled == 219
+    assert got.info["shapes"] == 219 + got.info["mirrored"] == 219 + card["labeller"]["mirrored"]
+    assert got.info["mirrored"] == 219  # every chair's left-right mirror learned from too
     assert "non-commercial research" in card["labeller"]["terms"] and "PartNet" in card["text"]
 
 

@@ -169,3 +169,44 @@ def test_no_radius_and_no_cut_is_the_labellers_own_decision(abstracted_chairs):
     want = labeller.predict(e.points, results[0].canonical, e.normals, e.context)
     got = label_faces(labeller, e, results[0].canonical, MeshLabelling(radius=0.0, smoothness=0.0))
     assert np.array_equal(got, want)
+
+
+@pytest.mark.integration  # the bundled chair labeller on 4 abstracted chairs, and one `segment` call
+def test_segment_semantic_builds_the_face_graph_once_and_names_as_before(abstracted_chairs, monkeypatch, tmp_path):
+    """On a mesh, ``segment --semantic`` builds the face adjacency once, for the part-index cut and
+    the labeller's: given the graph, ``segment_mesh`` and ``apply_labeller`` build none, and the
+    part indices and names are exactly those each gives building its own (``label_elements``)."""
+    from primkit import io
+    from primkit.model.bundled import resolve_model
+    from primkit.segmentation import graphcut, segment, segment_mesh
+    from primkit.segmentation.segmenter import apply_labeller
+
+    shapes, results, _, _ = abstracted_chairs
+    labeller = lab.read_labeller(resolve_model("chair"))
+    built = []
+    mesh_graph = graphcut.mesh_graph
+    monkeypatch.setattr(graphcut, "mesh_graph", lambda v, f: built.append(len(f)) or mesh_graph(v, f))
+    for s, r in list(zip(shapes, results))[:4]:
+        alone = segment_mesh(s.vertices, s.faces, r.cuboids)
+        named_alone = lab.label_elements(labeller, lab.mesh_elements(s.vertices, s.faces, r.frame), r.canonical)
+        assert built == [len(s.faces)] * 2
+        built.clear()
+        graph = face_graph(s.vertices, s.faces)
+        seg = segment_mesh(s.vertices, s.faces, r.cuboids, graph=graph)
+        named = apply_labeller(seg, labeller, r, graph=graph).named
+        assert built == [len(s.faces)]  # face_graph's, above: none after it
+        assert np.array_equal(seg.face_labels, alone.face_labels)
+        assert np.array_equal(named, named_alone) and len(set(named.tolist())) >= 3
+        built.clear()
+    io.write_mesh(tmp_path / "c.ply", shapes[0].vertices, shapes[0].faces)
+    assert segment(tmp_path / "c.ply", "chair").named is not None and built == [len(shapes[0].faces)]
+    built.clear()
+    assert segment(tmp_path / "c.ply", "chair", labeller=None).named is None and built == [len(shapes[0].faces)]
+    built.clear()
+    from primkit.plugins.common import label_shape  # the pyvista, VTK and Open3D path: once too, the same names
+
+    want = segment(tmp_path / "c.ply", "chair")
+    built.clear()
+    got = label_shape(io.read_mesh(tmp_path / "c.ply"), "chair")
+    assert built == [len(shapes[0].faces)]
+    assert np.array_equal(got.labels, want.named) and np.array_equal(got.face_labels, want.face_labels)
