@@ -224,28 +224,37 @@ def learn_and_label(chairs, train, evaluate, settings, *, position_only=False, *
 
 def label_with(chairs, labeller, evaluate, settings, keep, position_only=False) -> dict:
     """Label ``evaluate`` with a fitted labeller as the library does: name -> label codes."""
-    from primkit.segmentation.labeller import decide, grid_neighbours, grid_sampling
+    from primkit.segmentation.labeller import decide, grid_neighbours
 
     known = np.array([NAMES.index(k) for k in labeller.names])
     out = {}
     for n in evaluate:
-        a = chairs.arrays[n]
-        X = chairs.full_features(n)[:, keep] if not position_only else a["points"].astype(float)
-        near = grid_neighbours(a["index"].astype(np.int64), (32, 32, 32))
-        # as Labeller.predict_proba on a grid: one voxel in grid_sample classified, the others filled
-        # (their features are rows of the full features: the local shape is read among all voxels)
-        classify, around, use = grid_sampling(a["index"].astype(np.int64), near, settings.grid_sample)
-        proba = np.zeros((len(X), len(labeller.names)))  # zeros: the unclassified weigh 0 in the fill
-        proba[classify] = (labeller.classify(X[classify]) if isinstance(labeller, Labeller)  # the prior blended in
-                           else labeller.ensemble.predict_proba(X[classify]))
-        w = use.astype(float)
-        proba[~classify] = np.einsum("nk,nkc->nc", w, proba[around]) / w.sum(axis=1, keepdims=True)
+        near = grid_neighbours(chairs.arrays[n]["index"].astype(np.int64), (32, 32, 32))
+        proba = grid_proba(chairs, labeller, n, settings, keep, near, position_only)
         if settings.smooth:
             idx = near[:, : settings.smooth_neighbours]
             for _ in range(settings.smooth):
                 proba = proba[idx].mean(axis=1)
         out[n] = known[decide(proba, settings.min_share)]
     return out
+
+
+def grid_proba(chairs, labeller, name, settings, keep, near, position_only=False) -> np.ndarray:
+    """``(n, len(labeller.names))``: a chair's probabilities as :meth:`Labeller.predict_proba` has
+    them on a grid before the smoothing (``near``: the chair's :func:`grid_neighbours`)."""
+    from primkit.segmentation.labeller import grid_sampling
+
+    a = chairs.arrays[name]
+    X = chairs.full_features(name)[:, keep] if not position_only else a["points"].astype(float)
+    # as Labeller.predict_proba on a grid: one voxel in grid_sample classified, the others filled
+    # (their features are rows of the full features: the local shape is read among all voxels)
+    classify, around, use = grid_sampling(a["index"].astype(np.int64), near, settings.grid_sample)
+    proba = np.zeros((len(X), len(labeller.names)))  # zeros: the unclassified weigh 0 in the fill
+    proba[classify] = (labeller.classify(X[classify]) if isinstance(labeller, Labeller)  # the prior blended in
+                       else labeller.ensemble.predict_proba(X[classify]))
+    w = use.astype(float)
+    proba[~classify] = np.einsum("nk,nkc->nc", w, proba[around]) / w.sum(axis=1, keepdims=True)
+    return proba
 
 
 #: mirror augmentation (``--mirror``): the validation chairs mirrored left-right, abstracted again
