@@ -292,9 +292,10 @@ class TreeEnsemble:
 
             p = expit(raw[:, 0])
             return np.stack([1.0 - p, p], axis=1)
-        from scipy.special import softmax
-
-        return softmax(raw, axis=1)
+        # scipy.special.softmax(raw, axis=1)'s three operations (the same numbers), without its
+        # array-API dispatch (a quarter of a millisecond a chair)
+        shifted = np.exp(raw - raw.max(axis=1, keepdims=True))
+        return shifted / shifted.sum(axis=1, keepdims=True)
 
 
 _KERNEL = None
@@ -407,56 +408,113 @@ def _packed_kernel():
     return _PACKED
 
 
-_FILL = None
-
-
-def _fill_kernel():
-    """``proba[rows[i]] = proba[around[i][use[i]]].mean(axis=0)`` for the voxels a labeller does
-    not classify (:func:`grid_sampling`; the neighbours summed in order), compiled on first use:
-    NumPy's gather copies ``(f, 26, classes)``."""
-    global _FILL
-    if _FILL is None:
-        import numba
-
-        @numba.njit(cache=True, nogil=True)
-        def fill(proba, rows, around, use):
-            for i in range(rows.shape[0]):
-                for c in range(proba.shape[1]):
-                    total = 0.0
-                    count = 0
-                    for j in range(around.shape[1]):
-                        if use[i, j]:
-                            total += proba[around[i, j], c]
-                            count += 1
-                    proba[rows[i], c] = total / count
-
-        _FILL = fill
-    return _FILL
-
-
 _MEAN = None
 
 
 def _mean_kernel():
-    """``out[i] = proba[idx[i]].mean(axis=0)`` (the neighbours summed in order, then divided, as
-    NumPy's ``proba[idx].mean(axis=1)``), compiled on first use: the gather NumPy does makes an
-    ``(n, k, classes)`` copy and costs ten times as much on a chair's voxels."""
+    """``out[i] = proba[idx[i, :k]].mean(axis=0)`` (the neighbours summed in order, then divided, as
+    NumPy's ``proba[idx[:, :k]].mean(axis=1)``), compiled on first use: the gather NumPy does makes
+    an ``(n, k, classes)`` copy and costs ten times as much on a chair's voxels. The classes come
+    four at a time (``proba`` has a multiple of 4 columns, :func:`_pad4`), their sums in registers:
+    half the time of one class at a time; each class's sum in the same order."""
     global _MEAN
     if _MEAN is None:
         import numba
 
         @numba.njit(cache=True, nogil=True)
-        def mean_over(proba, idx, out):
-            k = idx.shape[1]
+        def mean_over(proba, idx, k, out):
             for i in range(idx.shape[0]):
-                for c in range(proba.shape[1]):
-                    total = 0.0
+                for c in range(0, proba.shape[1], 4):
+                    t0 = t1 = t2 = t3 = 0.0
                     for j in range(k):
-                        total += proba[idx[i, j], c]
-                    out[i, c] = total / k
+                        p = idx[i, j]
+                        t0 += proba[p, c]
+                        t1 += proba[p, c + 1]
+                        t2 += proba[p, c + 2]
+                        t3 += proba[p, c + 3]
+                    out[i, c], out[i, c + 1], out[i, c + 2], out[i, c + 3] = t0 / k, t1 / k, t2 / k, t3 / k
 
         _MEAN = mean_over
     return _MEAN
+
+
+def _pad4(proba) -> np.ndarray:
+    """``proba`` as contiguous float64 with zero columns added up to a multiple of 4 (for
+    :func:`_mean_kernel` and the fill of :func:`_sample_fill_kernels`)."""
+    proba = np.ascontiguousarray(proba, np.float64)
+    extra = -proba.shape[1] % 4
+    return np.hstack([proba, np.zeros((len(proba), extra))]) if extra else proba
+
+
+_SAMPLE_FILL = None
+
+
+def _sample_fill_kernels():
+    """``(sample, fill)``, compiled on first use (cached on disk): :func:`grid_sampling`'s
+    ``classify`` and ``sampled`` from the voxel indices and the 27 neighbours in one loop, and the
+    fill of :meth:`Labeller.predict_proba` read straight from the neighbours (each unclassified
+    voxel's classes: the mean of its neighbours ``1:27`` that are other sampled voxels, summed in
+    order, as the ``around``/``use`` arrays of :func:`grid_sampling` give it) without building
+    those arrays; ``proba`` with a multiple of 4 columns (:func:`_pad4`), as :func:`_mean_kernel`."""
+    global _SAMPLE_FILL
+    if _SAMPLE_FILL is None:
+        import numba
+
+        @numba.njit(cache=True, nogil=True)
+        def sample(index, neighbours, step, sampled, classify):
+            n = index.shape[0]
+            for i in range(n):
+                a, b, c = index[i, 0] % 2, index[i, 1] % 2, index[i, 2] % 2
+                if step == 1:
+                    sampled[i] = True
+                elif step == 2:
+                    sampled[i] = (a + b + c) % 2 == 0
+                elif step == 4:
+                    sampled[i] = a == b and b == c
+                else:
+                    sampled[i] = a == 0 and b == 0 and c == 0
+            for i in range(n):
+                classify[i] = sampled[i]
+                if not sampled[i]:
+                    found = False
+                    for j in range(1, 27):
+                        p = neighbours[i, j]
+                        if p != i and sampled[p]:
+                            found = True
+                            break
+                    classify[i] = not found
+
+        @numba.njit(cache=True, nogil=True)
+        def fill(proba, neighbours, sampled, classify):
+            for i in range(proba.shape[0]):
+                if classify[i]:
+                    continue
+                for c in range(0, proba.shape[1], 4):
+                    t0 = t1 = t2 = t3 = 0.0
+                    count = 0
+                    for j in range(1, 27):
+                        p = neighbours[i, j]
+                        if p != i and sampled[p]:
+                            t0 += proba[p, c]
+                            t1 += proba[p, c + 1]
+                            t2 += proba[p, c + 2]
+                            t3 += proba[p, c + 3]
+                            count += 1
+                    proba[i, c], proba[i, c + 1], proba[i, c + 2], proba[i, c + 3] = \
+                        t0 / count, t1 / count, t2 / count, t3 / count
+
+        _SAMPLE_FILL = (sample, fill)
+    return _SAMPLE_FILL
+
+
+def _grid_sample(index, neighbours, step: int):
+    """``(classify (n,) bool, sampled (n,) bool)`` of :func:`grid_sampling` (its checks done by
+    the caller or there)."""
+    n = len(index)
+    sampled, classify = np.empty(n, bool), np.empty(n, bool)
+    if n:
+        _sample_fill_kernels()[0](index, neighbours, int(step), sampled, classify)
+    return classify, sampled
 
 
 # ---------------------------------------------------------------------------------------------
@@ -631,8 +689,15 @@ def grid_knn(index, rows, k: int, shape, radius: int = GRID_RADIUS):
     near = np.full((len(rows), k), -1, np.int64)
     found = np.zeros(len(rows), bool)
     if len(rows) and k > 0:
-        _grid_knn_kernel()(index, rows, lookup, _ball_offsets(radius) + radius, near, found)
+        _grid_knn_kernel()(index, rows, lookup.reshape(-1), _flat(_ball_offsets(radius), lookup.shape), radius,
+                           lookup.shape[1], lookup.shape[2], near, found)
     return near, found
+
+
+def _flat(offsets, shape) -> np.ndarray:
+    """``(b,) int64``: 3-D grid offsets as offsets into the flattened C-order grid of ``shape``
+    (the Numba lookups index one flat array: a third of the time of three-index lookups)."""
+    return np.ascontiguousarray(offsets @ np.array([shape[1] * shape[2], shape[2], 1], np.int64))
 
 
 _GRID_KNN = None
@@ -645,13 +710,13 @@ def _grid_knn_kernel():
         import numba
 
         @numba.njit(cache=True, nogil=True)
-        def scan(index, rows, lookup, offsets, near, found):
+        def scan(index, rows, lookup, offsets, pad, b, c, near, found):  # lookup: (a, b, c) padded by pad, flat
             k = near.shape[1]
             for q in range(rows.shape[0]):
-                i, j, l = index[rows[q], 0], index[rows[q], 1], index[rows[q], 2]
+                base = ((index[rows[q], 0] + pad) * b + index[rows[q], 1] + pad) * c + index[rows[q], 2] + pad
                 count = 0
                 for o in range(offsets.shape[0]):
-                    p = lookup[i + offsets[o, 0], j + offsets[o, 1], l + offsets[o, 2]]
+                    p = lookup[base + offsets[o]]
                     if p >= 0:
                         near[q, count] = p
                         count += 1
@@ -835,13 +900,14 @@ def frame_features(points, cuboids: primitives.Cuboids, normals=None, settings: 
     n, m = len(points), c.count
     if not c.existence.any():
         raise ValueError("no present cuboid: nothing to read the frame from")
-    nearest = primitives.assign_points(points, c)
     frame = np.zeros((n, 3 + m + 3 + 3 * m + m))
     frame[:, :3] = points
-    frame[np.arange(n), 3 + nearest] = 1.0  # one-hot
-    if n:  # the coordinates in every cuboid, over its half extents, and the distances (:func:`_frame_kernel`)
+    if n:  # the nearest cuboid (one-hot), the coordinates in every cuboid over its half extents, and the
+        # distances (:func:`_frame_kernel`); the nearest by assign_points' rule: ties to the larger volume
+        present = c.present
+        order = present[np.argsort(-c.volumes[present], kind="stable")]
         _frame_kernel()(np.ascontiguousarray(points), np.ascontiguousarray(c.rotations), c.translations,
-                        c.half_extents, c.existence.astype(np.uint8), nearest.astype(np.int64), ABSENT, frame, 3 + m)
+                        c.half_extents, c.existence.astype(np.uint8), order.astype(np.int64), ABSENT, frame, 3 + m)
     columns = [frame]
     if settings.normals:
         if normals is None:
@@ -883,19 +949,26 @@ _FRAME = None
 
 def _frame_kernel():
     """The cuboid-frame columns of :func:`frame_features`, compiled on first use (cached on disk):
-    for each point, from column ``at`` of ``out``, its coordinates in its nearest cuboid, in every
-    cuboid (``R.T (x - t)``, as :func:`primitives.world_to_local`) over the half extents, and its
-    distance to every cuboid (as :func:`primitives.point_cuboid_distance`); :data:`ABSENT` for absent
-    slots. One pass over the points instead of NumPy's ``(m, n, 3)`` temporaries (a third of the
-    features' time on a chair)."""
+    for each point, its nearest cuboid (a one in its column of the ``m`` before column ``at``),
+    from column ``at`` of ``out`` its coordinates in its nearest cuboid, in every cuboid (``R.T (x
+    - t)``, as :func:`primitives.world_to_local`) over the half extents, and its distance to every
+    cuboid (as :func:`primitives.point_cuboid_distance`); :data:`ABSENT` for absent slots. One pass
+    over the points instead of NumPy's ``(m, n, 3)`` temporaries (a third of the features' time on
+    a chair). The nearest is :func:`primitives.assign_points`' rule (the least squared distance,
+    ties to the first in ``order``: the present slots by decreasing volume, then index) read from
+    these distances, which round the local coordinates in another order than its matrix product:
+    the same cuboid unless two lie within a rounding error of each other (none among the 1.66
+    million voxels of 419 ShapeNetVox32 and PartNet chairs), and ``assign_points``' 0.36 ms a
+    chair saved."""
     global _FRAME
     if _FRAME is None:
         import numba
 
         @numba.njit(cache=True, nogil=True)
-        def frame(points, rotations, translations, half, exists, nearest, absent, out, at):
+        def frame(points, rotations, translations, half, exists, order, absent, out, at):
             m = rotations.shape[0]
             coords, dist = at + 3, at + 3 + 3 * m
+            squared = np.empty(m)
             for i in range(points.shape[0]):
                 for j in range(m):
                     if exists[j] == 0:
@@ -912,7 +985,12 @@ def _frame_kernel():
                         total += e * e
                         out[i, coords + 3 * j + a] = x / half[j, a]
                     out[i, dist + j] = np.sqrt(total)
-                k = nearest[i]
+                    squared[j] = total
+                k = order[0]
+                for j in order[1:]:
+                    if squared[j] < squared[k]:
+                        k = j
+                out[i, at - m + k] = 1.0
                 for a in range(3):
                     out[i, at + a] = out[i, coords + 3 * k + a]
 
@@ -932,15 +1010,46 @@ def grid_neighbours(index, shape) -> np.ndarray:
     where[tuple((index + 1).T)] = np.arange(len(index))
     near = np.empty((len(index), len(_OFFSETS)), np.int64)
     if len(index):  # where[index + 1 + offset], the voxel itself where empty (a tenth of NumPy's gathers' time)
-        _block_kernel()(index, where, _OFFSETS + 1, near)
+        _block_kernel()(index, where.reshape(-1), _flat(_OFFSETS, where.shape), where.shape[1], where.shape[2], near)
     return near
 
 
 def _check_inside(index, shape) -> None:
     """ValueError unless the ``(n, 3)`` voxel indices lie inside a grid of ``shape`` (the Numba
     loops read the grid unchecked)."""
-    if len(index) and (index.min() < 0 or np.any(index.max(axis=0) >= np.asarray(shape)[:3])):
-        raise ValueError(f"voxel indices outside the grid of shape {tuple(shape)}")
+    if len(index):
+        low, high = _column_range(index)
+        if low.min() < 0 or np.any(high >= np.asarray(shape)[:3]):
+            raise ValueError(f"voxel indices outside the grid of shape {tuple(shape)}")
+
+
+_RANGE = None
+
+
+def _column_range(a) -> tuple[np.ndarray, np.ndarray]:
+    """``(a.min(axis=0), a.max(axis=0))`` of a non-empty 2-D int array in one Numba pass (NumPy's
+    reductions along axis 0 of an ``(n, 3)`` array stride through it: a tenth of the speed)."""
+    global _RANGE
+    if _RANGE is None:
+        import numba
+
+        @numba.njit(cache=True, nogil=True)
+        def column_range(a, low, high):
+            for j in range(a.shape[1]):
+                low[j] = high[j] = a[0, j]
+            for i in range(1, a.shape[0]):
+                for j in range(a.shape[1]):
+                    v = a[i, j]
+                    if v < low[j]:
+                        low[j] = v
+                    elif v > high[j]:
+                        high[j] = v
+
+        _RANGE = column_range
+    a = np.ascontiguousarray(a, np.int64)
+    low, high = np.empty(a.shape[1], np.int64), np.empty(a.shape[1], np.int64)
+    _RANGE(a, low, high)
+    return low, high
 
 
 _BLOCK = None
@@ -953,10 +1062,11 @@ def _block_kernel():
         import numba
 
         @numba.njit(cache=True, nogil=True)
-        def block(index, where, offsets, near):
+        def block(index, where, offsets, b, c, near):  # where: the padded (a, b, c) lookup, flat
             for i in range(index.shape[0]):
+                base = ((index[i, 0] + 1) * b + index[i, 1] + 1) * c + index[i, 2] + 1
                 for o in range(offsets.shape[0]):
-                    p = where[index[i, 0] + offsets[o, 0], index[i, 1] + offsets[o, 1], index[i, 2] + offsets[o, 2]]
+                    p = where[base + offsets[o]]
                     near[i, o] = p if p >= 0 else i
 
         _BLOCK = block
@@ -973,56 +1083,26 @@ def grid_sampling(index, neighbours, step: int):
     of them are classified occupied voxels (the mean of those is theirs). A voxel with no such
     neighbour is classified itself, so every ``use`` row has at least one True.
     """
-    index = np.asarray(index, np.int64)
-    n = len(index)
-    if step == 1:
-        sampled = np.ones(n, bool)
-    elif step == 2:
-        sampled = index.sum(axis=1) % 2 == 0
-    elif step == 4:  # a body-centred lattice: every voxel has one of them in its 3 x 3 x 3 block
-        sampled = np.all(index % 2 == index[:, :1] % 2, axis=1)
-    elif step == 8:
-        sampled = np.all(index % 2 == 0, axis=1)
-    else:
-        raise ValueError(f"grid sampling one voxel in {step}: only 1, 2, 4 or 8")
-    neighbours = np.ascontiguousarray(neighbours, np.int64)
-    if neighbours.shape != (n, 27) or (n and (neighbours.min() < 0 or neighbours.max() >= n)):
-        raise ValueError(f"`neighbours` must be grid_neighbours' (n, 27) positions, got shape {neighbours.shape}")
-    classify = sampled.copy()  # | no classified neighbour (an empty neighbour is the voxel itself)
-    if n:
-        _unreached_kernel()(neighbours, sampled, classify)
+    index, neighbours = _check_sampling(index, neighbours, step)
+    # step 4: a body-centred lattice, every voxel has one of them in its 3 x 3 x 3 block; a voxel
+    # with no sampled neighbour (an empty neighbour is the voxel itself) is classified itself
+    classify, sampled = _grid_sample(index, neighbours, step)
     around = neighbours[~classify, 1:27]
     use = sampled[around] & (around != np.flatnonzero(~classify)[:, None])
     return classify, around, use
 
 
-_UNREACHED = None
-
-
-def _unreached_kernel():
-    """Marks in ``classify`` the voxels none of whose 26 neighbours (``neighbours[:, 1:27]``, the
-    voxel itself where empty) is another sampled voxel (:func:`grid_sampling`), compiled on
-    first use: NumPy gathers all ``(n, 26)`` where a loop stops at the first found."""
-    global _UNREACHED
-    if _UNREACHED is None:
-        import numba
-
-        @numba.njit(cache=True, nogil=True)
-        def unreached(neighbours, sampled, classify):
-            for i in range(neighbours.shape[0]):
-                if sampled[i]:
-                    continue
-                found = False
-                for j in range(1, 27):
-                    p = neighbours[i, j]
-                    if p != i and sampled[p]:
-                        found = True
-                        break
-                if not found:
-                    classify[i] = True
-
-        _UNREACHED = unreached
-    return _UNREACHED
+def _check_sampling(index, neighbours, step: int):
+    """The arguments of :func:`grid_sampling` as contiguous int64, or ValueError."""
+    index = np.ascontiguousarray(index, np.int64).reshape(-1, 3)
+    if step not in (1, 2, 4, 8):
+        raise ValueError(f"grid sampling one voxel in {step}: only 1, 2, 4 or 8")
+    n = len(index)
+    neighbours = np.ascontiguousarray(neighbours, np.int64)
+    low, high = _column_range(neighbours) if n and neighbours.shape == (n, 27) else (np.zeros(1), np.zeros(1))
+    if neighbours.shape != (n, 27) or low.min() < 0 or (n and high.max() >= n):
+        raise ValueError(f"`neighbours` must be grid_neighbours' (n, 27) positions, got shape {neighbours.shape}")
+    return index, neighbours
 
 
 #: the 27 offsets of a 3 x 3 x 3 block, nearest first (ties in a fixed order)
@@ -1038,7 +1118,11 @@ def grid_normals(occupancy, index=None) -> np.ndarray:
     are a tenth of its grid)."""
     from scipy import ndimage
 
-    smooth = ndimage.gaussian_filter(np.asarray(occupancy, float), 1.0)
+    occupancy = np.asarray(occupancy)
+    if index is None or occupancy.ndim != 3 or min(occupancy.shape) <= _GAUSS_RADIUS:
+        smooth = ndimage.gaussian_filter(np.asarray(occupancy, float), 1.0)
+    else:  # the same numbers, in about half the time
+        smooth = _grid_gaussian(occupancy)
     if index is None:
         grad = -np.stack(np.gradient(smooth), axis=-1)
     else:
@@ -1052,6 +1136,100 @@ def grid_normals(occupancy, index=None) -> np.ndarray:
         return out
     norm = np.linalg.norm(grad, axis=-1, keepdims=True)
     return np.divide(grad, norm, out=np.zeros_like(grad), where=norm > 1e-6)
+
+
+#: the radius of :func:`grid_normals`' Gaussian (scipy's ``truncate`` 4 at sigma 1)
+_GAUSS_RADIUS = 4
+
+
+@functools.lru_cache(maxsize=1)
+def _gauss_weights() -> np.ndarray:
+    """``(5,)`` float64: scipy's one-voxel Gaussian weights at offsets 0-4, read off its response
+    to a unit impulse (each output there is one weight times 1 plus zeros: the weights exactly)."""
+    from scipy import ndimage
+
+    impulse = np.zeros(4 * _GAUSS_RADIUS + 1)
+    impulse[2 * _GAUSS_RADIUS] = 1.0
+    w = ndimage.gaussian_filter1d(impulse, 1.0)[2 * _GAUSS_RADIUS : 3 * _GAUSS_RADIUS + 1].copy()
+    w.flags.writeable = False
+    return w
+
+
+def _grid_gaussian(occupancy) -> np.ndarray:
+    """``ndimage.gaussian_filter(occupancy.astype(float), 1.0)`` of a 3-D grid at least 5 voxels a
+    side, the same numbers (the tests check bit for bit): its three passes (axes 0, 1, 2, mode
+    "reflect", scipy's symmetric-kernel sum ``x[l] w0 + sum_{d=4..1} (x[l-d] + x[l+d]) w_d``) by a
+    Numba loop (vectorised along the last axis; the last pass leaves a row of zeros at zero): about
+    0.28 against 0.49 ms on a 32^3 chair grid. Hand-written because scipy's filter, general over
+    dtypes, modes and kernels, runs line by line through a buffer."""
+    grid = np.ascontiguousarray(occupancy, np.float64)
+    out = np.empty_like(grid)
+    _gauss_kernel()(grid, out, np.empty_like(grid), np.asarray(_gauss_weights()))
+    return out
+
+
+_GAUSS = None
+
+
+def _gauss_kernel():
+    """The passes of :func:`_grid_gaussian`, compiled on first use (cached on disk). Each output
+    takes the same operations in the same order as scipy's loop; the first two passes run along
+    rows of the last axis (contiguous, vectorised), the third skips the rows that are all zero."""
+    global _GAUSS
+    if _GAUSS is None:
+        import numba
+
+        @numba.njit(cache=True, nogil=True)
+        def across(inp, res, w):  # (A, n, B): filter along the middle axis, B contiguous
+            r = w.shape[0] - 1
+            n, m = inp.shape[1], inp.shape[2]
+            for i in range(inp.shape[0]):
+                for l in range(n):
+                    for v in range(m):
+                        res[i, l, v] = inp[i, l, v] * w[0]
+                    for d in range(r, 0, -1):
+                        lo, hi = l - d, l + d
+                        if lo < 0:
+                            lo = -lo - 1
+                        if hi >= n:
+                            hi = 2 * n - 1 - hi
+                        for v in range(m):
+                            res[i, l, v] += (inp[i, lo, v] + inp[i, hi, v]) * w[d]
+
+        @numba.njit(cache=True, nogil=True)
+        def along(inp, res, w):  # (R, n): filter each row, a row of zeros left zero
+            r = w.shape[0] - 1
+            n = inp.shape[1]
+            for i in range(inp.shape[0]):
+                empty = True
+                for l in range(n):
+                    if inp[i, l] != 0.0:
+                        empty = False
+                        break
+                if empty:
+                    for l in range(n):
+                        res[i, l] = 0.0
+                    continue
+                for l in range(n):
+                    t = inp[i, l] * w[0]
+                    for d in range(r, 0, -1):
+                        lo, hi = l - d, l + d
+                        if lo < 0:
+                            lo = -lo - 1
+                        if hi >= n:
+                            hi = 2 * n - 1 - hi
+                        t += (inp[i, lo] + inp[i, hi]) * w[d]
+                    res[i, l] = t
+
+        @numba.njit(cache=True, nogil=True)
+        def passes(grid, out, tmp, w):
+            a, b, c = grid.shape
+            across(grid.reshape(1, a, b * c), out.reshape(1, a, b * c), w)  # axis 0
+            across(out, tmp, w)  # axis 1
+            along(tmp.reshape(a * b, c), out.reshape(a * b, c), w)  # axis 2
+
+        _GAUSS = passes
+    return _GAUSS
 
 
 _NORMALS = None
@@ -1211,7 +1389,8 @@ class Labeller:
         if not self.settings.neighbours or grid_index is None or len(grid_index) != len(points):
             return None
         grid_index = np.asarray(grid_index, np.int64)
-        return grid_local_shape(points, grid_index, rows, self.settings.neighbours, grid_index.max(axis=0) + 1)
+        shape = _column_range(grid_index)[1] + 1 if len(grid_index) else np.zeros(3, np.int64)  # index.max(axis=0) + 1
+        return grid_local_shape(points, grid_index, rows, self.settings.neighbours, shape)
 
     def predict_proba(self, points, cuboids, normals=None, context=None, neighbours=None, grid_index=None) -> np.ndarray:
         """``(n, len(names))`` smoothed label probabilities of canonical-frame elements
@@ -1224,15 +1403,17 @@ class Labeller:
             shape = self._grid_shape(points, grid_index, np.arange(len(points))) if grid else None
             proba = self.classify(self.features(points, cuboids, normals, context, local_shape=shape))
         else:
-            classify, around, use = grid_sampling(grid_index, neighbours, step)
+            grid_index, neighbours = _check_sampling(grid_index, neighbours, step)
+            classify, sampled = _grid_sample(grid_index, neighbours, step)  # grid_sampling's, no around/use
             shape = self._grid_shape(points, grid_index, np.flatnonzero(classify)) if grid else None
-            proba = np.zeros((len(points), self.ensemble.classes))  # zeros: the unclassified weigh 0 in the fill
-            proba[classify] = self.classify(self.features(
+            proba = np.empty((len(points), self.ensemble.classes + -self.ensemble.classes % 4))  # _pad4's columns
+            proba[:, self.ensemble.classes:] = 0.0
+            proba[classify, : self.ensemble.classes] = self.classify(self.features(
                 points[classify], cuboids, None if normals is None else np.asarray(normals, float)[classify],
                 points if context is None else context, local_shape=shape))  # the local shape among all the elements
-            # each other voxel: the mean of its classified neighbours' (``around[use]``), by a Numba loop
-            _fill_kernel()(proba, np.flatnonzero(~classify), np.ascontiguousarray(around, np.int64),
-                           np.ascontiguousarray(use, np.uint8))
+            # each other voxel: the mean of its sampled neighbours' (grid_sampling's ``around[use]``)
+            _sample_fill_kernels()[1](proba, neighbours, sampled, classify)
+            proba = proba[:, : self.ensemble.classes]
         return self.smooth(proba, points, neighbours)
 
     def classify(self, X) -> np.ndarray:
@@ -1253,14 +1434,16 @@ class Labeller:
         if not self.settings.smooth or len(proba) < 2:
             return proba
         k = self.settings.smooth_neighbours
-        idx = neighbours[:, :k] if neighbours is not None else _neighbours(np.asarray(points, float), k)
+        idx = neighbours if neighbours is not None else _neighbours(np.asarray(points, float), k)
         idx = np.ascontiguousarray(idx, np.int64)
-        proba = np.ascontiguousarray(proba, np.float64)
+        k = min(k, idx.shape[1])
+        classes = proba.shape[1]
+        proba = _pad4(proba)
         for _ in range(self.settings.smooth):
             out = np.empty_like(proba)
-            _mean_kernel()(proba, idx, out)  # proba[idx].mean(axis=1) without the (n, k, classes) copy
+            _mean_kernel()(proba, idx, k, out)  # proba[idx[:, :k]].mean(axis=1) without the (n, k, classes) copy
             proba = out
-        return proba
+        return proba[:, :classes]
 
     def predict(self, points, cuboids, normals=None, context=None, neighbours=None, grid_index=None) -> np.ndarray:
         """``(n,) int``: each element's label (an index into :attr:`names`)."""

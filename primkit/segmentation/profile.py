@@ -59,19 +59,21 @@ def profile_features(points, context=None, bins: int = PROFILE_BINS) -> np.ndarr
         return np.zeros((0, PROFILE_FEATURES))
     if len(ctx) == 0:
         raise ValueError("`context` is empty: no shape to read the profile from")
-    lo = ctx.min(axis=0)
-    extent = np.maximum(ctx.max(axis=0) - lo, 1e-9)
-    rel = (points - lo) / extent
-
-    def cells(p):
-        return np.clip(((p - lo) / extent * bins).astype(np.int64), 0, bins - 1)
-
+    if not (np.isfinite(ctx).all() and np.isfinite(points).all()):
+        raise ValueError("`points` and `context` must be finite")
+    kernels = _profile_kernel()
+    points, ctx = np.ascontiguousarray(points), np.ascontiguousarray(ctx)
+    lo, hi = np.empty(3), np.empty(3)
+    kernels[2](ctx, lo, hi)  # ctx.min(axis=0), ctx.max(axis=0): NumPy strides through an (n, 3) array
+    extent = np.maximum(hi - lo, 1e-9)
     counts = np.zeros((bins, bins, bins))  # [x, y, z]
     out = np.empty((len(points), PROFILE_FEATURES))
-    out[:, :3] = rel
-    out[:, 3] = np.abs(2.0 * rel[:, 2] - 1.0)
-    out[:, 5] = rel[:, 1]
-    _profile_kernel()(cells(ctx), cells(points), counts, out)  # columns 4 and 6-9; 5 less the densest slab
+    cells = np.empty((len(points), 3), np.int64)
+    ctx_cells = cells if context is None else np.empty((len(ctx), 3), np.int64)
+    kernels[0](points, lo, extent, bins, out, cells)  # columns 0-3, 5 and the cells
+    if context is not None:
+        kernels[0](ctx, lo, extent, bins, None, ctx_cells)
+    kernels[1](ctx_cells, cells, counts, out)  # columns 4 and 6-9; 5 less the densest slab
     return out
 
 
@@ -79,14 +81,32 @@ _PROFILE = None
 
 
 def _profile_kernel():
-    """Columns 4 and 6-9 of :func:`profile_features` from the context's and the points' cells,
-    compiled on first use (cached on disk); column 5 gets the densest slab's centre subtracted.
+    """``(place, profile, bounds)``, compiled on first use (cached on disk). ``bounds``: the
+    per-axis minimum and maximum of a point array (a tenth of NumPy's time). ``place``: the points' columns
+    0-3 and 5 (before the slab) and their cells, the same operations as NumPy's expressions in
+    :func:`_profile_reference`; ``profile``: columns 4 and 6-9 from the context's and the points'
+    cells, and column 5 gets the densest slab's centre subtracted.
     The counts are whole numbers, so every sum is exact: the same numbers as the NumPy sums and
     cumulative sums over the ``bins**3`` grid (:func:`_profile_reference`), in a fifth of the time
     (each point sums its own column and row, up to ``bins`` cells)."""
     global _PROFILE
     if _PROFILE is None:
         import numba
+
+        @numba.njit(cache=True, nogil=True)
+        def place(points, lo, extent, bins, out, cells):
+            # rel = (p - lo) / extent (columns 0-2, 3, and 5 before the slab), the cell
+            # clip(int(rel * bins), 0, bins - 1) as NumPy's astype and clip give it (NaN: 0)
+            for p in range(points.shape[0]):
+                for a in range(3):
+                    rel = (points[p, a] - lo[a]) / extent[a]
+                    v = rel * bins
+                    cells[p, a] = 0 if not v > 0 else (bins - 1 if v >= bins else int(v))
+                    if out is not None:
+                        out[p, a] = rel
+                if out is not None:
+                    out[p, 3] = abs(2.0 * out[p, 2] - 1.0)
+                    out[p, 5] = out[p, 1]
 
         @numba.njit(cache=True, nogil=True)
         def profile(ctx_cells, cells, counts, out):
@@ -121,7 +141,19 @@ def _profile_kernel():
                 out[p, 8] = max(rw - behind - own, 0.0) / safe_row
                 out[p, 9] = behind / safe_row
 
-        _PROFILE = profile
+        @numba.njit(cache=True, nogil=True)
+        def bounds(points, lo, hi):  # finite points (profile_features checks)
+            for a in range(3):
+                lo[a] = hi[a] = points[0, a]
+            for p in range(1, points.shape[0]):
+                for a in range(3):
+                    v = points[p, a]
+                    if v < lo[a]:
+                        lo[a] = v
+                    elif v > hi[a]:
+                        hi[a] = v
+
+        _PROFILE = (place, profile, bounds)
     return _PROFILE
 
 
