@@ -85,23 +85,42 @@ def test_the_rule_is_a_per_element_loop(seed):
         np.testing.assert_array_equal(got == 3, region)
 
 
-def _fit(names, presence="auto"):
+def _fit(names, presence="auto", kinds=("rests", "sofa", "none"), third="arms"):
+    """A labeller learned from the hand-built chairs ``kinds``: label 0 above the seat's middle
+    height, 1 below, 2 on the ``third`` elements ("arms": the chair's arms; "legs": what lies
+    under the seat plate)."""
     rng = np.random.default_rng(0)
     settings = LabellerSettings(neighbours=8, smooth=0)
     shapes = []
-    for _ in range(3):
+    thirds = [third] * len(kinds) if isinstance(third, str) else list(third)
+    for kind, third in zip(kinds, thirds):
         c = primitives.Cuboids(rng.uniform(0.05, 0.3, (5, 3)), rng.normal(size=(5, 4)),
                                rng.uniform(-0.4, 0.4, (5, 3)), np.ones(5, bool))
-        points = rng.uniform(-0.5, 0.5, (300, 3))
-        y = (points[:, 1] > 0).astype(int) + (primitives.assign_points(points, c) == 1)
+        points, arm = _chair(kind)
+        y = (points[:, 1] > 0).astype(int)
+        y[arm if third == "arms" else points[:, 1] < 10.5 / 24 - 0.5] = 2
         shapes.append((frame_features(points, c, None, settings), y))
     return Labeller.fit(shapes, names, 5, settings=settings, max_iter=10, presence=presence), c, points
 
 
 def test_fit_keeps_the_rule_when_it_learns_arms():
-    assert _fit(["back", "seat", "arms"])[0].presence == PresenceRule()
+    got = _fit(["back", "seat", "arms"])[0]
+    assert got.presence == PresenceRule() and got.info["presence_check"] == {"shapes": 3, "contradicted": 0}
     assert _fit(["back", "seat", "legs"])[0].presence is None
     assert _fit(["back", "seat", "arms"], presence=None)[0].presence is None
+
+
+def test_fit_leaves_the_rule_out_when_the_labelled_shapes_contradict_it():
+    """"arms" that do not rise beside a seat (here: what lies under it, on chairs without side
+    arms): the rule would take them from every labelled shape, so "auto" keeps none."""
+    got = _fit(["back", "seat", "arms"], kinds=("none", "none", "none"), third="legs")[0]
+    assert got.presence is None and got.info["presence_check"] == {"shapes": 3, "contradicted": 3}
+    # one contradicting shape in five is within lab.PRESENCE_TOLERANCE (0.2): kept; two in five are not
+    kinds = ("rests", "sofa", "rests", "none", "none")
+    one = _fit(["back", "seat", "arms"], kinds=kinds, third=["arms"] * 4 + ["legs"])[0]
+    assert one.presence == PresenceRule() and one.info["presence_check"]["contradicted"] == 1
+    two = _fit(["back", "seat", "arms"], kinds=kinds, third=["arms"] * 3 + ["legs"] * 2)[0]
+    assert two.presence is None and two.info["presence_check"]["contradicted"] == 2
 
 
 def test_predict_applies_the_rule_after_the_decision():
