@@ -4,17 +4,17 @@ still loading."""
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 import pytest
 
 from primkit import primitives
 from primkit.model.bundled import resolve_model
 from primkit.segmentation import labeller as lab
-from primkit.segmentation.labeller import Labeller, LabellerSettings, frame_features
+from primkit.segmentation.labeller import LabellerSettings, frame_features
 from primkit.segmentation.profile import profile_features
 from primkit.segmentation.sides import SIDE_FEATURES, side_features
+
+from small_labellers import as_version, small_labeller
 
 
 def _brute(points, context, bins):
@@ -96,46 +96,21 @@ def test_the_side_features_end_the_frame_features():
     np.testing.assert_array_equal(a[:, b.shape[1]:], side_features(points, context))
 
 
-def _labeller(settings):
-    rng = np.random.default_rng(0)
-    shapes = []
-    for _ in range(3):
-        c = primitives.Cuboids(rng.uniform(0.05, 0.3, (5, 3)), rng.normal(size=(5, 4)),
-                               rng.uniform(-0.4, 0.4, (5, 3)), np.ones(5, bool))
-        points = rng.uniform(-0.5, 0.5, (300, 3))
-        y = (points[:, 1] > 0).astype(int) + (primitives.assign_points(points, c) == 1)
-        shapes.append((frame_features(points, c, None, settings), y))
-    return Labeller.fit(shapes, ["a", "b", "c"], 5, settings=settings, max_iter=10), c, points
-
-
-def _as_version_3(path, out):
-    """A labeller file as format version 3 wrote it (no ``sides`` key in its settings)."""
-    from safetensors import safe_open
-    from safetensors.numpy import load_file, save_file
-
-    with safe_open(str(path), framework="numpy") as f:
-        meta = json.loads(f.metadata()["primkit"])
-    meta["labeller"]["format_version"] = 3
-    del meta["labeller"]["settings"]["sides"]
-    save_file(load_file(str(path)), str(out), metadata={"primkit": json.dumps(meta)})
-    return out
-
-
 def test_a_version_3_labeller_loads_without_the_sides(tmp_path):
-    labeller, c, points = _labeller(LabellerSettings(neighbours=8, smooth=0, sides=False))
+    labeller, c, points = small_labeller(LabellerSettings(neighbours=8, smooth=0, sides=False))
     path = lab.write_labeller(resolve_model("chair"), tmp_path / "v4.safetensors", labeller)
-    got = lab.read_labeller(_as_version_3(path, tmp_path / "v3.safetensors"))
+    got = lab.read_labeller(as_version(path, tmp_path / "v3.safetensors", 3, "sides"))
     assert got.settings.sides is False
     np.testing.assert_array_equal(got.predict(points, c), labeller.predict(points, c))
 
 
 def test_a_sides_labeller_passed_off_as_version_3_is_refused(tmp_path):
     """Read as version 3 its settings lack the sides, so its trees read 5 features too many."""
-    labeller, _, _ = _labeller(LabellerSettings(neighbours=8, smooth=0, sides=True))
+    labeller, _, _ = small_labeller(LabellerSettings(neighbours=8, smooth=0, sides=True))
     path = lab.write_labeller(resolve_model("chair"), tmp_path / "v4.safetensors", labeller)
     assert lab.read_labeller(path).settings.sides is True
     with pytest.raises(lab.ModelFileError) as err:
-        lab.read_labeller(_as_version_3(path, tmp_path / "v3.safetensors"))
+        lab.read_labeller(as_version(path, tmp_path / "v3.safetensors", 3, "sides"))
     assert "features" in str(err.value) and len(str(err.value).splitlines()) == 1
 
 
