@@ -4,6 +4,7 @@ files from before it)."""
 
 from __future__ import annotations
 
+import functools
 import json
 
 import numpy as np
@@ -88,11 +89,17 @@ def test_the_rule_is_a_per_element_loop(seed):
 def _fit(names, presence="auto", kinds=("rests", "sofa", "none"), third="arms"):
     """A labeller learned from the hand-built chairs ``kinds``: label 0 above the seat's middle
     height, 1 below, 2 on the ``third`` elements ("arms": the chair's arms; "legs": what lies
-    under the seat plate)."""
+    under the seat plate; one for all or one per chair); the last chair's cuboids and points.
+    The same arguments give the same (shared, not to be changed) objects."""
+    thirds = (third,) * len(kinds) if isinstance(third, str) else tuple(third)
+    return _learned(tuple(names), presence, tuple(kinds), thirds)
+
+
+@functools.lru_cache(maxsize=None)
+def _learned(names, presence, kinds, thirds):
     rng = np.random.default_rng(0)
     settings = LabellerSettings(neighbours=8, smooth=0)
     shapes = []
-    thirds = [third] * len(kinds) if isinstance(third, str) else list(third)
     for kind, third in zip(kinds, thirds):
         c = primitives.Cuboids(rng.uniform(0.05, 0.3, (5, 3)), rng.normal(size=(5, 4)),
                                rng.uniform(-0.4, 0.4, (5, 3)), np.ones(5, bool))
@@ -100,7 +107,7 @@ def _fit(names, presence="auto", kinds=("rests", "sofa", "none"), third="arms"):
         y = (points[:, 1] > 0).astype(int)
         y[arm if third == "arms" else points[:, 1] < 10.5 / 24 - 0.5] = 2
         shapes.append((frame_features(points, c, None, settings), y))
-    return Labeller.fit(shapes, names, 5, settings=settings, max_iter=10, presence=presence), c, points
+    return Labeller.fit(shapes, list(names), 5, settings=settings, max_iter=10, presence=presence), c, points
 
 
 def test_fit_keeps_the_rule_when_it_learns_arms():
