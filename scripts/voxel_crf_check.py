@@ -77,17 +77,21 @@ def _kernels():
         import numba
 
         @numba.njit(cache=True, nogil=True)
+        def softmax_row(logits, out):  # out = exp(logits - max) / sum: the normalised row
+            top = logits.max()
+            total = 0.0
+            for c in range(logits.shape[0]):
+                out[c] = np.exp(logits[c] - top)
+                total += out[c]
+            for c in range(logits.shape[0]):
+                out[c] /= total
+
+        @numba.njit(cache=True, nogil=True)
         def field(logp, near, weight, direction, mu, lam, rounds, out):
             n, k = logp.shape
             q = np.empty((n, k))
             for i in range(n):  # start: the softmax of the unary, the probabilities themselves
-                top = logp[i].max()
-                total = 0.0
-                for c in range(k):
-                    q[i, c] = np.exp(logp[i, c] - top)
-                    total += q[i, c]
-                for c in range(k):
-                    q[i, c] /= total
+                softmax_row(logp[i], q[i])
             msg = np.empty(k)
             for _ in range(rounds):
                 new = np.empty((n, k))
@@ -104,13 +108,7 @@ def _kernels():
                             for b in range(k):
                                 cost += mu[d, c, b] * q[other, b]
                             msg[c] -= lam * weight[i, j] * cost
-                    top = msg.max()
-                    total = 0.0
-                    for c in range(k):
-                        new[i, c] = np.exp(msg[c] - top)
-                        total += new[i, c]
-                    for c in range(k):
-                        new[i, c] /= total
+                    softmax_row(msg, new[i])
                 q = new
             out[:] = q
 
@@ -148,13 +146,7 @@ def _kernels():
             n, k = logp.shape
             q = np.empty((n, k))
             for i in range(n):
-                top = logp[i].max()
-                total = 0.0
-                for c in range(k):
-                    q[i, c] = np.exp(logp[i, c] - top)
-                    total += q[i, c]
-                for c in range(k):
-                    q[i, c] /= total
+                softmax_row(logp[i], q[i])
             msg = np.empty(k)
             for _ in range(rounds):
                 new = np.empty((n, k))
@@ -168,13 +160,7 @@ def _kernels():
                             continue
                         for c in range(k):
                             msg[c] += w * q[other, c]
-                    top = msg.max()
-                    total = 0.0
-                    for c in range(k):
-                        new[i, c] = np.exp(msg[c] - top)
-                        total += new[i, c]
-                    for c in range(k):
-                        new[i, c] /= total
+                    softmax_row(msg, new[i])
                 q = new
             out[:] = q
 
