@@ -8,6 +8,12 @@ SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
 # pictures are rendered off screen through EGL; never try an X server in tests
 os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkEGLRenderWindow")
 
+# under pytest-xdist (`-n 2`, docs/testing.md) each worker computes on one thread, set before torch,
+# NumPy's BLAS or OpenMP start: two workers of two threads each on two cores slow torch twentyfold
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    for _var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS", "NUMBA_NUM_THREADS"):
+        os.environ.setdefault(_var, "1")
+
 
 @pytest.fixture(scope="session")
 def shared_data():
