@@ -291,7 +291,10 @@ def _fit_self_trained(chairs, data, train, keep, settings, **fit):
 
 def _fit(data, parts, settings, position_only, **fit):
     if not position_only:
-        return Labeller.fit(data, NAMES, parts, settings=settings, **fit)
+        labeller = Labeller.fit(data, NAMES, parts, settings=settings, **fit)
+        if FILL["fill"] is not None and labeller.presence is not None:  # --fill: the rule kept, another fill
+            labeller = replace(labeller, presence=replace(labeller.presence, fill=FILL["fill"]))
+        return labeller
     # the position-only baseline: the same classifier on three columns (not a storable labeller)
     from sklearn.ensemble import HistGradientBoostingClassifier
 
@@ -329,6 +332,12 @@ MODELS = {
 #: smooth, min_share)
 AFTER = [(9, 0, 0.0), (9, 2, 0.0), (27, 2, 0.0), (27, 4, 0.0), (9, 2, 0.01), (27, 2, 0.01), (27, 2, 0.02),
          (27, 4, 0.01), (27, 4, 0.02)]
+#: ``--fill``: the presence rule's fill (:class:`primkit.segmentation.presence.PresenceRule`) instead
+#: of the one ``Labeller.fit`` keeps (above 1: no fill)
+FILL = {"fill": None}
+#: ``--swap``: the validation protocol with the halves swapped (learn from validation chairs 100-218
+#: of the seed-0 order, score chairs 0-99)
+SWAP = {"on": False}
 #: the classifier options of every model unless it says otherwise
 FIT = {"per_shape": 1000, "max_iter": 100}  # Labeller.fit's defaults, said here
 
@@ -413,13 +422,13 @@ def sweep(scratch: Path, sizes, only=None) -> dict:
 def _validation_train(chairs, draw):
     """The labelled chairs of a validation draw: validation chairs 0-99 of the shuffle (seed 0), in
     shuffle ``draw`` (0: as they are), so that no draw learns from a scored chair (100-218)."""
-    pool = order(chairs.validation, 0)[:100]
+    pool = order(chairs.validation, 0)[100:] if SWAP["on"] else order(chairs.validation, 0)[:100]
     return pool if draw == 0 else order(pool, draw)
 
 
 def curve(scratch: Path, part: str, sizes, draws: int, settings: LabellerSettings, labeller_only=False) -> dict:
     chairs = Chairs(scratch)
-    evaluate = chairs.test if part == "test" else order(chairs.validation, 0)[100:]
+    evaluate = chairs.test if part == "test" else order(chairs.validation, 0)[slice(100) if SWAP["on"] else slice(100, None)]
     print(f"{part}: {len(evaluate)} chairs scored; labellers learned from validation chairs; settings {settings}")
     rows = {"index naming (bundled model)": score(chairs, evaluate, index_naming(chairs, evaluate))}
     print(line("index naming (bundled model)", rows["index naming (bundled model)"]))
@@ -536,8 +545,13 @@ def main(argv=None) -> int:
     ap.add_argument("--self-train", default=None, metavar="ROUNDS:THRESHOLD:WEIGHT",
                     help="curve: self-training with the validation chairs 0-99 not learned from, unlabelled "
                     "(primkit.segmentation.selftrain.SelfTraining), e.g. 1:0.9:0.5")
+    ap.add_argument("--fill", type=float, default=None,
+                    help="curve: the presence rule's fill (default: PresenceRule's; above 1: none)")
+    ap.add_argument("--swap", action="store_true",
+                    help="curve --part validation: learn from validation chairs 100-218, score chairs 0-99")
     args = ap.parse_args(argv)
     KNN["how"] = args.knn
+    FILL["fill"], SWAP["on"] = args.fill, args.swap
     if not args.presence:
         FIT["presence"] = None
     if args.mirror:

@@ -82,8 +82,9 @@ LABELLER_FORMAT = "primkit-labeller"
 #: stores feature and child indices as int16 (version 1: int64) and may carry ``labeller.prior``;
 #: version 3 adds the ``profile`` setting (the shape-profile features; versions 1-2 read it false);
 #: version 4 the ``sides`` setting (the side features; versions 1-3 read it false) and may carry
-#: ``presence`` (:class:`primkit.segmentation.presence.PresenceRule`; versions 1-3: none).
-LABELLER_FORMAT_VERSION = 4
+#: ``presence`` (:class:`primkit.segmentation.presence.PresenceRule`; versions 1-3: none); version
+#: 5 the rule's ``fill`` (version 4 rules read it off).
+LABELLER_FORMAT_VERSION = 5
 #: Prefix of a labeller's tensors in a model file (beside the network's weights).
 LABELLER_PREFIX = "labeller."
 #: Metadata key of a labeller's description in a model file.
@@ -99,6 +100,7 @@ ABSENT = 1.0e4
 STORED = {1: {}, 2: {"feature": np.int16, "left": np.int16, "right": np.int16}}
 STORED[3] = STORED[2]  # the same arrays; the description's settings gained ``profile``
 STORED[4] = STORED[2]  # the same arrays; the description's settings gained ``sides``
+STORED[5] = STORED[2]  # the same arrays; the presence rule gained ``fill``
 
 #: ``Labeller.fit(presence="auto")`` keeps the presence rule when it contradicts at most this share
 #: of the labelled shapes' own labels (it would take their label away, or give it to a shape
@@ -1551,7 +1553,7 @@ class Labeller:
         presence = description.get("presence")
         if presence is not None:
             try:
-                presence = PresenceRule.from_dict(presence)
+                presence = PresenceRule.from_dict(presence, fill=version >= 5)
             except ValueError as exc:
                 raise ValueError(f"{where}: {exc}") from None
             if presence.label not in names:

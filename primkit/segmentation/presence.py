@@ -9,12 +9,15 @@ and profile features (:mod:`primkit.segmentation.sides`, :mod:`primkit.segmentat
 canonical frame: +Y up, +X front); a :class:`PresenceRule` then, after the labeller's decision,
 
 * takes the label away from a shape whose side region holds under ``veto`` of its elements (they
-  take their next most probable label, as the rare-label rule does), and
+  take their next most probable label, as the rare-label rule does);
 * gives it to the side region's elements of a shape that has none of it but whose side region
-  holds at least ``add`` of its elements.
+  holds at least ``add`` of its elements;
+* on a shape that keeps the label, gives it to the side region's elements whose probability of it
+  is at least ``fill`` (the labeller finds an arm's top and calls a sofa's side block below it seat
+  or back; PartNet's arm box holds the whole block).
 
-The region's bounds and the two shares were chosen on PartNet validation chairs
-(``docs/labeller.md``, "Arms from shape context").
+The region's bounds and the two shares were chosen on PartNet validation chairs, and ``fill``
+on both halves of them in turn (``docs/labeller.md``, "Arms from shape context").
 """
 
 from __future__ import annotations
@@ -57,29 +60,35 @@ class PresenceRule:
     add : float
         The label goes to the side region's elements when the shape has none of it and the region
         holds at least this share (above 1: never).
+    fill : float
+        On a shape that keeps the label, the side region's elements whose probability of it is at
+        least this take it (above 1: never; rules stored before format version 5 read 2).
     """
 
     label: str = "arms"
     veto: float = 0.01
     add: float = 0.1
+    fill: float = 0.1
 
     def __post_init__(self):
         if not isinstance(self.label, str) or not self.label:
             raise ValueError("presence label must be a non-empty string")
-        for key in ("veto", "add"):
+        for key in ("veto", "add", "fill"):
             value = getattr(self, key)
             if not isinstance(value, (int, float)) or isinstance(value, bool) or not 0 <= value <= 2:
                 raise ValueError(f"presence {key} must be a number in [0, 2]")
 
     def to_dict(self) -> dict:
-        return {"label": self.label, "veto": float(self.veto), "add": float(self.add)}
+        return {"label": self.label, "veto": float(self.veto), "add": float(self.add), "fill": float(self.fill)}
 
     @classmethod
-    def from_dict(cls, d) -> "PresenceRule":
-        """The inverse of :meth:`to_dict`; ValueError (one line) on anything else."""
-        if not isinstance(d, dict) or set(d) != {"label", "veto", "add"}:
-            raise ValueError("presence must be a JSON object with label, veto and add")
-        return cls(d["label"], d["veto"], d["add"])
+    def from_dict(cls, d, *, fill: bool = True) -> "PresenceRule":
+        """The inverse of :meth:`to_dict`; ValueError (one line) on anything else. ``fill=False``:
+        the object of a file written before ``fill`` existed (label, veto and add; fill off)."""
+        keys = {"label", "veto", "add", "fill"} if fill else {"label", "veto", "add"}
+        if not isinstance(d, dict) or set(d) != keys:
+            raise ValueError(f"presence must be a JSON object with {', '.join(sorted(keys))}")
+        return cls(d["label"], d["veto"], d["add"], d["fill"] if fill else 2.0)
 
 
 def apply_presence(labels, proba, region, label: int, rule: PresenceRule) -> np.ndarray:
@@ -101,4 +110,6 @@ def apply_presence(labels, proba, region, label: int, rule: PresenceRule) -> np.
         return np.where(labels == label, np.argmax(others, axis=1), labels).astype(np.int64)
     if not has and share >= rule.add:
         return np.where(region, label, labels).astype(np.int64)
+    if has and rule.fill <= 1:
+        return np.where(region & (np.asarray(proba, float)[:, label] >= rule.fill), label, labels).astype(np.int64)
     return labels

@@ -62,13 +62,16 @@ def _loop(labels, proba, region, label, rule):
             out.append(max((c for c in range(proba.shape[1]) if c != label), key=lambda c: proba[i, c]))
         elif not has and share >= rule.add and region[i]:
             out.append(label)
+        elif has and share >= rule.veto and region[i] and proba[i, label] >= rule.fill:
+            out.append(label)
         else:
             out.append(v)
     return np.array(out)
 
 
+@pytest.mark.parametrize("fill", [0.1, 0.0, 2.0])
 @pytest.mark.parametrize("seed", range(6))
-def test_the_rule_is_a_per_element_loop(seed):
+def test_the_rule_is_a_per_element_loop(seed, fill):
     rng = np.random.default_rng(seed)
     n = 200
     proba = rng.dirichlet(np.ones(4), n)
@@ -76,7 +79,7 @@ def test_the_rule_is_a_per_element_loop(seed):
     if seed % 2:
         labels[labels == 3] = 0  # no arms decided
     region = rng.random(n) < [0.0, 0.005, 0.05, 0.2, 0.5, 0.008][seed]
-    rule = PresenceRule("arms", 0.01, 0.1)
+    rule = PresenceRule("arms", 0.01, 0.1, fill)
     got = apply_presence(labels, proba, region, 3, rule)
     np.testing.assert_array_equal(got, _loop(labels, proba, region, 3, rule))
     share = region.mean()
@@ -84,6 +87,12 @@ def test_the_rule_is_a_per_element_loop(seed):
         assert not np.any(got == 3)
     if not np.any(labels == 3) and share >= 0.1:
         np.testing.assert_array_equal(got == 3, region)
+    if np.any(labels == 3) and share >= 0.01:  # the fill only adds, and only inside the region
+        assert np.all(got[labels == 3] == 3) and np.all((got == labels) | region)
+        if fill == 0.0:
+            assert np.all(got[region] == 3)
+        if fill > 1:
+            np.testing.assert_array_equal(got, labels)
 
 
 def _fit(names, presence="auto", kinds=("rests", "sofa", "none"), third="arms"):
@@ -154,11 +163,18 @@ def _rewrite(path, out, change):
 
 
 def test_the_rule_is_stored_and_read_back(tmp_path):
-    labeller, c, points = _fit(["back", "seat", "arms"], presence=PresenceRule("arms", 0.02, 0.3))
+    labeller, c, points = _fit(["back", "seat", "arms"], presence=PresenceRule("arms", 0.02, 0.3, 0.25))
     path = lab.write_labeller(resolve_model("chair"), tmp_path / "l.safetensors", labeller)
     got = lab.read_labeller(path)
-    assert got.presence == PresenceRule("arms", 0.02, 0.3)
+    assert got.presence == PresenceRule("arms", 0.02, 0.3, 0.25)
     np.testing.assert_array_equal(got.predict(points, c), labeller.predict(points, c))
+
+    def as_version_4(d):
+        d["format_version"] = 4
+        del d["presence"]["fill"]
+
+    v4 = lab.read_labeller(_rewrite(path, tmp_path / "v4.safetensors", as_version_4))
+    assert v4.presence == PresenceRule("arms", 0.02, 0.3, 2.0)  # written before the fill: none
 
     def as_version_3(d):
         d["format_version"] = 3
@@ -169,9 +185,15 @@ def test_the_rule_is_stored_and_read_back(tmp_path):
     assert old.presence is None
 
 
-@pytest.mark.parametrize("presence", [{"label": "arms", "veto": -1, "add": 0.1}, {"label": "arms", "veto": "x", "add": 0},
-                                      {"label": "arms", "veto": 0.1}, [1, 2], {"label": "wings", "veto": 0, "add": 0},
-                                      {"label": "", "veto": 0, "add": 0}, {"label": "arms", "veto": 0, "add": 1e300}])
+@pytest.mark.parametrize("presence", [{"label": "arms", "veto": -1, "add": 0.1, "fill": 0.1},
+                                      {"label": "arms", "veto": "x", "add": 0, "fill": 0.1},
+                                      {"label": "arms", "veto": 0.1, "fill": 0.1}, [1, 2],
+                                      {"label": "wings", "veto": 0, "add": 0, "fill": 0.1},
+                                      {"label": "", "veto": 0, "add": 0, "fill": 0.1},
+                                      {"label": "arms", "veto": 0, "add": 1e300, "fill": 0.1},
+                                      {"label": "arms", "veto": 0, "add": 0.1},  # no fill in a version 5 file
+                                      {"label": "arms", "veto": 0, "add": 0.1, "fill": -0.5},
+                                      {"label": "arms", "veto": 0, "add": 0.1, "fill": None}])
 def test_a_hostile_rule_is_refused_in_one_line(tmp_path, presence):
     labeller, _, _ = _fit(["back", "seat", "arms"])
     path = lab.write_labeller(resolve_model("chair"), tmp_path / "l.safetensors", labeller)
