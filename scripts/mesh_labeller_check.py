@@ -33,6 +33,7 @@ import argparse
 import itertools
 import json
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -167,6 +168,11 @@ def _decisions():
         out[f"knn + cut {c}"] = then_cut(knn, c)
         out[f"area r0.05 + cut {c}"] = then_cut(area(0.05, 2), c)
     out["default (meshlabels)"] = lambda lab, shape, p: label_faces_from(lab, shape, p)
+    # the labeller's arms presence rule after the cut, the region's share by area or by face count,
+    # with the rule's fill or without it
+    out["default + presence"] = lambda lab, shape, p: label_faces_from(lab, shape, p, presence="area")
+    out["default + presence by count"] = lambda lab, shape, p: label_faces_from(lab, shape, p, presence="count")
+    out["default + presence, no fill"] = lambda lab, shape, p: label_faces_from(lab, shape, p, presence="nofill")
     for stride in (2, 4):
         out[f"default, 1 sample in {stride}"] = (lambda st: lambda lab, shape, p: cut_faces(
             surface_smooth(p, _weights(shape, 0.05, st), lab.settings.smooth), shape["graph"], 0.1,
@@ -174,12 +180,21 @@ def _decisions():
     return out
 
 
-def label_faces_from(labeller, shape, proba):
+def label_faces_from(labeller, shape, proba, presence=None):
     """:func:`primkit.segmentation.meshlabels.label_faces` from the classifier's probabilities (the
-    same steps; the features are computed once per mesh here)."""
+    same steps; the features are computed once per mesh here). ``presence``: the labeller's
+    presence rule after the cut, the side region's share by face area ("area"), by face count
+    ("count"), or by area without the rule's fill ("nofill"); None: no rule."""
     how = DEFAULT_MESH_LABELLING
     smoothed = surface_smooth(proba, _weights(shape, how.radius), labeller.settings.smooth)
-    return cut_faces(smoothed, shape["graph"], how.smoothness, floor=how.floor, min_share=labeller.settings.min_share)
+    labels = cut_faces(smoothed, shape["graph"], how.smoothness, floor=how.floor, min_share=labeller.settings.min_share)
+    if presence is None:
+        return labels
+    if presence == "nofill" and labeller.presence is not None:
+        labeller = replace(labeller, presence=replace(labeller.presence, fill=2.0))
+    e = shape["elements"]
+    return labeller.present(labels, smoothed, e.points, e.context,
+                            weights=None if presence == "count" else shape["graph"].mass)
 
 
 def timing(scratch: Path, sets, repeats: int = 3) -> dict:
@@ -229,6 +244,7 @@ def run(scratch: Path, sets, draws: int = DRAWS, fit=None, only=None, prior_weig
         chosen = np.random.default_rng(0).choice(len(triples), draws, replace=False)
         scores = {k: [] for k in decisions}
         areas = {k: [] for k in decisions}
+        arms = {k: [] for k in decisions}  # per draw: arm detection F1 over the scored meshes
         for t in chosen:
             pick = triples[t]
             labeller = Labeller.fit([(X[i], shapes[i]["truth"]) for i in pick], NAMES, shapes[0]["parts"],
@@ -236,21 +252,29 @@ def run(scratch: Path, sets, draws: int = DRAWS, fit=None, only=None, prior_weig
             codes = np.array([NAMES.index(k) for k in labeller.names])
             right = {k: [] for k in decisions}
             area = {k: [] for k in decisions}
+            found = {k: [] for k in decisions}  # (has arms, predicted to) per scored mesh
             for i in range(LEARN_FROM, len(shapes)):
                 p = labeller.classify(X[i])
+                mass, truth = shapes[i]["graph"].mass, shapes[i]["truth"]
                 for k, how in decisions.items():
-                    ok = codes[how(labeller, shapes[i], p)] == shapes[i]["truth"]
+                    got = codes[how(labeller, shapes[i], p)]
+                    ok = got == truth
                     right[k].append(ok.mean())
-                    area[k].append(float(np.sum(shapes[i]["graph"].mass * ok)))
+                    area[k].append(float(np.sum(mass * ok)))
+                    # as labeller_curve's arm F1, by area: has arms at 2% of the surface, predicted at 1%
+                    found[k].append((np.sum(mass[truth == 3]) >= 0.02, np.sum(mass[got == 3]) >= 0.01))
             for k in decisions:
                 scores[k].append(float(np.mean(right[k])))
                 areas[k].append(float(np.mean(area[k])))
+                has, said = np.array(found[k]).T
+                tp, wrong = np.sum(has & said), np.sum(has != said)
+                arms[k].append(float(2 * tp / max(2 * tp + wrong, 1)))
         report[name] = {k: {"faces": float(np.mean(scores[k])), "draws": [round(v, 4) for v in scores[k]],
-                            "area": float(np.mean(areas[k]))} for k in decisions}
+                            "area": float(np.mean(areas[k])), "arm_f1": float(np.mean(arms[k]))} for k in decisions}
         for k in decisions:
             r = report[name][k]
             print(f"{name:15s} {k:28s} faces right {r['faces']:.4f} (draws {min(r['draws']):.3f}-{max(r['draws']):.3f})"
-                  f"  area right {r['area']:.4f}", flush=True)
+                  f"  area right {r['area']:.4f}  arm F1 {r['arm_f1']:.3f}", flush=True)
     return report
 
 

@@ -1307,7 +1307,7 @@ class Labeller:
         for every tree (the exact ``predict_proba``).
     presence : PresenceRule or None
         Whether a shape has its label at all, read from the shape's side region after the
-        decision (:mod:`primkit.segmentation.presence`; voxels and points, not a mesh's faces).
+        decision (:mod:`primkit.segmentation.presence`; voxels, points and, after the cut, a mesh's faces).
     """
 
     names: list
@@ -1473,13 +1473,14 @@ class Labeller:
         proba = self.predict_proba(points, cuboids, normals, context, neighbours, grid_index)
         return self.present(decide(proba, self.settings.min_share), proba, points, context)
 
-    def present(self, labels, proba, points, context=None) -> np.ndarray:
+    def present(self, labels, proba, points, context=None, weights=None) -> np.ndarray:
         """``labels`` after :attr:`presence` (unchanged without one or when the labeller does
-        not know its label; ``points``, ``context`` canonical, as :func:`side_region` reads them)."""
+        not know its label; ``points``, ``context`` canonical, as :func:`side_region` reads them;
+        ``weights``: each element's weight in the region's share, e.g. a mesh's face areas)."""
         if self.presence is None or self.presence.label not in self.names or len(labels) == 0:
             return labels
         return apply_presence(labels, proba, side_region(points, context), self.names.index(self.presence.label),
-                              self.presence)
+                              self.presence, weights)
 
     # -- storage ------------------------------------------------------------------------------
 

@@ -91,18 +91,19 @@ class PresenceRule:
         return cls(d["label"], d["veto"], d["add"], d["fill"] if fill else 2.0)
 
 
-def apply_presence(labels, proba, region, label: int, rule: PresenceRule) -> np.ndarray:
+def apply_presence(labels, proba, region, label: int, rule: PresenceRule, weights=None) -> np.ndarray:
     """``(n,) int``: ``labels`` (each element's decided label) after ``rule``.
 
     ``proba`` : (n, classes) float, the probabilities ``labels`` were decided from (an element
     whose label is taken away takes its most probable other label); ``region`` : (n,) bool,
-    :func:`side_region`; ``label`` : the rule's label's class index.
+    :func:`side_region`; ``label`` : the rule's label's class index; ``weights`` : (n,) float or
+    None, what each element weighs in the region's share (a mesh's face areas; None: one each).
     """
     labels = np.asarray(labels, np.int64)
     region = np.asarray(region, bool)
     if len(labels) == 0:
         return labels
-    share = float(np.mean(region))
+    share = float(np.mean(region) if weights is None else np.sum(np.where(region, weights, 0.0)) / np.sum(weights))
     has = np.any(labels == label)
     if has and share < rule.veto:
         others = np.array(proba, float)

@@ -171,6 +171,33 @@ def test_no_radius_and_no_cut_is_the_labellers_own_decision(abstracted_chairs):
     assert np.array_equal(got, want)
 
 
+def test_a_mesh_gets_the_labellers_presence_rule(abstracted_chairs):
+    """``label_faces`` applies the labeller's presence rule after the cut: with a rule that gives
+    every face of the side region the arms (veto 0, add 0, fill 0), the labels are those without
+    the rule, the region's faces turned arms."""
+    from dataclasses import replace
+
+    from primkit.segmentation.meshlabels import label_faces
+    from primkit.segmentation.presence import PresenceRule, side_region
+
+    shapes, results, truth, names = abstracted_chairs
+    elements = [lab.mesh_elements(s.vertices, s.faces, r.frame) for s, r in zip(shapes, results)]
+    armed = [i for i, t in enumerate(truth) if np.any(t == names.index("arms"))]
+    pick = armed[:1] + [i for i in range(len(truth)) if i not in armed][:1]  # a chair with arms, one without
+    labeller = lab.Labeller.fit([(lab.element_features(elements[i], results[i].canonical, lab.LabellerSettings()),
+                                  truth[i]) for i in pick], names, 20, max_iter=10)
+    arms = labeller.names.index("arms")
+    always, never = replace(labeller, presence=PresenceRule("arms", 0.0, 0.0, 0.0)), replace(labeller, presence=None)
+    turned = 0
+    for i in armed[1:3] + [i for i in range(len(truth)) if i not in armed and i not in pick][:2]:
+        e, r = elements[i], results[i]
+        region = side_region(e.points, e.context)
+        want = np.where(region, arms, label_faces(never, e, r.canonical))
+        assert np.array_equal(label_faces(always, e, r.canonical), want)
+        turned += int(region.sum())
+    assert turned > 0  # some chair has a side region
+
+
 @pytest.mark.integration  # the bundled chair labeller on 4 abstracted chairs, and one `segment` call
 def test_segment_semantic_builds_the_face_graph_once_and_names_as_before(abstracted_chairs, monkeypatch, tmp_path):
     """On a mesh, ``segment --semantic`` builds the face adjacency once, for the part-index cut and

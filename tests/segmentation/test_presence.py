@@ -52,9 +52,10 @@ def test_a_chair_without_arms_has_no_side_region():
     assert not side_region(points).any()
 
 
-def _loop(labels, proba, region, label, rule):
+def _loop(labels, proba, region, label, rule, weights=None):
     """The rule one element at a time."""
-    share = sum(region) / len(region)
+    weights = [1.0] * len(region) if weights is None else weights
+    share = sum(w for r, w in zip(region, weights) if r) / sum(weights)
     has = any(v == label for v in labels)
     out = []
     for i, v in enumerate(labels):
@@ -82,6 +83,9 @@ def test_the_rule_is_a_per_element_loop(seed, fill):
     rule = PresenceRule("arms", 0.01, 0.1, fill)
     got = apply_presence(labels, proba, region, 3, rule)
     np.testing.assert_array_equal(got, _loop(labels, proba, region, 3, rule))
+    weights = rng.uniform(0.0, 3.0, n) ** 3  # a mesh's face areas: the region's share by weight
+    np.testing.assert_array_equal(apply_presence(labels, proba, region, 3, rule, weights),
+                                  _loop(labels, proba, region, 3, rule, weights))
     share = region.mean()
     if share < 0.01:
         assert not np.any(got == 3)
