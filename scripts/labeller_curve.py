@@ -421,14 +421,16 @@ def sweep(scratch: Path, sizes, only=None) -> dict:
 
 def _validation_train(chairs, draw):
     """The labelled chairs of a validation draw: validation chairs 0-99 of the shuffle (seed 0), in
-    shuffle ``draw`` (0: as they are), so that no draw learns from a scored chair (100-218)."""
+    shuffle ``draw`` (0: as they are), so that no draw learns from a scored chair (100-218);
+    ``--swap``: chairs 100-218 (chairs 0-99 scored)."""
     pool = order(chairs.validation, 0)[100:] if SWAP["on"] else order(chairs.validation, 0)[:100]
     return pool if draw == 0 else order(pool, draw)
 
 
 def curve(scratch: Path, part: str, sizes, draws: int, settings: LabellerSettings, labeller_only=False) -> dict:
     chairs = Chairs(scratch)
-    evaluate = chairs.test if part == "test" else order(chairs.validation, 0)[slice(100) if SWAP["on"] else slice(100, None)]
+    scored = slice(100) if SWAP["on"] else slice(100, None)  # the validation chairs not learned from
+    evaluate = chairs.test if part == "test" else order(chairs.validation, 0)[scored]
     print(f"{part}: {len(evaluate)} chairs scored; labellers learned from validation chairs; settings {settings}")
     rows = {"index naming (bundled model)": score(chairs, evaluate, index_naming(chairs, evaluate))}
     print(line("index naming (bundled model)", rows["index naming (bundled model)"]))
