@@ -1186,6 +1186,15 @@ def _gauss_kernel():
     if _GAUSS is None:
         import numba
 
+        @numba.njit(cache=True, nogil=True, inline="always")
+        def reflect(l, d, n):  # the indices d before and after l, mirrored at the ends as scipy's "reflect"
+            lo, hi = l - d, l + d
+            if lo < 0:
+                lo = -lo - 1
+            if hi >= n:
+                hi = 2 * n - 1 - hi
+            return lo, hi
+
         @numba.njit(cache=True, nogil=True)
         def across(inp, res, w):  # (A, n, B): filter along the middle axis, B contiguous
             r = w.shape[0] - 1
@@ -1195,11 +1204,7 @@ def _gauss_kernel():
                     for v in range(m):
                         res[i, l, v] = inp[i, l, v] * w[0]
                     for d in range(r, 0, -1):
-                        lo, hi = l - d, l + d
-                        if lo < 0:
-                            lo = -lo - 1
-                        if hi >= n:
-                            hi = 2 * n - 1 - hi
+                        lo, hi = reflect(l, d, n)
                         for v in range(m):
                             res[i, l, v] += (inp[i, lo, v] + inp[i, hi, v]) * w[d]
 
@@ -1220,11 +1225,7 @@ def _gauss_kernel():
                 for l in range(n):
                     t = inp[i, l] * w[0]
                     for d in range(r, 0, -1):
-                        lo, hi = l - d, l + d
-                        if lo < 0:
-                            lo = -lo - 1
-                        if hi >= n:
-                            hi = 2 * n - 1 - hi
+                        lo, hi = reflect(l, d, n)
                         t += (inp[i, lo] + inp[i, hi]) * w[d]
                     res[i, l] = t
 
