@@ -29,7 +29,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["PROFILE_FEATURES", "PROFILE_BINS", "profile_features"]
+__all__ = ["PROFILE_FEATURES", "PROFILE_BINS", "profile_features", "box_cells"]
 
 #: Columns :func:`profile_features` returns.
 PROFILE_FEATURES = 10
@@ -75,6 +75,21 @@ def profile_features(points, context=None, bins: int = PROFILE_BINS) -> np.ndarr
         kernels[0](ctx, lo, extent, bins, None, ctx_cells)
     kernels[1](ctx_cells, cells, counts, out)  # columns 4 and 6-9; 5 less the densest slab
     return out
+
+
+def box_cells(points, bins: int = PROFILE_BINS) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(lo, extent, cells)``: the bounding box of finite ``(n, 3)`` points (its lower corner and
+    its size, at least 1e-9 on each axis) and each point's ``(n, 3) int`` cell of the ``bins``-a-side
+    grid over it, as :func:`profile_features` bins its context (the side features bin the same
+    way, :mod:`primkit.segmentation.sides`)."""
+    place, _, bounds = _profile_kernel()
+    points = np.ascontiguousarray(points, float)
+    lo, hi = np.empty(3), np.empty(3)
+    bounds(points, lo, hi)
+    extent = np.maximum(hi - lo, 1e-9)
+    cells = np.empty((len(points), 3), np.int64)
+    place(points, lo, extent, bins, None, cells)
+    return lo, extent, cells
 
 
 _PROFILE = None

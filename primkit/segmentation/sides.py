@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .profile import PROFILE_BINS
+from .profile import PROFILE_BINS, box_cells
 
 __all__ = ["SIDE_FEATURES", "side_features"]
 
@@ -68,9 +68,9 @@ def side_columns(points, context=None, bins: int = PROFILE_BINS) -> np.ndarray:
         return np.zeros((0, SIDE_FEATURES + 1))
     if len(ctx) == 0:
         raise ValueError("`context` is empty: no shape to read the sides from")
-    lo = ctx.min(axis=0)
-    extent = np.maximum(ctx.max(axis=0) - lo, 1e-9)
-    c = np.clip(((ctx - lo) / extent * bins).astype(np.int64), 0, bins - 1)
+    if not (np.isfinite(ctx).all() and np.isfinite(points).all()):
+        raise ValueError("`points` and `context` must be finite")
+    lo, extent, c = box_cells(ctx, bins)  # the profile's box and cells
     top, bottom = np.full((bins, bins), -1, np.int64), np.full((bins, bins), bins, np.int64)  # [x, z]
     z_lo, z_hi = np.full(bins, bins, np.int64), np.full(bins, -1, np.int64)  # per slab
     found = np.zeros(3, np.int64)  # the densest slab, its first and last x cell

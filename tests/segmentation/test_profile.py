@@ -10,7 +10,7 @@ from primkit import primitives
 from primkit.model.bundled import resolve_model
 from primkit.segmentation import labeller as lab
 from primkit.segmentation.labeller import LabellerSettings, frame_features
-from primkit.segmentation.profile import PROFILE_FEATURES, profile_features
+from primkit.segmentation.profile import PROFILE_BINS, PROFILE_FEATURES, box_cells, profile_features
 
 from small_labellers import as_version, small_labeller
 
@@ -93,3 +93,20 @@ def test_a_profile_labeller_passed_off_as_version_2_is_refused(tmp_path):
     with pytest.raises(lab.ModelFileError) as err:
         lab.read_labeller(as_version(path, tmp_path / "v2.safetensors", 2, "profile"))
     assert "features" in str(err.value) and len(str(err.value).splitlines()) == 1
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_box_cells_are_numpys_box_and_clipped_cells(seed):
+    rng = np.random.default_rng(seed)
+    points = rng.normal(size=(300, 3)) * [1.0, 2.0, 0.5]
+    points[:5] = points[5]  # repeated points, and with seed 3 a flat box
+    if seed == 3:
+        points[:, 2] = 0.25
+    lo, extent, cells = box_cells(points)
+    want_lo = points.min(axis=0)
+    want_extent = np.maximum(points.max(axis=0) - want_lo, 1e-9)
+    np.testing.assert_array_equal(lo, want_lo)
+    np.testing.assert_array_equal(extent, want_extent)
+    np.testing.assert_array_equal(cells, np.clip(((points - want_lo) / want_extent * PROFILE_BINS).astype(np.int64),
+                                                 0, PROFILE_BINS - 1))
+    assert cells.max() == PROFILE_BINS - 1 or seed == 3

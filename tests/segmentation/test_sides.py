@@ -120,6 +120,8 @@ def test_bad_inputs_are_refused_in_one_line():
     with pytest.raises(ValueError, match="empty"):
         side_features(np.zeros((4, 3)), np.zeros((0, 3)))
     assert side_features(np.zeros((0, 3))).shape == (0, SIDE_FEATURES)
+    with pytest.raises(ValueError, match="finite"):
+        side_features(np.array([[0.0, np.nan, 0.0], [1.0, 1.0, 1.0]]))
 
 
 def test_the_last_side_column_is_the_profiles_height():
