@@ -86,31 +86,54 @@ def _kernels():
             for c in range(logits.shape[0]):
                 out[c] /= total
 
-        @numba.njit(cache=True, nogil=True)
-        def field(logp, near, weight, direction, mu, lam, rounds, out):
-            n, k = logp.shape
-            q = np.empty((n, k))
-            for i in range(n):  # start: the softmax of the unary, the probabilities themselves
-                softmax_row(logp[i], q[i])
-            msg = np.empty(k)
-            for _ in range(rounds):
-                new = np.empty((n, k))
-                for i in range(n):
-                    for c in range(k):
-                        msg[c] = logp[i, c]
-                    for j in range(1, near.shape[1]):
-                        other = near[i, j]
-                        if other == i or weight[i, j] == 0.0:
-                            continue
-                        d = direction[j]
+        def rounds_with(term):
+            """The mean-field rounds, a neighbour's part of each message given by ``term(msg, q,
+            other, w, args)`` (``w``: the pair's weight); compiled once per term, not cached on
+            disk (two loops from one factory would share a cache entry)."""
+            @numba.njit(nogil=True)
+            def run(logp, near, weight, args, rounds, out):
+                n, k = logp.shape
+                q = np.empty((n, k))
+                for i in range(n):  # start: the softmax of the unary, the probabilities themselves
+                    softmax_row(logp[i], q[i])
+                msg = np.empty(k)
+                for _ in range(rounds):
+                    new = np.empty((n, k))
+                    for i in range(n):
                         for c in range(k):
-                            cost = 0.0
-                            for b in range(k):
-                                cost += mu[d, c, b] * q[other, b]
-                            msg[c] -= lam * weight[i, j] * cost
-                    softmax_row(msg, new[i])
-                q = new
-            out[:] = q
+                            msg[c] = logp[i, c]
+                        for j in range(1, near.shape[1]):
+                            if near[i, j] != i:
+                                term(msg, q, near[i, j], j, weight[i, j], args)
+                        softmax_row(msg, new[i])
+                    q = new
+                out[:] = q
+
+            return run
+
+        @numba.njit(nogil=True, inline="always")
+        def general(msg, q, other, j, w, args):  # args: (lam, mu, direction)
+            lam, mu, direction = args
+            if w == 0.0:
+                return
+            d = direction[j]
+            for c in range(msg.shape[0]):
+                cost = 0.0
+                for b in range(msg.shape[0]):
+                    cost += mu[d, c, b] * q[other, b]
+                msg[c] -= lam * w * cost
+
+        @numba.njit(nogil=True, inline="always")
+        def potts_term(msg, q, other, j, w, args):  # args: (lam,)
+            # the Potts case of ``general``: sum_b [c != b] q_w(b) = 1 - q_w(c), and the constant 1
+            # is the same for every c, so each neighbour adds lam * weight * q_w(c)
+            w = args[0] * w
+            if w == 0.0:
+                return
+            for c in range(msg.shape[0]):
+                msg[c] += w * q[other, c]
+
+        field, field_potts = rounds_with(general), rounds_with(potts_term)
 
         @numba.njit(cache=True, nogil=True)
         def modes(unary, near, weight, lam, labels, sweeps):
@@ -138,31 +161,6 @@ def _kernels():
                 if changed == 0:
                     break
             return labels
-
-        @numba.njit(cache=True, nogil=True)
-        def field_potts(logp, near, weight, lam, rounds, out):
-            # the Potts case of ``field``: sum_b [c != b] q_w(b) = 1 - q_w(c), and the constant 1
-            # is the same for every c, so each neighbour adds lam * weight * q_w(c)
-            n, k = logp.shape
-            q = np.empty((n, k))
-            for i in range(n):
-                softmax_row(logp[i], q[i])
-            msg = np.empty(k)
-            for _ in range(rounds):
-                new = np.empty((n, k))
-                for i in range(n):
-                    for c in range(k):
-                        msg[c] = logp[i, c]
-                    for j in range(1, near.shape[1]):
-                        other = near[i, j]
-                        w = lam * weight[i, j]
-                        if other == i or w == 0.0:
-                            continue
-                        for c in range(k):
-                            msg[c] += w * q[other, c]
-                    softmax_row(msg, new[i])
-                q = new
-            out[:] = q
 
         _KERNELS.update(field=field, field_potts=field_potts, modes=modes)
     return _KERNELS
@@ -197,12 +195,12 @@ def mean_field(logp, near, weight, lam: float, rounds: int = 5, mu=None, directi
     out = np.empty_like(logp)
     if mu is None and direction is None:  # Potts: the shorter loop, the same marginals up to rounding
         _kernels()["field_potts"](logp, np.ascontiguousarray(near, np.int64),
-                                  np.ascontiguousarray(weight, np.float64), float(lam), int(rounds), out)
+                                  np.ascontiguousarray(weight, np.float64), (float(lam),), int(rounds), out)
         return out
     mu = potts(logp.shape[1]) if mu is None else np.ascontiguousarray(mu, np.float64)
     direction = np.zeros(near.shape[1], np.int64) if direction is None else np.asarray(direction, np.int64)
     _kernels()["field"](logp, np.ascontiguousarray(near, np.int64), np.ascontiguousarray(weight, np.float64),
-                        direction, mu, float(lam), int(rounds), out)
+                        (float(lam), mu, direction), int(rounds), out)
     return out
 
 
