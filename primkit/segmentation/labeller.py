@@ -53,7 +53,7 @@ import numpy as np
 from .. import primitives
 from ..model.modelfile import ModelFileError
 from .presence import PresenceRule, apply_presence, side_region
-from .profile import PROFILE_FEATURES, profile_features
+from .profile import PROFILE_FEATURES, column_range, profile_features
 from .sides import SIDE_FEATURES, side_features
 
 __all__ = [
@@ -1025,38 +1025,9 @@ def _check_inside(index, shape) -> None:
     """ValueError unless the ``(n, 3)`` voxel indices lie inside a grid of ``shape`` (the Numba
     loops read the grid unchecked)."""
     if len(index):
-        low, high = _column_range(index)
+        low, high = column_range(index)
         if low.min() < 0 or np.any(high >= np.asarray(shape)[:3]):
             raise ValueError(f"voxel indices outside the grid of shape {tuple(shape)}")
-
-
-_RANGE = None
-
-
-def _column_range(a) -> tuple[np.ndarray, np.ndarray]:
-    """``(a.min(axis=0), a.max(axis=0))`` of a non-empty 2-D int array in one Numba pass (NumPy's
-    reductions along axis 0 of an ``(n, 3)`` array stride through it: a tenth of the speed)."""
-    global _RANGE
-    if _RANGE is None:
-        import numba
-
-        @numba.njit(cache=True, nogil=True)
-        def column_range(a, low, high):
-            for j in range(a.shape[1]):
-                low[j] = high[j] = a[0, j]
-            for i in range(1, a.shape[0]):
-                for j in range(a.shape[1]):
-                    v = a[i, j]
-                    if v < low[j]:
-                        low[j] = v
-                    elif v > high[j]:
-                        high[j] = v
-
-        _RANGE = column_range
-    a = np.ascontiguousarray(a, np.int64)
-    low, high = np.empty(a.shape[1], np.int64), np.empty(a.shape[1], np.int64)
-    _RANGE(a, low, high)
-    return low, high
 
 
 _BLOCK = None
@@ -1106,7 +1077,7 @@ def _check_sampling(index, neighbours, step: int):
         raise ValueError(f"grid sampling one voxel in {step}: only 1, 2, 4 or 8")
     n = len(index)
     neighbours = np.ascontiguousarray(neighbours, np.int64)
-    low, high = _column_range(neighbours) if n and neighbours.shape == (n, 27) else (np.zeros(1), np.zeros(1))
+    low, high = column_range(neighbours) if n and neighbours.shape == (n, 27) else (np.zeros(1), np.zeros(1))
     if neighbours.shape != (n, 27) or low.min() < 0 or (n and high.max() >= n):
         raise ValueError(f"`neighbours` must be grid_neighbours' (n, 27) positions, got shape {neighbours.shape}")
     return index, neighbours
@@ -1411,7 +1382,7 @@ class Labeller:
         if not self.settings.neighbours or grid_index is None or len(grid_index) != len(points):
             return None
         grid_index = np.asarray(grid_index, np.int64)
-        shape = _column_range(grid_index)[1] + 1 if len(grid_index) else np.zeros(3, np.int64)  # index.max(axis=0) + 1
+        shape = column_range(grid_index)[1] + 1 if len(grid_index) else np.zeros(3, np.int64)  # index.max(axis=0) + 1
         return grid_local_shape(points, grid_index, rows, self.settings.neighbours, shape)
 
     def predict_proba(self, points, cuboids, normals=None, context=None, neighbours=None, grid_index=None) -> np.ndarray:

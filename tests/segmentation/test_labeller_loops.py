@@ -151,11 +151,15 @@ def test_the_probabilities_are_scipys_softmax():
 
 
 def test_the_column_range_is_numpys_min_and_max():
+    from primkit.segmentation.profile import column_range
+
     rng = np.random.default_rng(8)
-    for a in (rng.integers(-50, 50, (1, 3)), rng.integers(-5, 900, (4000, 27)), rng.integers(0, 32, (300, 3))):
-        low, high = lab._column_range(a)
+    for a in (rng.integers(-50, 50, (1, 3)), rng.integers(-5, 900, (4000, 27)), rng.integers(0, 32, (300, 3)),
+              rng.normal(size=(500, 3)), rng.normal(size=(1, 3)), rng.integers(0, 9, (50, 3)).astype(np.int32)):
+        low, high = column_range(a)
         np.testing.assert_array_equal(low, a.min(axis=0))
         np.testing.assert_array_equal(high, a.max(axis=0))
+        assert low.dtype == (np.float64 if a.dtype.kind == "f" else np.int64)
 
 
 def test_the_profile_refuses_points_that_are_not_finite():
