@@ -8,12 +8,13 @@ runs it) once with ``labeller=None`` (names by part index) and once with the mod
 
 Usage (from the repository root)::
 
-    python -m benchmarks.bench_labeller chair [--count 600] [--rounds 3] [--workers N] [--grid-sample 1,2,4,8] [--exact] [--before] [--cache DIR]
+    python -m benchmarks.bench_labeller chair [--count 600] [--rounds 3] [--workers N] [--grid-sample 1,2,4,8] [--exact] [--before] [--no-cut] [--cache DIR]
 
 (``chair``: the bundled chair model's labeller; a file written by ``primkit name-parts`` works too.)
 ``--exact`` times one more variant in every round: the labeller walking every tree (no early
 stop, ``Labeller.early_stop`` None; the labels ``predict_proba`` gives). ``--before`` times one more variant in every round: the labeller as it labelled before the faster
-paths (a k-d tree for the local shape, the plain tree walk), the same trees. Each pass prints its
+paths (a k-d tree for the local shape, the plain tree walk), the same trees. ``--no-cut`` times the
+labeller without its seat/legs layer cut (:mod:`primkit.segmentation.layers`). Each pass prints its
 wall time and, with ``--workers 1`` (every file labelled in this process), its CPU time, which
 other jobs on a shared machine disturb less.
 """
@@ -67,6 +68,8 @@ def main(argv=None) -> int:
                     help="also time the labeller walking every tree (no early stop, Labeller.early_stop None)")
     ap.add_argument("--before", action="store_true",
                     help="also time the labeller's paths before the faster ones (k-d tree, plain walk)")
+    ap.add_argument("--no-cut", action="store_true",
+                    help="also time the labeller without its layer cut (Labeller.layer_cut None)")
     args = ap.parse_args(argv)
     labeller = read_labeller(resolve_model(args.model))  # a file or a bundled model's name
     if labeller is None:
@@ -81,6 +84,8 @@ def main(argv=None) -> int:
         variants.append(("exact (every tree)", Segmenter(args.model, labeller=replace(labeller, early_stop=None))))
     if args.before:
         variants.append(("before (k-d tree, plain walk)", Segmenter(args.model, labeller=_before(labeller))))
+    if args.no_cut:
+        variants.append(("without the layer cut", Segmenter(args.model, labeller=replace(labeller, layer_cut=None))))
     with tempfile.TemporaryDirectory(prefix="bench-labeller-") as temporary:
         cache = str(args.cache) if args.cache else temporary
         plain.abstract_files(files, cache_dir=cache, workers=args.workers, progress=False)  # warm the cache

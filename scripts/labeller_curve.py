@@ -22,7 +22,8 @@ arm detection F1 (a chair *has* arms when at least 2% of its voxels are arm, is 
 at least 1% are). Beside the labeller: today's naming (the bundled model's one name per index) and a
 position-only labeller (the same classifier on the canonical position alone). The labeller's arms
 presence rule (:mod:`primkit.segmentation.presence`, on as ``Labeller.fit`` keeps it) is left out
-with ``--no-presence``; the side features (``LabellerSettings.sides``) are read with ``--sides``.
+with ``--no-presence``, its seat/legs layer cut (:mod:`primkit.segmentation.layers`) with
+``--no-layer-cut``; the side features (``LabellerSettings.sides``) are read with ``--sides``.
 """
 
 from __future__ import annotations
@@ -241,8 +242,10 @@ def label_with(chairs, labeller, evaluate, settings, keep, position_only=False) 
             for _ in range(settings.smooth):
                 proba = proba[idx].mean(axis=1)
         labels = decide(proba, settings.min_share)
-        if isinstance(labeller, Labeller):  # its presence rule, as Labeller.predict applies it
-            labels = labeller.present(labels, proba, chairs.arrays[n]["points"].astype(float))
+        if isinstance(labeller, Labeller):  # its presence rule and layer cut, as Labeller.predict applies them
+            points = chairs.arrays[n]["points"].astype(float)
+            labels = labeller.present(labels, proba, points)
+            labels = labeller.cut_layers(labels, proba, points, chairs.arrays[n]["index"].astype(np.int64))
         out[n] = known[labels]
     return out
 
@@ -549,6 +552,8 @@ def main(argv=None) -> int:
                     "(primkit.segmentation.selftrain.SelfTraining), e.g. 1:0.9:0.5")
     ap.add_argument("--fill", type=float, default=None,
                     help="curve: the presence rule's fill (default: PresenceRule's; above 1: none)")
+    ap.add_argument("--layer-cut", action=argparse.BooleanOptionalAction, default=True,
+                    help="curve: the seat/legs layer cut (primkit.segmentation.layers; Labeller.fit's default)")
     ap.add_argument("--swap", action="store_true",
                     help="curve --part validation: learn from validation chairs 100-218, score chairs 0-99")
     args = ap.parse_args(argv)
@@ -556,6 +561,8 @@ def main(argv=None) -> int:
     FILL["fill"], SWAP["on"] = args.fill, args.swap
     if not args.presence:
         FIT["presence"] = None
+    if not args.layer_cut:
+        FIT["layer_cut"] = None
     if args.mirror:
         MIRROR["chairs"] = Chairs(args.scratch / "mirror")
     if args.self_train:

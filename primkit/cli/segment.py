@@ -179,6 +179,11 @@ def _cmd_name_parts(args) -> int:
     write_labeller(_model_path(args.model), out, labeller, changes, overwrite=args.force)
     print(f"labeller: {', '.join(labeller.names)} learned from {labeller.info['shapes']} shapes "
           f"({labeller.info['elements']} elements); {len(labeller.ensemble.feature)} tree nodes")
+    rules = ([f"{labeller.presence.label} only where something rises beside the seat"] if labeller.presence else []) \
+        + ([f"{labeller.layer_cut.upper}/{labeller.layer_cut.lower} cut at one height on voxel grids"]
+           if labeller.layer_cut else [])
+    if rules:
+        print(f"after the decision: {'; '.join(rules)} (docs/labeller.md)")
     print(f"wrote {out} with part names and a labeller")
     return report_errors(failed)
 

@@ -24,7 +24,9 @@ labels from a few labelled shapes; its class probabilities are blended with the 
 prior (the shares of the labels on each cuboid index over the labelled shapes, ``prior_weight``),
 then averaged over each element's nearest neighbours (``smooth`` rounds), and each element takes
 the most probable label; a labeller that knows ``arms`` then asks the shape whether it has any
-(:mod:`primkit.segmentation.presence`: what rises beside the seat).
+(:mod:`primkit.segmentation.presence`: what rises beside the seat), and one that knows ``seat``
+and ``legs`` puts the boundary between them on a voxel grid at one horizontal cut
+(:mod:`primkit.segmentation.layers`: where the seat ends).
 
 Storage without code: the fitted trees are exported to plain arrays (:class:`TreeEnsemble`: per
 node the feature, threshold, children, leaf value and the side missing values go to) and saved as
@@ -52,6 +54,7 @@ import numpy as np
 
 from .. import primitives
 from ..model.modelfile import ModelFileError
+from .layers import LayerCut, apply_layer_cut, layer_levels
 from .presence import PresenceRule, apply_presence, side_region
 from .profile import PROFILE_FEATURES, column_range, profile_features
 from .sides import SIDE_FEATURES, side_features
@@ -83,8 +86,9 @@ LABELLER_FORMAT = "primkit-labeller"
 #: version 3 adds the ``profile`` setting (the shape-profile features; versions 1-2 read it false);
 #: version 4 the ``sides`` setting (the side features; versions 1-3 read it false) and may carry
 #: ``presence`` (:class:`primkit.segmentation.presence.PresenceRule`; versions 1-3: none); version
-#: 5 the rule's ``fill`` (version 4 rules read it off).
-LABELLER_FORMAT_VERSION = 5
+#: 5 the rule's ``fill`` (version 4 rules read it off); version 6 may carry ``layer_cut``
+#: (:class:`primkit.segmentation.layers.LayerCut`; versions 1-5: none).
+LABELLER_FORMAT_VERSION = 6
 #: Prefix of a labeller's tensors in a model file (beside the network's weights).
 LABELLER_PREFIX = "labeller."
 #: Metadata key of a labeller's description in a model file.
@@ -101,11 +105,16 @@ STORED = {1: {}, 2: {"feature": np.int16, "left": np.int16, "right": np.int16}}
 STORED[3] = STORED[2]  # the same arrays; the description's settings gained ``profile``
 STORED[4] = STORED[2]  # the same arrays; the description's settings gained ``sides``
 STORED[5] = STORED[2]  # the same arrays; the presence rule gained ``fill``
+STORED[6] = STORED[2]  # the same arrays; the description gained ``layer_cut``
 
 #: ``Labeller.fit(presence="auto")`` keeps the presence rule when it contradicts at most this share
 #: of the labelled shapes' own labels (it would take their label away, or give it to a shape
 #: without it).
 PRESENCE_TOLERANCE = 0.2
+#: ``Labeller.fit(layer_cut="auto")`` keeps the layer cut when at most ``PRESENCE_TOLERANCE`` of the
+#: labelled voxel grids contradict it: the cut, run on a grid's own labels, would move more than
+#: this share of its ``upper`` and ``lower`` voxels (on the 219 PartNet validation chairs: 16, 7%).
+LAYER_TOLERANCE = 0.1
 
 #: Bounds on what a stored labeller may ask for (a hostile file allocates nothing beyond them).
 MAX_NODES = 50_000_000
@@ -1280,6 +1289,9 @@ class Labeller:
     presence : PresenceRule or None
         Whether a shape has its label at all, read from the shape's side region after the
         decision (:mod:`primkit.segmentation.presence`; voxels, points and, after the cut, a mesh's faces).
+    layer_cut : LayerCut or None
+        Where the seat ends: one horizontal cut between two labels, after the presence rule, on a
+        voxel grid's layers (:mod:`primkit.segmentation.layers`; faces and points are left alone).
     """
 
     names: list
@@ -1290,11 +1302,12 @@ class Labeller:
     prior: np.ndarray | None = None
     early_stop: tuple | None = EARLY_STOP
     presence: PresenceRule | None = None
+    layer_cut: LayerCut | None = None
 
     @classmethod
     def fit(cls, shapes, names, parts: int, *, settings: LabellerSettings | None = None, per_shape: int = 1000,
             max_iter: int = 100, learning_rate: float = 0.1, max_leaf_nodes: int = 31, seed=0,
-            info: dict | None = None, presence="auto", **options) -> "Labeller":
+            info: dict | None = None, presence="auto", layer_cut="auto", **options) -> "Labeller":
         """Learn a labeller from labelled shapes.
 
         Parameters
@@ -1318,6 +1331,12 @@ class Labeller:
             to, at most :data:`PRESENCE_TOLERANCE` of them wrongly (on the 219 PartNet validation
             chairs: 6, 2.7%; a category whose "arms" do not rise beside a seat has the rule off);
             else none. ``info["presence_check"]`` says what was found.
+        layer_cut : LayerCut, None or "auto"
+            The layer cut kept with the labeller; "auto": :class:`LayerCut`'s defaults (chosen on
+            PartNet validation chairs) when the learned labels include its ``upper`` and ``lower``
+            and at most :data:`PRESENCE_TOLERANCE` of the labelled voxel grids (shapes whose
+            positions lie on layers) contradict it (:data:`LAYER_TOLERANCE`); else none.
+            ``info["layer_cut_check"]`` says what was found.
         """
         from sklearn.ensemble import HistGradientBoostingClassifier
 
@@ -1326,6 +1345,8 @@ class Labeller:
         Xs, ys, ws, priors = [], [], [], []
         rule = PresenceRule() if presence == "auto" and PresenceRule().label in list(names) else None
         checked = contradicted = 0
+        cut = LayerCut() if layer_cut == "auto" and {LayerCut().upper, LayerCut().lower} <= set(names) else None
+        layered = against = 0
         for shape in shapes:
             X, y = np.asarray(shape[0], float), np.asarray(shape[1], np.int64)
             weight = float(shape[2]) if len(shape) > 2 else 1.0
@@ -1335,6 +1356,11 @@ class Labeller:
                 share = float(np.mean(side_region(X[:, :3])))  # the first columns: canonical positions
                 checked += 1
                 contradicted += int(share < rule.veto if has else share >= rule.add)
+            if cut is not None and len(keep):  # would the cut move many of this grid's own seat and legs?
+                moved = _layer_cut_moves(X[keep, :3], y[keep], list(names), cut)
+                if moved is not None:
+                    layered += 1
+                    against += int(moved > LAYER_TOLERANCE)
             if len(keep) and X.shape[1] == feature_count(parts, settings):  # every labelled element
                 counts = np.zeros((parts, len(names)))
                 np.add.at(counts, (nearest_index(X[keep], parts), y[keep]), weight / len(keep))
@@ -1367,8 +1393,13 @@ class Labeller:
             if rule is not None and rule.label in kept:
                 info["presence_check"] = {"shapes": checked, "contradicted": contradicted}
                 presence = rule if contradicted <= PRESENCE_TOLERANCE * checked else None
+        if layer_cut == "auto":
+            layer_cut = None
+            if cut is not None and {cut.upper, cut.lower} <= set(kept) and layered:
+                info["layer_cut_check"] = {"shapes": layered, "contradicted": against}
+                layer_cut = cut if against <= PRESENCE_TOLERANCE * layered else None
         return cls(kept, int(parts), TreeEnsemble.from_sklearn(model), settings, info,
-                   index_prior(priors, present, parts), presence=presence)
+                   index_prior(priors, present, parts), presence=presence, layer_cut=layer_cut)
 
     def features(self, points, cuboids, normals=None, context=None, *, local_shape=None) -> np.ndarray:
         """:func:`frame_features` with this labeller's settings (canonical frame)."""
@@ -1443,7 +1474,8 @@ class Labeller:
         if len(points) == 0:
             return np.zeros(0, np.int64)
         proba = self.predict_proba(points, cuboids, normals, context, neighbours, grid_index)
-        return self.present(decide(proba, self.settings.min_share), proba, points, context)
+        labels = self.present(decide(proba, self.settings.min_share), proba, points, context)
+        return self.cut_layers(labels, proba, points, grid_index)
 
     def present(self, labels, proba, points, context=None, weights=None) -> np.ndarray:
         """``labels`` after :attr:`presence` (unchanged without one or when the labeller does
@@ -1453,6 +1485,17 @@ class Labeller:
             return labels
         return apply_presence(labels, proba, side_region(points, context), self.names.index(self.presence.label),
                               self.presence, weights)
+
+    def cut_layers(self, labels, proba, points, grid_index=None) -> np.ndarray:
+        """``labels`` after :attr:`layer_cut` (unchanged without one, or without ``grid_index``:
+        the ``(n, 3) int`` voxel indices of a grid's elements, whose layers the cut reads;
+        ``points`` canonical)."""
+        cut = self.layer_cut
+        if cut is None or grid_index is None or len(labels) == 0 or not {cut.upper, cut.lower} <= set(self.names):
+            return labels
+        most = int(np.max(column_range(np.asarray(grid_index, np.int64))[1])) + 1  # a grid's largest side
+        return apply_layer_cut(labels, proba, np.asarray(points, float)[:, 1], self.names.index(cut.upper),
+                               self.names.index(cut.lower), cut, most)
 
     # -- storage ------------------------------------------------------------------------------
 
@@ -1477,6 +1520,8 @@ class Labeller:
                        "info": self.info}
         if self.presence is not None:
             description["presence"] = self.presence.to_dict()
+        if self.layer_cut is not None:
+            description["layer_cut"] = self.layer_cut.to_dict()
         return arrays, description
 
     @classmethod
@@ -1531,8 +1576,30 @@ class Labeller:
                 raise ValueError(f"{where}: {exc}") from None
             if presence.label not in names:
                 raise ValueError(f"{where}: the presence rule's label {presence.label!r} is not among the names")
+        cut = description.get("layer_cut") if version >= 6 else None
+        if cut is not None:
+            try:
+                cut = LayerCut.from_dict(cut)
+            except ValueError as exc:
+                raise ValueError(f"{where}: {exc}") from None
+            if not {cut.upper, cut.lower} <= set(names):
+                raise ValueError(f"{where}: the layer cut's labels {cut.upper!r}, {cut.lower!r} are not among the names")
         return cls(list(names), parts, ensemble, settings, info if isinstance(info, dict) else {}, prior,
-                   presence=presence)
+                   presence=presence, layer_cut=cut)
+
+
+def _layer_cut_moves(points, labels, names, cut: LayerCut):
+    """The share of a labelled shape's ``cut.upper`` and ``cut.lower`` elements that ``cut`` would
+    move, run on the shape's own labels (``Labeller.fit``'s check); None when its elements do not
+    lie on layers or it lacks either label."""
+    upper, lower = names.index(cut.upper), names.index(cut.lower)
+    chosen = (labels == upper) | (labels == lower)
+    if not np.any(labels == upper) or not np.any(labels == lower) or layer_levels(points[:, 1]) is None:
+        return None
+    onehot = np.zeros((len(labels), len(names)))
+    onehot[np.arange(len(labels)), labels] = 1.0
+    moved = apply_layer_cut(labels, onehot, points[:, 1], upper, lower, cut) != labels
+    return float(np.count_nonzero(moved) / np.count_nonzero(chosen))
 
 
 def decide(proba, min_share: float = 0.0) -> np.ndarray:
