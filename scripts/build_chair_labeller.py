@@ -85,7 +85,9 @@ def build(output: Path, chairs: int | None = None, cache=None, *, mirror: bool =
     check_unchanged(source, out, meta)  # the network and every other key unchanged
     back = read_labeller(out)
     print(f"wrote {out}: {out.stat().st_size} bytes (the file it started from: {source.stat().st_size}), "
-          f"{len(back.ensemble.feature)} tree nodes, prior weight {back.settings.prior_weight}")
+          f"{len(back.ensemble.feature)} tree nodes, prior weight {back.settings.prior_weight}; presence rule "
+          f"{back.presence}, layer cut {back.layer_cut} (checks: {back.info.get('presence_check')}, "
+          f"{back.info.get('layer_cut_check')})")
     return out
 
 
