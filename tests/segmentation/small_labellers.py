@@ -1,5 +1,5 @@
-"""Helpers of the labeller-format tests: a small labeller learned from random shapes, and a
-labeller file rewritten as an older format version wrote it."""
+"""Helpers of the labeller-format tests: a small labeller learned from random shapes, a labeller
+file with its description changed, and one rewritten as an older format version wrote it."""
 
 from __future__ import annotations
 
@@ -26,15 +26,25 @@ def small_labeller(settings):
     return Labeller.fit(shapes, ["a", "b", "c"], 5, settings=settings, max_iter=10), c, points
 
 
-def as_version(path, out, version: int, setting: str):
-    """The labeller file ``path`` as format ``version`` wrote it: without the ``setting`` key in
-    its settings (the one that version did not know), written to ``out``."""
+def rewrite_description(path, out, change):
+    """The labeller file ``path`` written to ``out`` with ``change`` (a function) applied to its
+    labeller description (the JSON dict), the tensors unchanged."""
     from safetensors import safe_open
     from safetensors.numpy import load_file, save_file
 
     with safe_open(str(path), framework="numpy") as f:
         meta = json.loads(f.metadata()["primkit"])
-    meta["labeller"]["format_version"] = version
-    del meta["labeller"]["settings"][setting]
+    change(meta["labeller"])
     save_file(load_file(str(path)), str(out), metadata={"primkit": json.dumps(meta)})
     return out
+
+
+def as_version(path, out, version: int, setting: str):
+    """The labeller file ``path`` as format ``version`` wrote it: without the ``setting`` key in
+    its settings (the one that version did not know), written to ``out``."""
+
+    def older(d):
+        d["format_version"] = version
+        del d["settings"][setting]
+
+    return rewrite_description(path, out, older)

@@ -5,7 +5,6 @@ from before it)."""
 from __future__ import annotations
 
 import functools
-import json
 from dataclasses import replace
 
 import numpy as np
@@ -16,6 +15,8 @@ from primkit.model.bundled import resolve_model
 from primkit.segmentation import labeller as lab
 from primkit.segmentation.labeller import Labeller, LabellerSettings, decide, frame_features
 from primkit.segmentation.layers import LayerCut, apply_layer_cut, layer_levels
+
+from small_labellers import rewrite_description
 
 BACK, SEAT, LEGS = 0, 1, 2
 
@@ -159,17 +160,6 @@ def test_predict_applies_the_cut_on_grids_only():
     np.testing.assert_array_equal(replace(labeller, layer_cut=None).predict(points, c, grid_index=index), plain)
 
 
-def _rewrite(path, out, change):
-    from safetensors import safe_open
-    from safetensors.numpy import load_file, save_file
-
-    with safe_open(str(path), framework="numpy") as f:
-        meta = json.loads(f.metadata()["primkit"])
-    change(meta["labeller"])
-    save_file(load_file(str(path)), str(out), metadata={"primkit": json.dumps(meta)})
-    return out
-
-
 def test_the_cut_is_stored_and_read_back(tmp_path):
     labeller, c = _learned(("back", "seat", "legs"), LayerCut("seat", "legs", 0.4, 3))
     path = lab.write_labeller(resolve_model("chair"), tmp_path / "l.safetensors", labeller)
@@ -182,9 +172,9 @@ def test_the_cut_is_stored_and_read_back(tmp_path):
         d["format_version"] = 5
         del d["layer_cut"]
 
-    assert lab.read_labeller(_rewrite(path, tmp_path / "v5.safetensors", as_version_5)).layer_cut is None
+    assert lab.read_labeller(rewrite_description(path, tmp_path / "v5.safetensors", as_version_5)).layer_cut is None
     # a version 5 file knows no layer cut: a stray key in one is not read
-    stray = _rewrite(path, tmp_path / "stray.safetensors", lambda d: d.update(format_version=5))
+    stray = rewrite_description(path, tmp_path / "stray.safetensors", lambda d: d.update(format_version=5))
     assert lab.read_labeller(stray).layer_cut is None
 
 
@@ -199,7 +189,7 @@ def test_the_cut_is_stored_and_read_back(tmp_path):
 def test_a_hostile_cut_is_refused_in_one_line(tmp_path, cut):
     labeller, _ = _learned(("back", "seat", "legs"), "auto")
     path = lab.write_labeller(resolve_model("chair"), tmp_path / "l.safetensors", labeller)
-    bad = _rewrite(path, tmp_path / "bad.safetensors", lambda d: d.update(layer_cut=cut))
+    bad = rewrite_description(path, tmp_path / "bad.safetensors", lambda d: d.update(layer_cut=cut))
     if cut is None:  # a null cut is no cut
         assert lab.read_labeller(bad).layer_cut is None
         return

@@ -5,7 +5,6 @@ files from before it)."""
 from __future__ import annotations
 
 import functools
-import json
 
 import numpy as np
 import pytest
@@ -15,6 +14,8 @@ from primkit.model.bundled import resolve_model
 from primkit.segmentation import labeller as lab
 from primkit.segmentation.labeller import Labeller, LabellerSettings, decide, frame_features
 from primkit.segmentation.presence import PresenceRule, apply_presence, side_region
+
+from small_labellers import rewrite_description
 
 
 def _chair(arms: str):
@@ -155,17 +156,6 @@ def test_predict_applies_the_rule_after_the_decision():
     np.testing.assert_array_equal(replace(labeller, presence=None).predict(points, c), plain)
 
 
-def _rewrite(path, out, change):
-    from safetensors import safe_open
-    from safetensors.numpy import load_file, save_file
-
-    with safe_open(str(path), framework="numpy") as f:
-        meta = json.loads(f.metadata()["primkit"])
-    change(meta["labeller"])
-    save_file(load_file(str(path)), str(out), metadata={"primkit": json.dumps(meta)})
-    return out
-
-
 def test_the_rule_is_stored_and_read_back(tmp_path):
     labeller, c, points = _fit(["back", "seat", "arms"], presence=PresenceRule("arms", 0.02, 0.3, 0.25))
     path = lab.write_labeller(resolve_model("chair"), tmp_path / "l.safetensors", labeller)
@@ -177,7 +167,7 @@ def test_the_rule_is_stored_and_read_back(tmp_path):
         d["format_version"] = 4
         del d["presence"]["fill"]
 
-    v4 = lab.read_labeller(_rewrite(path, tmp_path / "v4.safetensors", as_version_4))
+    v4 = lab.read_labeller(rewrite_description(path, tmp_path / "v4.safetensors", as_version_4))
     assert v4.presence == PresenceRule("arms", 0.02, 0.3, 2.0)  # written before the fill: none
 
     def as_version_3(d):
@@ -185,7 +175,7 @@ def test_the_rule_is_stored_and_read_back(tmp_path):
         del d["settings"]["sides"]
         del d["presence"]
 
-    old = lab.read_labeller(_rewrite(path, tmp_path / "v3.safetensors", as_version_3))
+    old = lab.read_labeller(rewrite_description(path, tmp_path / "v3.safetensors", as_version_3))
     assert old.presence is None
 
 
@@ -201,7 +191,7 @@ def test_the_rule_is_stored_and_read_back(tmp_path):
 def test_a_hostile_rule_is_refused_in_one_line(tmp_path, presence):
     labeller, _, _ = _fit(["back", "seat", "arms"])
     path = lab.write_labeller(resolve_model("chair"), tmp_path / "l.safetensors", labeller)
-    bad = _rewrite(path, tmp_path / "bad.safetensors", lambda d: d.update(presence=presence))
+    bad = rewrite_description(path, tmp_path / "bad.safetensors", lambda d: d.update(presence=presence))
     with pytest.raises(lab.ModelFileError) as err:
         lab.read_labeller(bad)
     assert "presence" in str(err.value) and len(str(err.value).splitlines()) == 1
