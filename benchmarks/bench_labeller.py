@@ -8,7 +8,8 @@ runs it) once with ``labeller=None`` (names by part index) and once with the mod
 
 Usage (from the repository root)::
 
-    python -m benchmarks.bench_labeller chair [--count 600] [--rounds 3] [--workers N] [--grid-sample 1,2,4,8] [--exact] [--before] [--no-cut] [--cache DIR]
+    python -m benchmarks.bench_labeller chair [--count 600] [--rounds 3] [--workers N] [--grid-sample 1,2,4,8]
+        [--exact] [--before] [--no-cut] [--cache DIR]
 
 (``chair``: the bundled chair model's labeller; a file written by ``primkit name-parts`` works too.)
 ``--exact`` times one more variant in every round: the labeller walking every tree (no early

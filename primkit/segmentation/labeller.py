@@ -1583,7 +1583,8 @@ class Labeller:
             except ValueError as exc:
                 raise ValueError(f"{where}: {exc}") from None
             if not {cut.upper, cut.lower} <= set(names):
-                raise ValueError(f"{where}: the layer cut's labels {cut.upper!r}, {cut.lower!r} are not among the names")
+                raise ValueError(f"{where}: the layer cut's labels {cut.upper!r}, {cut.lower!r} are not among "
+                                 "the names")
         return cls(list(names), parts, ensemble, settings, info if isinstance(info, dict) else {}, prior,
                    presence=presence, layer_cut=cut)
 

@@ -166,7 +166,8 @@ def test_the_cut_is_stored_and_read_back(tmp_path):
     got = lab.read_labeller(path)
     assert got.layer_cut == LayerCut("seat", "legs", 0.4, 3)
     index, points, _ = _chair()
-    np.testing.assert_array_equal(got.predict(points, c, grid_index=index), labeller.predict(points, c, grid_index=index))
+    np.testing.assert_array_equal(got.predict(points, c, grid_index=index),
+                                  labeller.predict(points, c, grid_index=index))
 
     def as_version_5(d):
         d["format_version"] = 5
