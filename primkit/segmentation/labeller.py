@@ -1333,10 +1333,11 @@ class Labeller:
             else none. ``info["presence_check"]`` says what was found.
         layer_cut : LayerCut, None or "auto"
             The layer cut kept with the labeller; "auto": :class:`LayerCut`'s defaults (chosen on
-            PartNet validation chairs) when the learned labels include its ``upper`` and ``lower``
-            and at most :data:`PRESENCE_TOLERANCE` of the labelled voxel grids (shapes whose
-            positions lie on layers) contradict it (:data:`LAYER_TOLERANCE`); else none.
-            ``info["layer_cut_check"]`` says what was found.
+            PartNet validation chairs) when the learned labels include its ``upper`` and ``lower``,
+            some labelled shapes are voxel grids (their positions lie on layers) and at most
+            :data:`PRESENCE_TOLERANCE` of those contradict it (:data:`LAYER_TOLERANCE`); else none
+            (a labeller learned from meshes or points alone has none). ``info["layer_cut_check"]``
+            says what was found.
         """
         from sklearn.ensemble import HistGradientBoostingClassifier
 

@@ -144,6 +144,19 @@ def test_fit_keeps_the_cut_when_it_learns_seat_and_legs():
     assert _learned(("back", "seat", "legs"), None)[0].layer_cut is None
 
 
+def test_fit_keeps_no_cut_without_a_labelled_grid():
+    """Surface points (heights on no layers) cannot be checked against the cut: none is kept."""
+    rng = np.random.default_rng(2)
+    settings = LabellerSettings(neighbours=8, smooth=0)
+    _, points, truth = _chair()
+    c = primitives.Cuboids(rng.uniform(0.05, 0.3, (5, 3)), rng.normal(size=(5, 4)),
+                           rng.uniform(-0.4, 0.4, (5, 3)), np.ones(5, bool))
+    shapes = [(frame_features(points + rng.uniform(-0.01, 0.01, points.shape), c, None, settings), truth)
+              for _ in range(3)]
+    got = Labeller.fit(shapes, ["back", "seat", "legs"], 5, settings=settings, max_iter=10)
+    assert got.layer_cut is None and "layer_cut_check" not in got.info
+
+
 def test_fit_leaves_the_cut_out_when_the_labelled_grids_contradict_it():
     got = _learned(("back", "seat", "legs"), "auto", raise_legs=1)[0]  # one in three: over 20%
     assert got.layer_cut is None and got.info["layer_cut_check"] == {"shapes": 3, "contradicted": 1}
