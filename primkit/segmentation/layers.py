@@ -15,15 +15,16 @@ A :class:`LayerCut`, after the labeller's decision:
 * takes the layers of the shape's elements along the canonical up axis (+Y): a voxel grid's
   elements lie on layers; a mesh's faces and a point cloud's points do not, and are left alone
   (their surface samples show a thick seat's top and bottom, not where the solid seat ends);
-* finds the densest layer, then goes down while the layer below holds at least ``share`` of its
-  count: the lowest layer reached is the seat's bottom;
+* finds the densest layer above the bottom ``floor`` of the layers (a sled's or a rocking chair's
+  runners on the floor are no seat), then goes down while the layer below holds at least
+  ``share`` of its count: the lowest layer reached is the seat's bottom;
 * among the elements labelled ``upper`` or ``lower``, tries every cut within ``window`` layers of
   that bottom and keeps the one that disagrees least with their probabilities (each element
   weighing its share ``p_upper / (p_upper + p_lower)`` when put below, the rest when put above);
 * labels those elements ``lower`` below the cut and ``upper`` from it up. A shape without both
   labels is left alone.
 
-``share`` and ``window`` were chosen on PartNet validation chairs, both halves in turn
+``share``, ``window`` and ``floor`` were chosen on PartNet validation chairs, both halves in turn
 (``docs/labeller.md``, "Where the seat ends").
 """
 
@@ -52,12 +53,15 @@ class LayerCut:
         layers holding at least this share of the densest layer's elements.
     window : int
         The cut is tried within this many layers of that bottom.
+    floor : float
+        The densest layer is sought above this share of the layers, counted from the lowest.
     """
 
     upper: str = "seat"
     lower: str = "legs"
     share: float = 0.6
     window: int = 2
+    floor: float = 0.2
 
     def __post_init__(self):
         for key in ("upper", "lower"):
@@ -69,17 +73,22 @@ class LayerCut:
             raise ValueError("layer cut share must be a number in (0, 1]")
         if not isinstance(self.window, int) or isinstance(self.window, bool) or not 0 <= self.window <= MAX_LAYERS:
             raise ValueError(f"layer cut window must be an int from 0 to {MAX_LAYERS}")
+        if not isinstance(self.floor, (int, float)) or isinstance(self.floor, bool) or not 0 <= self.floor < 1:
+            raise ValueError("layer cut floor must be a number in [0, 1)")
 
     def to_dict(self) -> dict:
-        return {"upper": self.upper, "lower": self.lower, "share": float(self.share), "window": int(self.window)}
+        return {"upper": self.upper, "lower": self.lower, "share": float(self.share), "window": int(self.window),
+                "floor": float(self.floor)}
 
     @classmethod
-    def from_dict(cls, d) -> "LayerCut":
-        """The inverse of :meth:`to_dict`; ValueError (one line) on anything else."""
-        keys = {"upper", "lower", "share", "window"}
+    def from_dict(cls, d, *, floor: bool = True) -> "LayerCut":
+        """The inverse of :meth:`to_dict`; ValueError (one line) on anything else. ``floor=False``:
+        the object of a file written before ``floor`` existed (labeller format 6: the densest layer
+        sought among all the layers, floor 0)."""
+        keys = {"upper", "lower", "share", "window", "floor"} if floor else {"upper", "lower", "share", "window"}
         if not isinstance(d, dict) or set(d) != keys:
             raise ValueError(f"layer_cut must be a JSON object with {', '.join(sorted(keys))}")
-        return cls(d["upper"], d["lower"], d["share"], d["window"])
+        return cls(d["upper"], d["lower"], d["share"], d["window"], d["floor"] if floor else 0.0)
 
 
 def layer_levels(heights, most: int = MAX_LAYERS):
@@ -115,7 +124,10 @@ def apply_layer_cut(labels, proba, heights, upper: int, lower: int, cut: LayerCu
     if level is None:
         return labels
     count = np.bincount(level)
-    densest = int(np.argmax(count))
+    low = int(np.ceil(round(cut.floor * len(count), 9)))  # the layers the seat is not sought in
+    if low >= len(count):
+        return labels
+    densest = low + int(np.argmax(count[low:]))
     bottom = densest
     while bottom > 0 and count[bottom - 1] >= cut.share * count[densest]:
         bottom -= 1

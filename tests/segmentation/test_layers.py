@@ -5,6 +5,7 @@ from before it)."""
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import replace
 
 import numpy as np
@@ -30,7 +31,10 @@ def _loop(labels, proba, heights, upper, lower, cut):
     values = sorted(set(float(h) for h in heights))
     layer = [values.index(float(h)) for h in heights]
     count = [layer.count(k) for k in range(len(values))]
-    densest = count.index(max(count))
+    low = math.ceil(round(cut.floor * len(values), 9))
+    if low >= len(values):
+        return labels
+    densest = low + count[low:].index(max(count[low:]))
     bottom = densest
     while bottom > 0 and count[bottom - 1] >= cut.share * count[densest]:
         bottom -= 1
@@ -47,7 +51,8 @@ def _loop(labels, proba, heights, upper, lower, cut):
 
 
 @pytest.mark.parametrize("seed", range(8))
-@pytest.mark.parametrize("cut", [LayerCut(), LayerCut(share=0.3, window=0), LayerCut(share=1.0, window=3)])
+@pytest.mark.parametrize("cut", [LayerCut(), LayerCut(share=0.3, window=0), LayerCut(share=1.0, window=3, floor=0.0),
+                                 LayerCut(floor=0.5)])
 def test_the_cut_is_a_per_element_loop(seed, cut):
     rng = np.random.default_rng(seed)
     n = 300
@@ -64,24 +69,29 @@ def test_the_cut_is_a_per_element_loop(seed, cut):
     np.testing.assert_array_equal(got[others], labels[others])  # only seat and legs move
 
 
-def _chair():
+def _chair(sled=False):
     """A 24-cell chair grid (x front, y up, z across): a seat slab two layers thick (y 9-10) over
-    x 2-21, z 4-19, a back at x 0-1 from y 11 to 23, four 2 x 2 legs under the seat corners.
+    x 2-21, z 4-19, a back at x 0-1 from y 11 to 23, four 2 x 2 legs under the seat corners
+    (``sled``: standing on a plate on the floor, y 0, larger than the seat, labelled legs).
     Returns the voxel indices, canonical centres and labels."""
     g = np.mgrid[0:24, 0:24, 0:24].reshape(3, -1).T
     x, y, z = g.T
     seat = (y >= 9) & (y <= 10) & (x >= 2) & (x <= 21) & (z >= 4) & (z <= 19)
     back = (x <= 1) & (y >= 11) & (z >= 4) & (z <= 19)
     legs = (y < 9) & (np.isin(x, [2, 3, 20, 21])) & np.isin(z, [4, 5, 18, 19])
+    if sled:
+        legs |= (y == 0) & (z >= 2) & (z <= 21)
     keep = seat | back | legs
     truth = np.where(seat, SEAT, np.where(legs, LEGS, BACK))[keep]
     return g[keep], (g[keep] + 0.5) / 24.0 - 0.5, truth
 
 
-def test_the_cut_puts_the_seat_bottom_back():
+@pytest.mark.parametrize("sled", [False, True])
+def test_the_cut_puts_the_seat_bottom_back(sled):
     """A decision that called the seat's lower layer legs in places and the legs' top seat: the
-    probabilities favour the true boundary on the whole, and the cut restores it everywhere."""
-    index, points, truth = _chair()
+    probabilities favour the true boundary on the whole, and the cut restores it everywhere (on a
+    sled too: its plate on the floor is the densest layer, which the cut does not take for a seat)."""
+    index, points, truth = _chair(sled)
     rng = np.random.default_rng(0)
     proba = np.zeros((len(truth), 3))
     proba[np.arange(len(truth)), truth] = 1.0
@@ -94,6 +104,9 @@ def test_the_cut_puts_the_seat_bottom_back():
     labels = decide(proba)
     assert np.count_nonzero(labels != truth) > 20
     np.testing.assert_array_equal(apply_layer_cut(labels, proba, points[:, 1], SEAT, LEGS, LayerCut()), truth)
+    if sled:  # sought from the floor up, the seat's bottom would be the plate, the cut off the boundary
+        assert np.bincount(index[:, 1]).argmax() == 0
+        assert np.any(apply_layer_cut(labels, proba, points[:, 1], SEAT, LEGS, LayerCut(floor=0.0)) != truth)
     # on its own truth the cut moves nothing: this chair does not contradict it
     np.testing.assert_array_equal(apply_layer_cut(truth, np.eye(3)[truth], points[:, 1], SEAT, LEGS, LayerCut()),
                                   truth)
@@ -174,13 +187,20 @@ def test_predict_applies_the_cut_on_grids_only():
 
 
 def test_the_cut_is_stored_and_read_back(tmp_path):
-    labeller, c = _learned(("back", "seat", "legs"), LayerCut("seat", "legs", 0.4, 3))
+    labeller, c = _learned(("back", "seat", "legs"), LayerCut("seat", "legs", 0.4, 3, 0.1))
     path = lab.write_labeller(resolve_model("chair"), tmp_path / "l.safetensors", labeller)
     got = lab.read_labeller(path)
-    assert got.layer_cut == LayerCut("seat", "legs", 0.4, 3)
+    assert got.layer_cut == LayerCut("seat", "legs", 0.4, 3, 0.1)
     index, points, _ = _chair()
     np.testing.assert_array_equal(got.predict(points, c, grid_index=index),
                                   labeller.predict(points, c, grid_index=index))
+
+    def as_version_6(d):
+        d["format_version"] = 6
+        del d["layer_cut"]["floor"]
+
+    v6 = lab.read_labeller(rewrite_description(path, tmp_path / "v6.safetensors", as_version_6))
+    assert v6.layer_cut == LayerCut("seat", "legs", 0.4, 3, 0.0)  # written before the floor: none
 
     def as_version_5(d):
         d["format_version"] = 5
@@ -190,16 +210,24 @@ def test_the_cut_is_stored_and_read_back(tmp_path):
     # a version 5 file knows no layer cut: a stray key in one is not read
     stray = rewrite_description(path, tmp_path / "stray.safetensors", lambda d: d.update(format_version=5))
     assert lab.read_labeller(stray).layer_cut is None
+    # a version 7 cut must say its floor; a version 6 one must not
+    with pytest.raises(lab.ModelFileError, match="floor"):
+        lab.read_labeller(rewrite_description(path, tmp_path / "v7.safetensors", lambda d: d["layer_cut"].pop("floor")))
+    with pytest.raises(lab.ModelFileError, match="layer_cut"):
+        lab.read_labeller(rewrite_description(path, tmp_path / "v6b.safetensors", lambda d: d.update(format_version=6)))
 
 
-@pytest.mark.parametrize("cut", [{"upper": "seat", "lower": "legs", "share": 0, "window": 2},
-                                 {"upper": "seat", "lower": "legs", "share": 0.6, "window": -1},
-                                 {"upper": "seat", "lower": "legs", "share": 0.6, "window": 2.5},
-                                 {"upper": "seat", "lower": "legs", "share": "x", "window": 2},
-                                 {"upper": "seat", "lower": "legs", "share": 0.6, "window": 10**9},
-                                 {"upper": "seat", "lower": "seat", "share": 0.6, "window": 2},
-                                 {"upper": "seat", "lower": "wheels", "share": 0.6, "window": 2},
-                                 {"upper": "seat", "lower": "legs", "share": 0.6}, [1, 2], None])
+@pytest.mark.parametrize("cut", [{"upper": "seat", "lower": "legs", "share": 0, "window": 2, "floor": 0.2},
+                                 {"upper": "seat", "lower": "legs", "share": 0.6, "window": -1, "floor": 0.2},
+                                 {"upper": "seat", "lower": "legs", "share": 0.6, "window": 2.5, "floor": 0.2},
+                                 {"upper": "seat", "lower": "legs", "share": "x", "window": 2, "floor": 0.2},
+                                 {"upper": "seat", "lower": "legs", "share": 0.6, "window": 10**9, "floor": 0.2},
+                                 {"upper": "seat", "lower": "legs", "share": 0.6, "window": 2, "floor": 1.0},
+                                 {"upper": "seat", "lower": "legs", "share": 0.6, "window": 2, "floor": -0.1},
+                                 {"upper": "seat", "lower": "legs", "share": 0.6, "window": 2, "floor": None},
+                                 {"upper": "seat", "lower": "seat", "share": 0.6, "window": 2, "floor": 0.2},
+                                 {"upper": "seat", "lower": "wheels", "share": 0.6, "window": 2, "floor": 0.2},
+                                 {"upper": "seat", "lower": "legs", "share": 0.6, "window": 2}, [1, 2], None])
 def test_a_hostile_cut_is_refused_in_one_line(tmp_path, cut):
     labeller, _ = _learned(("back", "seat", "legs"), "auto")
     path = lab.write_labeller(resolve_model("chair"), tmp_path / "l.safetensors", labeller)
