@@ -241,11 +241,11 @@ def label_with(chairs, labeller, evaluate, settings, keep, position_only=False) 
             idx = near[:, : settings.smooth_neighbours]
             for _ in range(settings.smooth):
                 proba = proba[idx].mean(axis=1)
-        labels = decide(proba, settings.min_share)
-        if isinstance(labeller, Labeller):  # its presence rule and layer cut, as Labeller.predict applies them
-            points = chairs.arrays[n]["points"].astype(float)
-            labels = labeller.present(labels, proba, points)
-            labels = labeller.cut_layers(labels, proba, points, chairs.arrays[n]["index"].astype(np.int64))
+        if isinstance(labeller, Labeller):  # as Labeller.predict decides: rare labels, presence rule, layer cut
+            labels = labeller.labels_from(proba, chairs.arrays[n]["points"].astype(float),
+                                          grid_index=chairs.arrays[n]["index"].astype(np.int64))
+        else:
+            labels = decide(proba, settings.min_share)
         out[n] = known[labels]
     return out
 

@@ -37,7 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["LayerCut", "layer_levels", "apply_layer_cut", "MAX_LAYERS"]
+__all__ = ["LayerCut", "layer_levels", "apply_layer_cut", "cut_levels", "MAX_LAYERS"]
 
 #: A shape is layered when its elements' heights take at most this many values (the network
 #: grid's largest side, :data:`primkit.model.network.MAX_NETWORK_GRID`) and at most half as many as
@@ -120,11 +120,26 @@ def apply_layer_cut(labels, proba, heights, upper: int, lower: int, cut: LayerCu
     ``cut.upper`` and ``cut.lower``; ``most`` : :func:`layer_levels`'s (a grid's largest side).
     """
     labels = np.asarray(labels, np.int64)
-    chosen = (labels == upper) | (labels == lower)
     if not np.any(labels == upper) or not np.any(labels == lower):
         return labels
     level = layer_levels(heights, most)
     if level is None:
+        return labels
+    proba = np.asarray(proba, float)
+    pu, pl = proba[:, upper], proba[:, lower]
+    total = pu + pl
+    upperness = np.divide(pu, total, out=np.full(len(total), 0.5), where=total > 0)
+    return cut_levels(labels, level, upperness, upper, lower, cut)
+
+
+def cut_levels(labels, level, upperness, upper: int, lower: int, cut: LayerCut) -> np.ndarray:
+    """``(n,) int``: ``labels`` after ``cut``, the elements' layers known (:func:`layer_levels`)
+    and ``upperness`` (n,) float, how much each wants to be ``upper`` (``p_upper / (p_upper +
+    p_lower)``; a shape's own labels: 1 for ``upper``, 0 for ``lower``). Read only where
+    ``labels`` is ``upper`` or ``lower``; a shape without both is left alone."""
+    labels = np.asarray(labels, np.int64)
+    chosen = (labels == upper) | (labels == lower)
+    if not np.any(labels == upper) or not np.any(labels == lower):
         return labels
     count = np.bincount(level)
     low = int(np.ceil(round(cut.floor * len(count), 9)))  # the layers the seat is not sought in
@@ -134,11 +149,7 @@ def apply_layer_cut(labels, proba, heights, upper: int, lower: int, cut: LayerCu
     bottom = densest
     while bottom > 0 and count[bottom - 1] >= cut.share * count[densest]:
         bottom -= 1
-    proba = np.asarray(proba, float)
-    pu, pl = proba[chosen, upper], proba[chosen, lower]
-    total = pu + pl
-    s = np.divide(pu, total, out=np.full(len(total), 0.5), where=total > 0)  # how much each wants to be upper
-    at = level[chosen]
+    s, at = np.asarray(upperness, float)[chosen], level[chosen]
     layers = len(count)
     below = np.concatenate([[0.0], np.cumsum(np.bincount(at, s, layers))])  # upper-ness put below cut h
     above = np.concatenate([[0.0], np.cumsum(np.bincount(at, 1.0 - s, layers))])
