@@ -180,8 +180,9 @@ def _cmd_name_parts(args) -> int:
     print(f"labeller: {', '.join(labeller.names)} learned from {labeller.info['shapes']} shapes "
           f"({labeller.info['elements']} elements); {len(labeller.ensemble.feature)} tree nodes")
     rules = ([f"{labeller.presence.label} only where something rises beside the seat"] if labeller.presence else []) \
-        + ([f"{labeller.layer_cut.upper}/{labeller.layer_cut.lower} cut at one height on voxel grids"]
-           if labeller.layer_cut else [])
+        + ([f"{labeller.layer_cut.upper}/{labeller.layer_cut.lower} cut at one height on voxel grids"
+            + (f" ({labeller.layer_cut.lower} under a {labeller.layer_cut.upper} that has none)"
+               if labeller.layer_cut.restore else "")] if labeller.layer_cut else [])
     if rules:
         print(f"after the decision: {'; '.join(rules)} (docs/labeller.md)")
     print(f"wrote {out} with part names and a labeller")

@@ -88,8 +88,9 @@ LABELLER_FORMAT = "primkit-labeller"
 #: ``presence`` (:class:`primkit.segmentation.presence.PresenceRule`; versions 1-3: none); version
 #: 5 the rule's ``fill`` (version 4 rules read it off); version 6 may carry ``layer_cut``
 #: (:class:`primkit.segmentation.layers.LayerCut`; versions 1-5: none); version 7 the cut's
-#: ``floor`` (version 6 cuts read 0: the densest layer sought among all).
-LABELLER_FORMAT_VERSION = 7
+#: ``floor`` (version 6 cuts read 0: the densest layer sought among all); version 8 the cut's
+#: ``restore`` (versions 6-7 read it false: a shape without the lower label left alone).
+LABELLER_FORMAT_VERSION = 8
 #: Prefix of a labeller's tensors in a model file (beside the network's weights).
 LABELLER_PREFIX = "labeller."
 #: Metadata key of a labeller's description in a model file.
@@ -108,6 +109,7 @@ STORED[4] = STORED[2]  # the same arrays; the description's settings gained ``si
 STORED[5] = STORED[2]  # the same arrays; the presence rule gained ``fill``
 STORED[6] = STORED[2]  # the same arrays; the description gained ``layer_cut``
 STORED[7] = STORED[2]  # the same arrays; the layer cut gained ``floor``
+STORED[8] = STORED[2]  # the same arrays; the layer cut gained ``restore``
 
 #: ``Labeller.fit(presence="auto")`` keeps the presence rule when it contradicts at most this share
 #: of the labelled shapes' own labels (it would take their label away, or give it to a shape
@@ -1590,7 +1592,7 @@ class Labeller:
         cut = description.get("layer_cut") if version >= 6 else None
         if cut is not None:
             try:
-                cut = LayerCut.from_dict(cut, floor=version >= 7)
+                cut = LayerCut.from_dict(cut, floor=version >= 7, restore=version >= 8)
             except ValueError as exc:
                 raise ValueError(f"{where}: {exc}") from None
             if not {cut.upper, cut.lower} <= set(names):
@@ -1603,9 +1605,9 @@ class Labeller:
 def _layer_cut_moves(points, labels, names, cut: LayerCut):
     """The share of a labelled shape's ``cut.upper`` and ``cut.lower`` elements that ``cut`` would
     move, run on the shape's own labels (``Labeller.fit``'s check); None when its elements do not
-    lie on layers or it lacks either label."""
+    lie on layers, or it lacks ``cut.upper``, or ``cut.lower`` and the cut does not restore it."""
     upper, lower = names.index(cut.upper), names.index(cut.lower)
-    if not np.any(labels == upper) or not np.any(labels == lower):
+    if not np.any(labels == upper) or not (cut.restore or np.any(labels == lower)):
         return None
     level = layer_levels(points[:, 1])
     if level is None:

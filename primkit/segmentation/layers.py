@@ -21,14 +21,18 @@ A :class:`LayerCut`, after the labeller's decision:
 * among the elements labelled ``upper`` or ``lower``, tries every cut within ``window`` layers of
   that bottom and keeps the one that disagrees least with their probabilities (each element
   weighing its share ``p_upper / (p_upper + p_lower)`` when put below, the rest when put above);
-* labels those elements ``lower`` below the cut and ``upper`` from it up. A shape without both
-  labels is left alone.
+* labels those elements ``lower`` below the cut and ``upper`` from it up;
+* a shape labelled ``upper`` but not ``lower`` (``restore``): a sofa's or an armchair's few feet,
+  under 1% of its voxels, lose their label with the rare ones or are called seat, and the
+  probabilities there agree with that; the cut goes at the seat's bottom itself, and the elements
+  labelled ``upper`` below it become ``lower``. A shape standing on its seat's block has no layer
+  below that bottom and keeps its labels. A shape without ``upper`` is left alone.
 
-``share``, ``window`` and ``floor`` were chosen on PartNet validation chairs, both halves in turn
-(``docs/labeller.md``, "Where the seat ends"). Written here with NumPy counts and cumulative sums:
-the best cut is a one-dimensional search over a few layers, which no graph cut or segmentation
-library needs to be asked for (``graphcut.py``'s max-flow was tried for the whole labelling and
-not kept).
+``share``, ``window``, ``floor`` and ``restore`` were chosen on PartNet validation chairs, both
+halves in turn (``docs/labeller.md``, "Where the seat ends"). Written here with NumPy counts and
+cumulative sums: the best cut is a one-dimensional search over a few layers, which no graph cut or
+segmentation library needs to be asked for (``graphcut.py``'s max-flow was tried for the whole
+labelling and not kept).
 """
 
 from __future__ import annotations
@@ -58,6 +62,9 @@ class LayerCut:
         The cut is tried within this many layers of that bottom.
     floor : float
         The densest layer is sought above this share of the layers, counted from the lowest.
+    restore : bool
+        A shape labelled ``upper`` but not ``lower`` is cut too, at the seat's bottom (the
+        module notes); False: such a shape is left alone (cuts stored before labeller format 8).
     """
 
     upper: str = "seat"
@@ -65,6 +72,7 @@ class LayerCut:
     share: float = 0.6
     window: int = 2
     floor: float = 0.2
+    restore: bool = True
 
     def __post_init__(self):
         for key in ("upper", "lower"):
@@ -78,20 +86,25 @@ class LayerCut:
             raise ValueError(f"layer cut window must be an int from 0 to {MAX_LAYERS}")
         if not isinstance(self.floor, (int, float)) or isinstance(self.floor, bool) or not 0 <= self.floor < 1:
             raise ValueError("layer cut floor must be a number in [0, 1)")
+        if not isinstance(self.restore, bool):
+            raise ValueError("layer cut restore must be true or false")
 
     def to_dict(self) -> dict:
         return {"upper": self.upper, "lower": self.lower, "share": float(self.share), "window": int(self.window),
-                "floor": float(self.floor)}
+                "floor": float(self.floor), "restore": self.restore}
 
     @classmethod
-    def from_dict(cls, d, *, floor: bool = True) -> "LayerCut":
+    def from_dict(cls, d, *, floor: bool = True, restore: bool = True) -> "LayerCut":
         """The inverse of :meth:`to_dict`; ValueError (one line) on anything else. ``floor=False``:
         the object of a file written before ``floor`` existed (labeller format 6: the densest layer
-        sought among all the layers, floor 0)."""
-        keys = {"upper", "lower", "share", "window", "floor"} if floor else {"upper", "lower", "share", "window"}
+        sought among all the layers, floor 0); ``restore=False``: before ``restore`` existed
+        (formats 6 and 7: a shape without ``lower`` left alone)."""
+        keys = {"upper", "lower", "share", "window"} | ({"floor"} if floor else set())
+        keys |= {"restore"} if restore else set()
         if not isinstance(d, dict) or set(d) != keys:
             raise ValueError(f"layer_cut must be a JSON object with {', '.join(sorted(keys))}")
-        return cls(d["upper"], d["lower"], d["share"], d["window"], d["floor"] if floor else 0.0)
+        return cls(d["upper"], d["lower"], d["share"], d["window"], d["floor"] if floor else 0.0,
+                   d["restore"] if restore else False)
 
 
 def layer_levels(heights, most: int = MAX_LAYERS):
@@ -120,7 +133,7 @@ def apply_layer_cut(labels, proba, heights, upper: int, lower: int, cut: LayerCu
     ``cut.upper`` and ``cut.lower``; ``most`` : :func:`layer_levels`'s (a grid's largest side).
     """
     labels = np.asarray(labels, np.int64)
-    if not np.any(labels == upper) or not np.any(labels == lower):
+    if not np.any(labels == upper) or not (cut.restore or np.any(labels == lower)):
         return labels
     level = layer_levels(heights, most)
     if level is None:
@@ -136,10 +149,12 @@ def cut_levels(labels, level, upperness, upper: int, lower: int, cut: LayerCut) 
     """``(n,) int``: ``labels`` after ``cut``, the elements' layers known (:func:`layer_levels`)
     and ``upperness`` (n,) float, how much each wants to be ``upper`` (``p_upper / (p_upper +
     p_lower)``; a shape's own labels: 1 for ``upper``, 0 for ``lower``). Read only where
-    ``labels`` is ``upper`` or ``lower``; a shape without both is left alone."""
+    ``labels`` is ``upper`` or ``lower``; a shape without ``upper`` is left alone, and one without
+    ``lower`` too unless ``cut.restore`` (then cut at the seat's bottom, ``upperness`` unread)."""
     labels = np.asarray(labels, np.int64)
     chosen = (labels == upper) | (labels == lower)
-    if not np.any(labels == upper) or not np.any(labels == lower):
+    restoring = not np.any(labels == lower)
+    if not np.any(labels == upper) or (restoring and not cut.restore):
         return labels
     count = np.bincount(level)
     low = int(np.ceil(round(cut.floor * len(count), 9)))  # the layers the seat is not sought in
@@ -149,8 +164,12 @@ def cut_levels(labels, level, upperness, upper: int, lower: int, cut: LayerCut) 
     bottom = densest
     while bottom > 0 and count[bottom - 1] >= cut.share * count[densest]:
         bottom -= 1
-    s, at = np.asarray(upperness, float)[chosen], level[chosen]
-    layers = len(count)
+    at = level[chosen]
+    if restoring:  # the probabilities below the bottom say upper: the layers alone place the cut
+        out = labels.copy()
+        out[chosen] = np.where(at < bottom, lower, upper)
+        return out
+    s, layers = np.asarray(upperness, float)[chosen], len(count)
     below = np.concatenate([[0.0], np.cumsum(np.bincount(at, s, layers))])  # upper-ness put below cut h
     above = np.concatenate([[0.0], np.cumsum(np.bincount(at, 1.0 - s, layers))])
     cost = below + (above[-1] - above)  # cut h: layers < h lower, the others upper

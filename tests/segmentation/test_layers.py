@@ -26,7 +26,7 @@ def _loop(labels, proba, heights, upper, lower, cut):
     """The cut element by element: layers by sorting the distinct heights, every cut in the window
     costed by summing over the elements."""
     labels = [int(v) for v in labels]
-    if upper not in labels or lower not in labels:
+    if upper not in labels or (lower not in labels and not cut.restore):
         return labels
     values = sorted(set(float(h) for h in heights))
     layer = [values.index(float(h)) for h in heights]
@@ -38,6 +38,8 @@ def _loop(labels, proba, heights, upper, lower, cut):
     bottom = densest
     while bottom > 0 and count[bottom - 1] >= cut.share * count[densest]:
         bottom -= 1
+    if lower not in labels:  # restored: cut at the bottom itself, whatever the probabilities
+        return [(lower if k < bottom else upper) if v == upper else v for v, k in zip(labels, layer)]
     best = None
     for h in range(max(bottom - cut.window, 0), min(bottom + cut.window, len(values)) + 1):
         cost = 0.0
@@ -52,12 +54,14 @@ def _loop(labels, proba, heights, upper, lower, cut):
 
 @pytest.mark.parametrize("seed", range(8))
 @pytest.mark.parametrize("cut", [LayerCut(), LayerCut(share=0.3, window=0), LayerCut(share=1.0, window=3, floor=0.0),
-                                 LayerCut(floor=0.5)])
+                                 LayerCut(floor=0.5), LayerCut(restore=False)])
 def test_the_cut_is_a_per_element_loop(seed, cut):
     rng = np.random.default_rng(seed)
     n = 300
     heights = (rng.integers(0, 12, n) + 0.5) / 24.0 - 0.5  # 12 layers of a 24-cell grid, canonical units
     labels = rng.integers(0, 4, n)
+    if seed % 2:  # no legs: restored (or left alone)
+        labels[labels == LEGS] = BACK
     proba = rng.random((n, 4))
     # dyadic probabilities (multiples of 1/8 over a total of 1/2): every cost sums exactly, no near-ties
     proba[:, SEAT] = rng.integers(0, 5, n) / 8.0
@@ -119,10 +123,37 @@ def test_elements_off_layers_or_without_both_labels_are_left_alone():
     off = points[:, 1] + rng.uniform(-0.01, 0.01, len(points))  # a surface's heights: no layers
     assert layer_levels(off) is None and layer_levels(points[:, 1]) is not None
     np.testing.assert_array_equal(apply_layer_cut(truth, proba, off, SEAT, LEGS, LayerCut()), truth)
-    no_legs = np.where(truth == LEGS, BACK, truth)
-    np.testing.assert_array_equal(apply_layer_cut(no_legs, proba, points[:, 1], SEAT, LEGS, LayerCut()), no_legs)
+    no_seat = np.where(truth == SEAT, BACK, truth)
+    np.testing.assert_array_equal(apply_layer_cut(no_seat, proba, points[:, 1], SEAT, LEGS, LayerCut()), no_seat)
+    no_legs = np.where(truth == LEGS, SEAT, truth)  # restored only when the cut says so
+    np.testing.assert_array_equal(apply_layer_cut(no_legs, proba, points[:, 1], SEAT, LEGS, LayerCut(restore=False)),
+                                  no_legs)
     # more layers than the grid has sides: not a grid's layers
     assert layer_levels(points[:, 1], most=10) is None
+
+
+@pytest.mark.parametrize("called", [SEAT, BACK])
+def test_feet_called_seat_are_restored(called):
+    """A chair whose legs the decision called seat (or, dropped as a rare label, back): with no
+    legs left, everything labelled seat below the seat's bottom becomes legs, whatever the
+    probabilities there say; a shape standing on its seat's block has nothing below it."""
+    index, points, truth = _chair()
+    proba = np.zeros((len(truth), 3))
+    proba[:, SEAT] = 1.0  # the probabilities agree with the mistake
+    labels = np.where(truth == LEGS, called, truth)
+    got = apply_layer_cut(labels, proba, points[:, 1], SEAT, LEGS, LayerCut())
+    want = np.where(labels == SEAT, np.where(index[:, 1] < 9, LEGS, SEAT), labels)  # the seat's bottom: y 9
+    np.testing.assert_array_equal(got, want)
+    if called == SEAT:
+        np.testing.assert_array_equal(got, truth)
+    # a sofa on its seat's block: each layer under the seat as full as the seat, no bottom above the floor
+    grid = np.mgrid[0:24, 0:24, 0:24].reshape(3, -1).T
+    x, y, z = grid.T
+    block = (y < 9) & (x >= 2) & (x <= 21) & (z >= 4) & (z <= 19)
+    upper = index[:, 1] >= 9
+    heights = np.concatenate([points[upper, 1], (y[block] + 0.5) / 24.0 - 0.5])
+    sofa = np.concatenate([labels[upper], np.full(np.count_nonzero(block), SEAT)])
+    np.testing.assert_array_equal(apply_layer_cut(sofa, np.eye(3)[sofa], heights, SEAT, LEGS, LayerCut()), sofa)
 
 
 def test_layers_take_heights_a_rounding_apart_as_one():
@@ -195,12 +226,20 @@ def test_the_cut_is_stored_and_read_back(tmp_path):
     np.testing.assert_array_equal(got.predict(points, c, grid_index=index),
                                   labeller.predict(points, c, grid_index=index))
 
+    def as_version_7(d):
+        d["format_version"] = 7
+        del d["layer_cut"]["restore"]
+
+    v7 = lab.read_labeller(rewrite_description(path, tmp_path / "v7.safetensors", as_version_7))
+    assert v7.layer_cut == LayerCut("seat", "legs", 0.4, 3, 0.1, restore=False)  # before restore: none
+
     def as_version_6(d):
+        as_version_7(d)
         d["format_version"] = 6
         del d["layer_cut"]["floor"]
 
     v6 = lab.read_labeller(rewrite_description(path, tmp_path / "v6.safetensors", as_version_6))
-    assert v6.layer_cut == LayerCut("seat", "legs", 0.4, 3, 0.0)  # written before the floor: none
+    assert v6.layer_cut == LayerCut("seat", "legs", 0.4, 3, 0.0, restore=False)  # before the floor: none
 
     def as_version_5(d):
         d["format_version"] = 5
@@ -210,24 +249,27 @@ def test_the_cut_is_stored_and_read_back(tmp_path):
     # a version 5 file knows no layer cut: a stray key in one is not read
     stray = rewrite_description(path, tmp_path / "stray.safetensors", lambda d: d.update(format_version=5))
     assert lab.read_labeller(stray).layer_cut is None
-    # a version 7 cut must say its floor; a version 6 one must not
-    with pytest.raises(lab.ModelFileError, match="floor"):
-        lab.read_labeller(rewrite_description(path, tmp_path / "v7.safetensors", lambda d: d["layer_cut"].pop("floor")))
-    with pytest.raises(lab.ModelFileError, match="layer_cut"):
-        lab.read_labeller(rewrite_description(path, tmp_path / "v6b.safetensors", lambda d: d.update(format_version=6)))
+    # a version 8 cut must say its floor and restore; a version 7 one must not say restore
+    for key in ("floor", "restore"):
+        with pytest.raises(lab.ModelFileError, match=key):
+            lab.read_labeller(rewrite_description(path, tmp_path / f"no-{key}.safetensors",
+                                                  lambda d: d["layer_cut"].pop(key)))
+    for version in (6, 7):
+        with pytest.raises(lab.ModelFileError, match="layer_cut"):
+            lab.read_labeller(rewrite_description(path, tmp_path / f"v{version}b.safetensors",
+                                                  lambda d: d.update(format_version=version)))
 
 
-@pytest.mark.parametrize("cut", [{"upper": "seat", "lower": "legs", "share": 0, "window": 2, "floor": 0.2},
-                                 {"upper": "seat", "lower": "legs", "share": 0.6, "window": -1, "floor": 0.2},
-                                 {"upper": "seat", "lower": "legs", "share": 0.6, "window": 2.5, "floor": 0.2},
-                                 {"upper": "seat", "lower": "legs", "share": "x", "window": 2, "floor": 0.2},
-                                 {"upper": "seat", "lower": "legs", "share": 0.6, "window": 10**9, "floor": 0.2},
-                                 {"upper": "seat", "lower": "legs", "share": 0.6, "window": 2, "floor": 1.0},
-                                 {"upper": "seat", "lower": "legs", "share": 0.6, "window": 2, "floor": -0.1},
-                                 {"upper": "seat", "lower": "legs", "share": 0.6, "window": 2, "floor": None},
-                                 {"upper": "seat", "lower": "seat", "share": 0.6, "window": 2, "floor": 0.2},
-                                 {"upper": "seat", "lower": "wheels", "share": 0.6, "window": 2, "floor": 0.2},
-                                 {"upper": "seat", "lower": "legs", "share": 0.6, "window": 2}, [1, 2], None])
+#: a valid stored cut, spoilt one key at a time below
+_CUT = {"upper": "seat", "lower": "legs", "share": 0.6, "window": 2, "floor": 0.2, "restore": True}
+
+
+@pytest.mark.parametrize("cut", [{**_CUT, "share": 0}, {**_CUT, "window": -1}, {**_CUT, "window": 2.5},
+                                 {**_CUT, "share": "x"}, {**_CUT, "window": 10**9}, {**_CUT, "floor": 1.0},
+                                 {**_CUT, "floor": -0.1}, {**_CUT, "floor": None}, {**_CUT, "lower": "seat"},
+                                 {**_CUT, "lower": "wheels"}, {**_CUT, "restore": 1}, {**_CUT, "restore": "yes"},
+                                 {k: v for k, v in _CUT.items() if k != "restore"},
+                                 {k: v for k, v in _CUT.items() if k not in ("floor", "restore")}, [1, 2], None])
 def test_a_hostile_cut_is_refused_in_one_line(tmp_path, cut):
     labeller, _ = _learned(("back", "seat", "legs"), "auto")
     path = lab.write_labeller(resolve_model("chair"), tmp_path / "l.safetensors", labeller)
