@@ -1334,7 +1334,7 @@ class Labeller:
             (chosen on PartNet validation chairs) when the learned labels include ``"arms"`` and the
             rule agrees with the labelled shapes themselves: it would take the label from, or give it
             to, at most :data:`PRESENCE_TOLERANCE` of them wrongly (on the 219 PartNet validation
-            chairs: 6, 2.7%; a category whose "arms" do not rise beside a seat has the rule off);
+            chairs: 13, 5.9%; a category whose "arms" do not rise beside a seat has the rule off);
             else none. ``info["presence_check"]`` says what was found.
         layer_cut : LayerCut, None or "auto"
             The layer cut kept with the labeller; "auto": :class:`LayerCut`'s defaults (chosen on
