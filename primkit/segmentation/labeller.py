@@ -89,8 +89,9 @@ LABELLER_FORMAT = "primkit-labeller"
 #: 5 the rule's ``fill`` (version 4 rules read it off); version 6 may carry ``layer_cut``
 #: (:class:`primkit.segmentation.layers.LayerCut`; versions 1-5: none); version 7 the cut's
 #: ``floor`` (version 6 cuts read 0: the densest layer sought among all); version 8 the cut's
-#: ``restore`` (versions 6-7 read it false: a shape without the lower label left alone).
-LABELLER_FORMAT_VERSION = 8
+#: ``restore`` (versions 6-7 read it false: a shape without the lower label left alone); version
+#: 9 the presence rule's ``grid_add`` (versions 5-8 read its ``add``).
+LABELLER_FORMAT_VERSION = 9
 #: Prefix of a labeller's tensors in a model file (beside the network's weights).
 LABELLER_PREFIX = "labeller."
 #: Metadata key of a labeller's description in a model file.
@@ -110,6 +111,7 @@ STORED[5] = STORED[2]  # the same arrays; the presence rule gained ``fill``
 STORED[6] = STORED[2]  # the same arrays; the description gained ``layer_cut``
 STORED[7] = STORED[2]  # the same arrays; the layer cut gained ``floor``
 STORED[8] = STORED[2]  # the same arrays; the layer cut gained ``restore``
+STORED[9] = STORED[2]  # the same arrays; the presence rule gained ``grid_add``
 
 #: ``Labeller.fit(presence="auto")`` keeps the presence rule when it contradicts at most this share
 #: of the labelled shapes' own labels (it would take their label away, or give it to a shape
@@ -1358,13 +1360,16 @@ class Labeller:
             X, y = np.asarray(shape[0], float), np.asarray(shape[1], np.int64)
             weight = float(shape[2]) if len(shape) > 2 else 1.0
             keep = np.flatnonzero((y >= 0) & (y < len(names)))
+            # the first columns: canonical positions; on layers: a voxel grid's
+            level = layer_levels(X[keep, 1]) if len(keep) and (rule is not None or cut is not None) else None
             if rule is not None and len(keep):  # would the rule contradict this shape's own labels?
                 has = np.mean(y[keep] == list(names).index(rule.label)) >= settings.min_share
-                share = float(np.mean(side_region(X[:, :3])))  # the first columns: canonical positions
+                share = float(np.mean(side_region(X[:, :3])))
                 checked += 1
-                contradicted += int(share < rule.veto if has else share >= rule.add)
-            if cut is not None and len(keep):  # would the cut move many of this grid's own seat and legs?
-                moved = _layer_cut_moves(X[keep, :3], y[keep], list(names), cut)
+                added = share >= (rule.add if level is None else rule.grid_add)
+                contradicted += int(share < rule.veto if has else added)
+            if cut is not None and level is not None:  # would the cut move many of this grid's own seat and legs?
+                moved = _layer_cut_moves(level, y[keep], list(names), cut)
                 if moved is not None:
                     layered += 1
                     against += int(moved > LAYER_TOLERANCE)
@@ -1487,17 +1492,19 @@ class Labeller:
         """``(n,) int``: each element's label from its smoothed probabilities (:meth:`predict_proba`):
         the most probable one that stays (``settings.min_share``), then :attr:`presence`
         (:meth:`present`) and :attr:`layer_cut` (:meth:`cut_layers`), in that order."""
-        labels = self.present(decide(proba, self.settings.min_share), proba, points, context)
+        labels = self.present(decide(proba, self.settings.min_share), proba, points, context,
+                              grid=grid_index is not None)
         return self.cut_layers(labels, proba, points, grid_index)
 
-    def present(self, labels, proba, points, context=None, weights=None) -> np.ndarray:
+    def present(self, labels, proba, points, context=None, weights=None, grid: bool = False) -> np.ndarray:
         """``labels`` after :attr:`presence` (unchanged without one or when the labeller does
         not know its label; ``points``, ``context`` canonical, as :func:`side_region` reads them;
-        ``weights``: each element's weight in the region's share, e.g. a mesh's face areas)."""
+        ``weights``: each element's weight in the region's share, e.g. a mesh's face areas;
+        ``grid``: the elements are a voxel grid's voxels, the rule's ``grid_add`` applies)."""
         if self.presence is None or self.presence.label not in self.names or len(labels) == 0:
             return labels
         return apply_presence(labels, proba, side_region(points, context), self.names.index(self.presence.label),
-                              self.presence, weights)
+                              self.presence, weights, grid)
 
     def cut_layers(self, labels, proba, points, grid_index=None) -> np.ndarray:
         """``labels`` after :attr:`layer_cut` (unchanged without one, or without ``grid_index``:
@@ -1584,7 +1591,7 @@ class Labeller:
         presence = description.get("presence")
         if presence is not None:
             try:
-                presence = PresenceRule.from_dict(presence, fill=version >= 5)
+                presence = PresenceRule.from_dict(presence, fill=version >= 5, grid_add=version >= 9)
             except ValueError as exc:
                 raise ValueError(f"{where}: {exc}") from None
             if presence.label not in names:
@@ -1602,15 +1609,13 @@ class Labeller:
                    presence=presence, layer_cut=cut)
 
 
-def _layer_cut_moves(points, labels, names, cut: LayerCut):
-    """The share of a labelled shape's ``cut.upper`` and ``cut.lower`` elements that ``cut`` would
-    move, run on the shape's own labels (``Labeller.fit``'s check); None when its elements do not
-    lie on layers, or it lacks ``cut.upper``, or ``cut.lower`` and the cut does not restore it."""
+def _layer_cut_moves(level, labels, names, cut: LayerCut):
+    """The share of a labelled grid's ``cut.upper`` and ``cut.lower`` elements that ``cut`` would
+    move, run on the grid's own labels (``Labeller.fit``'s check; ``level``: each element's layer,
+    :func:`layer_levels`); None when it lacks ``cut.upper``, or ``cut.lower`` and the cut does not
+    restore it."""
     upper, lower = names.index(cut.upper), names.index(cut.lower)
     if not np.any(labels == upper) or not (cut.restore or np.any(labels == lower)):
-        return None
-    level = layer_levels(points[:, 1])
-    if level is None:
         return None
     moved = cut_levels(labels, level, (labels == upper).astype(float), upper, lower, cut) != labels
     return float(np.count_nonzero(moved) / np.count_nonzero((labels == upper) | (labels == lower)))

@@ -11,14 +11,16 @@ canonical frame: +Y up, +X front); a :class:`PresenceRule` then, after the label
 * takes the label away from a shape whose side region holds under ``veto`` of its elements (they
   take their next most probable label, as the rare-label rule does);
 * gives it to the side region's elements of a shape that has none of it but whose side region
-  holds at least ``add`` of its elements;
+  holds at least ``add`` of its elements (``grid_add`` of a voxel grid's voxels, which count the
+  solid's inside where a mesh's faces or a cloud's points are its surface only);
 * on a shape that keeps the label, gives it to the side region's elements whose probability of it
   is at least ``fill`` (the labeller finds an arm's top and calls a sofa's side block below it seat
   or back; PartNet's arm box holds the whole block).
 
-The region's bounds and the two shares were chosen on PartNet validation chairs, ``fill`` and
-then a lower ``add`` (0.05, was 0.1) on both halves of them in turn (``docs/labeller.md``, "Arms
-from shape context"). A stored rule keeps the shares it was stored with.
+The region's bounds and the two shares were chosen on PartNet validation chairs, then ``fill``
+and ``grid_add`` on both halves of them in turn, ``grid_add`` on the voxel grids and checked on
+their marching-cubes meshes, where ``add`` stays (``docs/labeller.md``, "Arms from shape
+context"). A stored rule keeps the shares it was stored with.
 """
 
 from __future__ import annotations
@@ -60,7 +62,9 @@ class PresenceRule:
         The label is taken away when the side region holds under this share of the elements.
     add : float
         The label goes to the side region's elements when the shape has none of it and the region
-        holds at least this share (above 1: never).
+        holds at least this share (above 1: never): a mesh's faces, a cloud's points.
+    grid_add : float
+        The same for a voxel grid's voxels (rules stored before labeller format 9 read ``add``).
     fill : float
         On a shape that keeps the label, the side region's elements whose probability of it is at
         least this take it (above 1: never; rules stored before format version 5 read 2).
@@ -68,37 +72,42 @@ class PresenceRule:
 
     label: str = "arms"
     veto: float = 0.01
-    add: float = 0.05
+    add: float = 0.1
     fill: float = 0.1
+    grid_add: float = 0.05
 
     def __post_init__(self):
         if not isinstance(self.label, str) or not self.label:
             raise ValueError("presence label must be a non-empty string")
-        for key in ("veto", "add", "fill"):
+        for key in ("veto", "add", "fill", "grid_add"):
             value = getattr(self, key)
             if not isinstance(value, (int, float)) or isinstance(value, bool) or not 0 <= value <= 2:
                 raise ValueError(f"presence {key} must be a number in [0, 2]")
 
     def to_dict(self) -> dict:
-        return {"label": self.label, "veto": float(self.veto), "add": float(self.add), "fill": float(self.fill)}
+        return {"label": self.label, "veto": float(self.veto), "add": float(self.add), "fill": float(self.fill),
+                "grid_add": float(self.grid_add)}
 
     @classmethod
-    def from_dict(cls, d, *, fill: bool = True) -> "PresenceRule":
+    def from_dict(cls, d, *, fill: bool = True, grid_add: bool = True) -> "PresenceRule":
         """The inverse of :meth:`to_dict`; ValueError (one line) on anything else. ``fill=False``:
-        the object of a file written before ``fill`` existed (label, veto and add; fill off)."""
-        keys = {"label", "veto", "add", "fill"} if fill else {"label", "veto", "add"}
+        the object of a file written before ``fill`` existed (label, veto and add; fill off);
+        ``grid_add=False``: before ``grid_add`` existed (grids read ``add``)."""
+        keys = {"label", "veto", "add"} | ({"fill"} if fill else set()) | ({"grid_add"} if grid_add else set())
         if not isinstance(d, dict) or set(d) != keys:
             raise ValueError(f"presence must be a JSON object with {', '.join(sorted(keys))}")
-        return cls(d["label"], d["veto"], d["add"], d["fill"] if fill else 2.0)
+        return cls(d["label"], d["veto"], d["add"], d["fill"] if fill else 2.0, d["grid_add"] if grid_add else d["add"])
 
 
-def apply_presence(labels, proba, region, label: int, rule: PresenceRule, weights=None) -> np.ndarray:
+def apply_presence(labels, proba, region, label: int, rule: PresenceRule, weights=None,
+                   grid: bool = False) -> np.ndarray:
     """``(n,) int``: ``labels`` (each element's decided label) after ``rule``.
 
     ``proba`` : (n, classes) float, the probabilities ``labels`` were decided from (an element
     whose label is taken away takes its most probable other label); ``region`` : (n,) bool,
     :func:`side_region`; ``label`` : the rule's label's class index; ``weights`` : (n,) float or
-    None, what each element weighs in the region's share (a mesh's face areas; None: one each).
+    None, what each element weighs in the region's share (a mesh's face areas; None: one each);
+    ``grid`` : the elements are a voxel grid's voxels (the rule's ``grid_add`` applies).
     """
     labels = np.asarray(labels, np.int64)
     region = np.asarray(region, bool)
@@ -110,7 +119,7 @@ def apply_presence(labels, proba, region, label: int, rule: PresenceRule, weight
         others = np.array(proba, float)
         others[:, label] = -np.inf
         return np.where(labels == label, np.argmax(others, axis=1), labels).astype(np.int64)
-    if not has and share >= rule.add:
+    if not has and share >= (rule.grid_add if grid else rule.add):
         return np.where(region, label, labels).astype(np.int64)
     if has and rule.fill <= 1:
         return np.where(region & (np.asarray(proba, float)[:, label] >= rule.fill), label, labels).astype(np.int64)

@@ -53,8 +53,9 @@ def test_a_chair_without_arms_has_no_side_region():
     assert not side_region(points).any()
 
 
-def _loop(labels, proba, region, label, rule, weights=None):
+def _loop(labels, proba, region, label, rule, weights=None, grid=False):
     """The rule one element at a time."""
+    add = rule.grid_add if grid else rule.add
     weights = [1.0] * len(region) if weights is None else weights
     share = sum(w for r, w in zip(region, weights) if r) / sum(weights)
     has = any(v == label for v in labels)
@@ -62,7 +63,7 @@ def _loop(labels, proba, region, label, rule, weights=None):
     for i, v in enumerate(labels):
         if has and share < rule.veto and v == label:
             out.append(max((c for c in range(proba.shape[1]) if c != label), key=lambda c: proba[i, c]))
-        elif not has and share >= rule.add and region[i]:
+        elif not has and share >= add and region[i]:
             out.append(label)
         elif has and share >= rule.veto and region[i] and proba[i, label] >= rule.fill:
             out.append(label)
@@ -81,9 +82,13 @@ def test_the_rule_is_a_per_element_loop(seed, fill):
     if seed % 2:
         labels[labels == 3] = 0  # no arms decided
     region = rng.random(n) < [0.0, 0.005, 0.05, 0.2, 0.5, 0.008][seed]
-    rule = PresenceRule("arms", 0.01, 0.1, fill)
+    rule = PresenceRule("arms", 0.01, 0.1, fill, grid_add=0.03)
     got = apply_presence(labels, proba, region, 3, rule)
     np.testing.assert_array_equal(got, _loop(labels, proba, region, 3, rule))
+    on_grid = apply_presence(labels, proba, region, 3, rule, grid=True)  # a grid's voxels: grid_add
+    np.testing.assert_array_equal(on_grid, _loop(labels, proba, region, 3, rule, grid=True))
+    if not np.any(labels == 3) and 0.03 <= region.mean() < 0.1:  # added on a grid only
+        assert np.array_equal(on_grid == 3, region) and not np.any(got == 3)
     weights = rng.uniform(0.0, 3.0, n) ** 3  # a mesh's face areas: the region's share by weight
     np.testing.assert_array_equal(apply_presence(labels, proba, region, 3, rule, weights),
                                   _loop(labels, proba, region, 3, rule, weights))
@@ -156,6 +161,22 @@ def test_predict_applies_the_rule_after_the_decision():
     np.testing.assert_array_equal(replace(labeller, presence=None).predict(points, c), plain)
 
 
+def test_predict_adds_by_grid_add_on_a_grid_only():
+    """A rule that never adds on a surface (add above 1) and always on a grid (grid_add 0): the
+    voxels of a grid, passed with their indices, get the region; the same points as a cloud do not."""
+    rule = PresenceRule("arms", 0.0, 2.0, 2.0, grid_add=0.0)
+    labeller, c, _ = _fit(["back", "seat", "arms"], presence=rule)
+    points, _ = _chair("rests")
+    index = np.rint((points + 0.5) * 24 - 0.5).astype(np.int64)
+    proba = labeller.predict_proba(points, c, grid_index=index)
+    proba[:, 2] = 0.0  # as if the labeller had found no arms
+    plain = decide(proba, labeller.settings.min_share)
+    region = side_region(points)
+    assert region.any() and not np.any(plain == 2)
+    np.testing.assert_array_equal(labeller.labels_from(proba, points, grid_index=index), np.where(region, 2, plain))
+    np.testing.assert_array_equal(labeller.labels_from(proba, points), plain)
+
+
 def test_the_rule_is_stored_and_read_back(tmp_path):
     labeller, c, points = _fit(["back", "seat", "arms"], presence=PresenceRule("arms", 0.02, 0.3, 0.25))
     path = lab.write_labeller(resolve_model("chair"), tmp_path / "l.safetensors", labeller)
@@ -163,12 +184,20 @@ def test_the_rule_is_stored_and_read_back(tmp_path):
     assert got.presence == PresenceRule("arms", 0.02, 0.3, 0.25)
     np.testing.assert_array_equal(got.predict(points, c), labeller.predict(points, c))
 
+    def as_version_8(d):
+        d["format_version"] = 8
+        del d["presence"]["grid_add"]
+
+    v8 = lab.read_labeller(rewrite_description(path, tmp_path / "v8.safetensors", as_version_8))
+    assert v8.presence == PresenceRule("arms", 0.02, 0.3, 0.25, grid_add=0.3)  # before grid_add: add on grids
+
     def as_version_4(d):
+        as_version_8(d)
         d["format_version"] = 4
         del d["presence"]["fill"]
 
     v4 = lab.read_labeller(rewrite_description(path, tmp_path / "v4.safetensors", as_version_4))
-    assert v4.presence == PresenceRule("arms", 0.02, 0.3, 2.0)  # written before the fill: none
+    assert v4.presence == PresenceRule("arms", 0.02, 0.3, 2.0, 0.3)  # written before the fill: none
 
     def as_version_3(d):
         d["format_version"] = 3
@@ -179,15 +208,18 @@ def test_the_rule_is_stored_and_read_back(tmp_path):
     assert old.presence is None
 
 
-@pytest.mark.parametrize("presence", [{"label": "arms", "veto": -1, "add": 0.1, "fill": 0.1},
-                                      {"label": "arms", "veto": "x", "add": 0, "fill": 0.1},
-                                      {"label": "arms", "veto": 0.1, "fill": 0.1}, [1, 2],
-                                      {"label": "wings", "veto": 0, "add": 0, "fill": 0.1},
-                                      {"label": "", "veto": 0, "add": 0, "fill": 0.1},
-                                      {"label": "arms", "veto": 0, "add": 1e300, "fill": 0.1},
-                                      {"label": "arms", "veto": 0, "add": 0.1},  # no fill in a version 5 file
-                                      {"label": "arms", "veto": 0, "add": 0.1, "fill": -0.5},
-                                      {"label": "arms", "veto": 0, "add": 0.1, "fill": None}])
+#: a valid stored rule, spoilt one key at a time below
+_RULE = {"label": "arms", "veto": 0.01, "add": 0.1, "fill": 0.1, "grid_add": 0.05}
+
+
+@pytest.mark.parametrize("presence", [{**_RULE, "veto": -1}, {**_RULE, "veto": "x"}, {**_RULE, "label": "wings"},
+                                      {**_RULE, "label": ""}, {**_RULE, "add": 1e300}, {**_RULE, "fill": -0.5},
+                                      {**_RULE, "fill": None}, {**_RULE, "grid_add": -0.1}, {**_RULE, "grid_add": True},
+                                      {**_RULE, "grid_add": "0.05"},
+                                      {k: v for k, v in _RULE.items() if k != "add"},
+                                      {k: v for k, v in _RULE.items() if k != "grid_add"},  # as a version 8 file
+                                      {k: v for k, v in _RULE.items() if k not in ("fill", "grid_add")},  # version 4
+                                      [1, 2]])
 def test_a_hostile_rule_is_refused_in_one_line(tmp_path, presence):
     labeller, _, _ = _fit(["back", "seat", "arms"])
     path = lab.write_labeller(resolve_model("chair"), tmp_path / "l.safetensors", labeller)
