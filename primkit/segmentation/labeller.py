@@ -54,7 +54,7 @@ import numpy as np
 
 from .. import primitives
 from ..model.modelfile import ModelFileError
-from .layers import LayerCut, apply_layer_cut, cut_levels, layer_levels
+from .layers import LayerCut, apply_layer_cut, cut_levels, cut_reads, layer_levels
 from .presence import PresenceRule, apply_presence, side_region
 from .profile import PROFILE_FEATURES, column_range, profile_features
 from .sides import SIDE_FEATURES, side_features
@@ -1615,7 +1615,7 @@ def _layer_cut_moves(level, labels, names, cut: LayerCut):
     :func:`layer_levels`); None when it lacks ``cut.upper``, or ``cut.lower`` and the cut does not
     restore it."""
     upper, lower = names.index(cut.upper), names.index(cut.lower)
-    if not np.any(labels == upper) or not (cut.restore or np.any(labels == lower)):
+    if not cut_reads(labels, upper, lower, cut):
         return None
     moved = cut_levels(labels, level, (labels == upper).astype(float), upper, lower, cut) != labels
     return float(np.count_nonzero(moved) / np.count_nonzero((labels == upper) | (labels == lower)))

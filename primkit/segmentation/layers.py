@@ -41,7 +41,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["LayerCut", "layer_levels", "apply_layer_cut", "cut_levels", "MAX_LAYERS"]
+__all__ = ["LayerCut", "layer_levels", "cut_reads", "apply_layer_cut", "cut_levels", "MAX_LAYERS"]
 
 #: A shape is layered when its elements' heights take at most this many values (the network
 #: grid's largest side, :data:`primkit.model.network.MAX_NETWORK_GRID`) and at most half as many as
@@ -125,6 +125,13 @@ def layer_levels(heights, most: int = MAX_LAYERS):
     return layer_of_value[inverse.reshape(-1)]
 
 
+def cut_reads(labels, upper: int, lower: int, cut: LayerCut) -> bool:
+    """Whether ``cut`` reads a shape labelled ``labels`` ((n,) int): it has ``upper``, and
+    ``lower`` too unless the cut restores a missing one (``cut.restore``)."""
+    labels = np.asarray(labels)
+    return bool(np.any(labels == upper) and (cut.restore or np.any(labels == lower)))
+
+
 def apply_layer_cut(labels, proba, heights, upper: int, lower: int, cut: LayerCut, most: int = MAX_LAYERS):
     """``(n,) int``: ``labels`` after ``cut`` (the module notes).
 
@@ -133,7 +140,7 @@ def apply_layer_cut(labels, proba, heights, upper: int, lower: int, cut: LayerCu
     ``cut.upper`` and ``cut.lower``; ``most`` : :func:`layer_levels`'s (a grid's largest side).
     """
     labels = np.asarray(labels, np.int64)
-    if not np.any(labels == upper) or not (cut.restore or np.any(labels == lower)):
+    if not cut_reads(labels, upper, lower, cut):
         return labels
     level = layer_levels(heights, most)
     if level is None:
@@ -152,10 +159,10 @@ def cut_levels(labels, level, upperness, upper: int, lower: int, cut: LayerCut) 
     ``labels`` is ``upper`` or ``lower``; a shape without ``upper`` is left alone, and one without
     ``lower`` too unless ``cut.restore`` (then cut at the seat's bottom, ``upperness`` unread)."""
     labels = np.asarray(labels, np.int64)
+    if not cut_reads(labels, upper, lower, cut):
+        return labels
     chosen = (labels == upper) | (labels == lower)
     restoring = not np.any(labels == lower)
-    if not np.any(labels == upper) or (restoring and not cut.restore):
-        return labels
     count = np.bincount(level)
     low = int(np.ceil(round(cut.floor * len(count), 9)))  # the layers the seat is not sought in
     if low >= len(count):
