@@ -297,6 +297,8 @@ def _fit(data, parts, settings, position_only, **fit):
         labeller = Labeller.fit(data, NAMES, parts, settings=settings, **fit)
         if FILL["fill"] is not None and labeller.presence is not None:  # --fill: the rule kept, another fill
             labeller = replace(labeller, presence=replace(labeller.presence, fill=FILL["fill"]))
+        if FILL["hint"] is not None and labeller.presence is not None:  # --hint: the rule kept, another hint
+            labeller = replace(labeller, presence=replace(labeller.presence, hint=FILL["hint"]))
         return labeller
     # the position-only baseline: the same classifier on three columns (not a storable labeller)
     from sklearn.ensemble import HistGradientBoostingClassifier
@@ -335,9 +337,9 @@ MODELS = {
 #: smooth, min_share)
 AFTER = [(9, 0, 0.0), (9, 2, 0.0), (27, 2, 0.0), (27, 4, 0.0), (9, 2, 0.01), (27, 2, 0.01), (27, 2, 0.02),
          (27, 4, 0.01), (27, 4, 0.02)]
-#: ``--fill``: the presence rule's fill (:class:`primkit.segmentation.presence.PresenceRule`) instead
-#: of the one ``Labeller.fit`` keeps (above 1: no fill)
-FILL = {"fill": None}
+#: ``--fill``, ``--hint``: the presence rule's fill and hint (:class:`primkit.segmentation.presence.PresenceRule`)
+#: instead of those ``Labeller.fit`` keeps (above 1: none)
+FILL = {"fill": None, "hint": None}
 #: ``--swap``: the validation protocol with the halves swapped (learn from validation chairs 100-218
 #: of the seed-0 order, score chairs 0-99)
 SWAP = {"on": False}
@@ -552,13 +554,15 @@ def main(argv=None) -> int:
                     "(primkit.segmentation.selftrain.SelfTraining), e.g. 1:0.9:0.5")
     ap.add_argument("--fill", type=float, default=None,
                     help="curve: the presence rule's fill (default: PresenceRule's; above 1: none)")
+    ap.add_argument("--hint", type=float, default=None,
+                    help="curve: the presence rule's hint (default: PresenceRule's; above 1: none)")
     ap.add_argument("--layer-cut", action=argparse.BooleanOptionalAction, default=True,
                     help="curve: the seat/legs layer cut (primkit.segmentation.layers; Labeller.fit's default)")
     ap.add_argument("--swap", action="store_true",
                     help="curve --part validation: learn from validation chairs 100-218, score chairs 0-99")
     args = ap.parse_args(argv)
     KNN["how"] = args.knn
-    FILL["fill"], SWAP["on"] = args.fill, args.swap
+    FILL["fill"], FILL["hint"], SWAP["on"] = args.fill, args.hint, args.swap
     if not args.presence:
         FIT["presence"] = None
     if not args.layer_cut:

@@ -90,8 +90,9 @@ LABELLER_FORMAT = "primkit-labeller"
 #: (:class:`primkit.segmentation.layers.LayerCut`; versions 1-5: none); version 7 the cut's
 #: ``floor`` (version 6 cuts read 0: the densest layer sought among all); version 8 the cut's
 #: ``restore`` (versions 6-7 read it false: a shape without the lower label left alone); version
-#: 9 the presence rule's ``grid_add`` (versions 5-8 read its ``add``).
-LABELLER_FORMAT_VERSION = 9
+#: 9 the presence rule's ``grid_add`` (versions 5-8 read its ``add``); version 10 the rule's
+#: ``hint``, ``hint_add`` and ``grid_hint_add`` (versions 4-9 read the hint off).
+LABELLER_FORMAT_VERSION = 10
 #: Prefix of a labeller's tensors in a model file (beside the network's weights).
 LABELLER_PREFIX = "labeller."
 #: Metadata key of a labeller's description in a model file.
@@ -112,6 +113,7 @@ STORED[6] = STORED[2]  # the same arrays; the description gained ``layer_cut``
 STORED[7] = STORED[2]  # the same arrays; the layer cut gained ``floor``
 STORED[8] = STORED[2]  # the same arrays; the layer cut gained ``restore``
 STORED[9] = STORED[2]  # the same arrays; the presence rule gained ``grid_add``
+STORED[10] = STORED[2]  # the same arrays; the presence rule gained the hint
 
 #: ``Labeller.fit(presence="auto")`` keeps the presence rule when it contradicts at most this share
 #: of the labelled shapes' own labels (it would take their label away, or give it to a shape
@@ -1366,6 +1368,7 @@ class Labeller:
                 has = np.mean(y[keep] == list(names).index(rule.label)) >= settings.min_share
                 share = float(np.mean(side_region(X[:, :3])))
                 checked += 1
+                # the rule's hint rests on the labeller's probabilities, which do not exist yet
                 added = share >= (rule.add if level is None else rule.grid_add)
                 contradicted += int(share < rule.veto if has else added)
             if cut is not None and level is not None:  # would the cut move many of this grid's own seat and legs?
@@ -1591,7 +1594,7 @@ class Labeller:
         presence = description.get("presence")
         if presence is not None:
             try:
-                presence = PresenceRule.from_dict(presence, fill=version >= 5, grid_add=version >= 9)
+                presence = PresenceRule.from_dict(presence, fill=version >= 5, grid_add=version >= 9, hint=version >= 10)
             except ValueError as exc:
                 raise ValueError(f"{where}: {exc}") from None
             if presence.label not in names:

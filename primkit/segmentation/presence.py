@@ -12,15 +12,18 @@ canonical frame: +Y up, +X front); a :class:`PresenceRule` then, after the label
   take their next most probable label, as the rare-label rule does);
 * gives it to the side region's elements of a shape that has none of it but whose side region
   holds at least ``add`` of its elements (``grid_add`` of a voxel grid's voxels, which count the
-  solid's inside where a mesh's faces or a cloud's points are its surface only);
+  solid's inside where a mesh's faces or a cloud's points are its surface only), or at least
+  ``hint_add`` (``grid_hint_add``) of them when the labeller's mean probability of the label over
+  the region is at least ``hint`` (slim arms: the labeller leans to arms there without calling
+  them, and the region is too small to decide alone; voxel grids only by default);
 * on a shape that keeps the label, gives it to the side region's elements whose probability of it
   is at least ``fill`` (the labeller finds an arm's top and calls a sofa's side block below it seat
   or back; PartNet's arm box holds the whole block).
 
-The region's bounds and the two shares were chosen on PartNet validation chairs, then ``fill``
-and ``grid_add`` on both halves of them in turn, ``grid_add`` on the voxel grids and checked on
-their marching-cubes meshes, where ``add`` stays (``docs/labeller.md``, "Arms from shape
-context"). A stored rule keeps the shares it was stored with.
+The region's bounds and the two shares were chosen on PartNet validation chairs, then ``fill``,
+``grid_add`` and the hint on both halves of them in turn, ``grid_add`` on the voxel grids and
+checked on their marching-cubes meshes, where ``add`` stays (``docs/labeller.md``, "Arms from
+shape context"). A stored rule keeps the shares it was stored with.
 """
 
 from __future__ import annotations
@@ -68,6 +71,15 @@ class PresenceRule:
     fill : float
         On a shape that keeps the label, the side region's elements whose probability of it is at
         least this take it (above 1: never; rules stored before format version 5 read 2).
+    hint : float
+        A smaller region gives the label too (``hint_add``, ``grid_hint_add``) when the labeller's
+        mean probability of it over the region is at least this (above 1: never; rules stored
+        before labeller format 10 read 2).
+    hint_add : float
+        That smaller share for a mesh's faces and a cloud's points (above 1: never, the default:
+        on meshes it cost arms, ``docs/labeller.md``).
+    grid_hint_add : float
+        The same for a voxel grid's voxels.
     """
 
     label: str = "arms"
@@ -75,28 +87,35 @@ class PresenceRule:
     add: float = 0.1
     fill: float = 0.1
     grid_add: float = 0.05
+    hint: float = 0.1
+    hint_add: float = 2.0
+    grid_hint_add: float = 0.025
 
     def __post_init__(self):
         if not isinstance(self.label, str) or not self.label:
             raise ValueError("presence label must be a non-empty string")
-        for key in ("veto", "add", "fill", "grid_add"):
+        for key in ("veto", "add", "fill", "grid_add", "hint", "hint_add", "grid_hint_add"):
             value = getattr(self, key)
             if not isinstance(value, (int, float)) or isinstance(value, bool) or not 0 <= value <= 2:
                 raise ValueError(f"presence {key} must be a number in [0, 2]")
 
     def to_dict(self) -> dict:
         return {"label": self.label, "veto": float(self.veto), "add": float(self.add), "fill": float(self.fill),
-                "grid_add": float(self.grid_add)}
+                "grid_add": float(self.grid_add), "hint": float(self.hint),
+                "hint_add": float(self.hint_add), "grid_hint_add": float(self.grid_hint_add)}
 
     @classmethod
-    def from_dict(cls, d, *, fill: bool = True, grid_add: bool = True) -> "PresenceRule":
+    def from_dict(cls, d, *, fill: bool = True, grid_add: bool = True, hint: bool = True) -> "PresenceRule":
         """The inverse of :meth:`to_dict`; ValueError (one line) on anything else. ``fill=False``:
         the object of a file written before ``fill`` existed (label, veto and add; fill off);
-        ``grid_add=False``: before ``grid_add`` existed (grids read ``add``)."""
-        keys = {"label", "veto", "add"} | ({"fill"} if fill else set()) | ({"grid_add"} if grid_add else set())
+        ``grid_add=False``: before ``grid_add`` existed (grids read ``add``); ``hint=False``: before
+        the hint existed (hint off)."""
+        keys = {"label", "veto", "add"} | ({"fill"} if fill else set()) | ({"grid_add"} if grid_add else set()) \
+            | ({"hint", "hint_add", "grid_hint_add"} if hint else set())
         if not isinstance(d, dict) or set(d) != keys:
             raise ValueError(f"presence must be a JSON object with {', '.join(sorted(keys))}")
-        return cls(d["label"], d["veto"], d["add"], d["fill"] if fill else 2.0, d["grid_add"] if grid_add else d["add"])
+        return cls(d["label"], d["veto"], d["add"], d["fill"] if fill else 2.0, d["grid_add"] if grid_add else d["add"],
+                   *((d["hint"], d["hint_add"], d["grid_hint_add"]) if hint else (2.0, 2.0, 2.0)))
 
 
 def apply_presence(labels, proba, region, label: int, rule: PresenceRule, weights=None,
@@ -113,14 +132,18 @@ def apply_presence(labels, proba, region, label: int, rule: PresenceRule, weight
     region = np.asarray(region, bool)
     if len(labels) == 0:
         return labels
-    share = float(np.mean(region) if weights is None else np.sum(np.where(region, weights, 0.0)) / np.sum(weights))
+    weights = np.ones(len(labels)) if weights is None else np.asarray(weights, float)
+    share = float(np.sum(np.where(region, weights, 0.0)) / np.sum(weights))
     has = np.any(labels == label)
     if has and share < rule.veto:
         others = np.array(proba, float)
         others[:, label] = -np.inf
         return np.where(labels == label, np.argmax(others, axis=1), labels).astype(np.int64)
-    if not has and share >= (rule.grid_add if grid else rule.add):
-        return np.where(region, label, labels).astype(np.int64)
+    if not has:
+        bar, hint_bar = (rule.grid_add, rule.grid_hint_add) if grid else (rule.add, rule.hint_add)
+        if share >= bar or (share > 0 and share >= hint_bar and rule.hint <= 1
+                            and np.average(np.asarray(proba, float)[region, label], weights=weights[region]) >= rule.hint):
+            return np.where(region, label, labels).astype(np.int64)
     if has and rule.fill <= 1:
         return np.where(region & (np.asarray(proba, float)[:, label] >= rule.fill), label, labels).astype(np.int64)
     return labels

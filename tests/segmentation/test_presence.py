@@ -57,13 +57,17 @@ def _loop(labels, proba, region, label, rule, weights=None, grid=False):
     """The rule one element at a time."""
     add = rule.grid_add if grid else rule.add
     weights = [1.0] * len(region) if weights is None else weights
-    share = sum(w for r, w in zip(region, weights) if r) / sum(weights)
+    inside = sum(w for r, w in zip(region, weights) if r)
+    share = inside / sum(weights)
+    leaning = inside > 0 and sum(w * p for r, w, p in zip(region, weights, proba[:, label]) if r) / inside >= rule.hint
+    adds = share >= add or (share > 0 and share >= (rule.grid_hint_add if grid else rule.hint_add) and rule.hint <= 1
+                            and leaning)
     has = any(v == label for v in labels)
     out = []
     for i, v in enumerate(labels):
         if has and share < rule.veto and v == label:
             out.append(max((c for c in range(proba.shape[1]) if c != label), key=lambda c: proba[i, c]))
-        elif not has and share >= add and region[i]:
+        elif not has and adds and region[i]:
             out.append(label)
         elif has and share >= rule.veto and region[i] and proba[i, label] >= rule.fill:
             out.append(label)
@@ -72,22 +76,23 @@ def _loop(labels, proba, region, label, rule, weights=None, grid=False):
     return np.array(out)
 
 
+@pytest.mark.parametrize("hint", [0.1, 0.3, 2.0])
 @pytest.mark.parametrize("fill", [0.1, 0.0, 2.0])
-@pytest.mark.parametrize("seed", range(6))
-def test_the_rule_is_a_per_element_loop(seed, fill):
+@pytest.mark.parametrize("seed", range(8))
+def test_the_rule_is_a_per_element_loop(seed, fill, hint):
     rng = np.random.default_rng(seed)
     n = 200
     proba = rng.dirichlet(np.ones(4), n)
     labels = np.argmax(proba, axis=1)
     if seed % 2:
         labels[labels == 3] = 0  # no arms decided
-    region = rng.random(n) < [0.0, 0.005, 0.05, 0.2, 0.5, 0.008][seed]
-    rule = PresenceRule("arms", 0.01, 0.1, fill, grid_add=0.03)
+    region = rng.random(n) < [0.0, 0.02, 0.05, 0.2, 0.5, 0.008, 0.1, 0.05][seed]  # seeds 1, 7: hint bands
+    rule = PresenceRule("arms", 0.01, 0.1, fill, grid_add=0.03, hint=hint, hint_add=0.05, grid_hint_add=0.015)
     got = apply_presence(labels, proba, region, 3, rule)
     np.testing.assert_array_equal(got, _loop(labels, proba, region, 3, rule))
     on_grid = apply_presence(labels, proba, region, 3, rule, grid=True)  # a grid's voxels: grid_add
     np.testing.assert_array_equal(on_grid, _loop(labels, proba, region, 3, rule, grid=True))
-    if not np.any(labels == 3) and 0.03 <= region.mean() < 0.1:  # added on a grid only
+    if not np.any(labels == 3) and 0.03 <= region.mean() < 0.05:  # added on a grid only (under the hint band too)
         assert np.array_equal(on_grid == 3, region) and not np.any(got == 3)
     weights = rng.uniform(0.0, 3.0, n) ** 3  # a mesh's face areas: the region's share by weight
     np.testing.assert_array_equal(apply_presence(labels, proba, region, 3, rule, weights),
@@ -97,6 +102,11 @@ def test_the_rule_is_a_per_element_loop(seed, fill):
         assert not np.any(got == 3)
     if not np.any(labels == 3) and share >= 0.1:
         np.testing.assert_array_equal(got == 3, region)
+    leaning = region.any() and proba[region, 3].mean() >= hint
+    if not np.any(labels == 3) and 0.05 <= share < 0.1:  # the hint's share: added when the labeller leans to arms
+        assert np.array_equal(got == 3, region) if leaning else not np.any(got == 3)
+    if not np.any(labels == 3) and 0.015 <= share < 0.03:  # the same on a grid, by grid_hint_add
+        assert np.array_equal(on_grid == 3, region) if leaning else not np.any(on_grid == 3)
     if np.any(labels == 3) and share >= 0.01:  # the fill only adds, and only inside the region
         assert np.all(got[labels == 3] == 3) and np.all((got == labels) | region)
         if fill == 0.0:
@@ -177,6 +187,43 @@ def test_predict_adds_by_grid_add_on_a_grid_only():
     np.testing.assert_array_equal(labeller.labels_from(proba, points), plain)
 
 
+def test_the_hint_adds_a_small_region_only_when_the_labeller_leans_to_the_label():
+    """The default rule on a voxel grid without arms decided and a side region of 3% of it (under
+    grid_add, 5%, over grid_hint_add, 2.5%): arms when the region's mean arm probability reaches
+    the hint (0.1), not below it; never from a region under 2.5%, nor on a surface (no hint_add)."""
+    n = 1000
+    labels = np.zeros(n, np.int64)
+    region = np.zeros(n, bool)
+    region[:30] = True
+    rule = PresenceRule()
+    for arm, want in ((0.12, True), (0.3, True), (0.08, False)):
+        proba = np.tile([0.5, 0.5 - arm, 0.0, arm], (n, 1))
+        got = apply_presence(labels, proba, region, 3, rule, grid=True)
+        assert np.array_equal(got == 3, region) if want else not np.any(got == 3)
+        # the same elements as a surface: the default rule has no hint there
+        assert not np.any(apply_presence(labels, proba, region, 3, rule) == 3)
+        surface = PresenceRule(hint_add=0.025)
+        assert np.array_equal(apply_presence(labels, proba, region, 3, surface) == 3, region) if want \
+            else not np.any(apply_presence(labels, proba, region, 3, surface) == 3)
+    proba = np.tile([0.05, 0.05, 0.0, 0.9], (n, 1))
+    small = np.zeros(n, bool)
+    small[:24] = True  # 2.4%: under grid_hint_add
+    assert not np.any(apply_presence(labels, proba, small, 3, rule, grid=True) == 3)
+    # a mesh's faces (a rule with a hint there): the region's mean probability weighs each face by
+    # its area. 70 faces (7%), 10 of them sure of arms: by count the mean is 1/7, by area (those
+    # 10 tiny) about 0.002
+    rule = PresenceRule(hint_add=0.05)
+    proba = np.tile([0.5, 0.5, 0.0, 0.0], (n, 1))
+    region = np.zeros(n, bool)
+    region[60:130] = True
+    proba[60:70] = [0.0, 0.0, 0.0, 1.0]
+    weights = np.ones(n)
+    weights[60:70] = 0.01
+    assert 0.05 <= weights[region].sum() / weights.sum() < 0.1
+    np.testing.assert_array_equal(apply_presence(labels, proba, region, 3, rule) == 3, region)
+    assert not np.any(apply_presence(labels, proba, region, 3, rule, weights) == 3)
+
+
 def test_the_rule_is_stored_and_read_back(tmp_path):
     labeller, c, points = _fit(["back", "seat", "arms"], presence=PresenceRule("arms", 0.02, 0.3, 0.25))
     path = lab.write_labeller(resolve_model("chair"), tmp_path / "l.safetensors", labeller)
@@ -184,12 +231,21 @@ def test_the_rule_is_stored_and_read_back(tmp_path):
     assert got.presence == PresenceRule("arms", 0.02, 0.3, 0.25)
     np.testing.assert_array_equal(got.predict(points, c), labeller.predict(points, c))
 
+    def as_version_9(d):
+        d["format_version"] = 9
+        for key in ("hint", "hint_add", "grid_hint_add"):
+            del d["presence"][key]
+
+    v9 = lab.read_labeller(rewrite_description(path, tmp_path / "v9.safetensors", as_version_9))
+    assert v9.presence == PresenceRule("arms", 0.02, 0.3, 0.25, hint=2.0, grid_hint_add=2.0)  # before the hint: none
+
     def as_version_8(d):
+        as_version_9(d)
         d["format_version"] = 8
         del d["presence"]["grid_add"]
 
     v8 = lab.read_labeller(rewrite_description(path, tmp_path / "v8.safetensors", as_version_8))
-    assert v8.presence == PresenceRule("arms", 0.02, 0.3, 0.25, grid_add=0.3)  # before grid_add: add on grids
+    assert v8.presence == PresenceRule("arms", 0.02, 0.3, 0.25, grid_add=0.3, hint=2.0, grid_hint_add=2.0)  # before grid_add: add on grids
 
     def as_version_4(d):
         as_version_8(d)
@@ -197,7 +253,7 @@ def test_the_rule_is_stored_and_read_back(tmp_path):
         del d["presence"]["fill"]
 
     v4 = lab.read_labeller(rewrite_description(path, tmp_path / "v4.safetensors", as_version_4))
-    assert v4.presence == PresenceRule("arms", 0.02, 0.3, 2.0, 0.3)  # written before the fill: none
+    assert v4.presence == PresenceRule("arms", 0.02, 0.3, 2.0, 0.3, 2.0, 2.0, 2.0)  # written before the fill: none
 
     def as_version_3(d):
         d["format_version"] = 3
@@ -209,16 +265,20 @@ def test_the_rule_is_stored_and_read_back(tmp_path):
 
 
 #: a valid stored rule, spoilt one key at a time below
-_RULE = {"label": "arms", "veto": 0.01, "add": 0.1, "fill": 0.1, "grid_add": 0.05}
+_RULE = {"label": "arms", "veto": 0.01, "add": 0.1, "fill": 0.1, "grid_add": 0.05, "hint": 0.1, "hint_add": 2.0,
+         "grid_hint_add": 0.025}
 
 
 @pytest.mark.parametrize("presence", [{**_RULE, "veto": -1}, {**_RULE, "veto": "x"}, {**_RULE, "label": "wings"},
                                       {**_RULE, "label": ""}, {**_RULE, "add": 1e300}, {**_RULE, "fill": -0.5},
                                       {**_RULE, "fill": None}, {**_RULE, "grid_add": -0.1}, {**_RULE, "grid_add": True},
-                                      {**_RULE, "grid_add": "0.05"},
+                                      {**_RULE, "grid_add": "0.05"}, {**_RULE, "hint": -0.1}, {**_RULE, "hint": False},
+                                      {**_RULE, "hint_add": 3.0}, {**_RULE, "grid_hint_add": [0.5]},
                                       {k: v for k, v in _RULE.items() if k != "add"},
-                                      {k: v for k, v in _RULE.items() if k != "grid_add"},  # as a version 8 file
-                                      {k: v for k, v in _RULE.items() if k not in ("fill", "grid_add")},  # version 4
+                                      {k: v for k, v in _RULE.items() if k != "hint"},
+                                      {k: v for k, v in _RULE.items() if k not in ("hint", "hint_add", "grid_hint_add")},  # as version 9
+                                      {k: v for k, v in _RULE.items() if k not in ("grid_add", "hint", "hint_add", "grid_hint_add")},
+                                      {k: v for k, v in _RULE.items() if k not in ("fill", "grid_add", "hint", "hint_add", "grid_hint_add")},
                                       [1, 2]])
 def test_a_hostile_rule_is_refused_in_one_line(tmp_path, presence):
     labeller, _, _ = _fit(["back", "seat", "arms"])
