@@ -1503,7 +1503,8 @@ class Labeller:
         """``labels`` after :attr:`presence` (unchanged without one or when the labeller does
         not know its label; ``points``, ``context`` canonical, as :func:`side_region` reads them;
         ``weights``: each element's weight in the region's share, e.g. a mesh's face areas;
-        ``grid``: the elements are a voxel grid's voxels, the rule's ``grid_add`` applies)."""
+        ``grid``: the elements are a voxel grid's voxels, the rule's ``grid_add`` and
+        ``grid_hint_add`` apply)."""
         if self.presence is None or self.presence.label not in self.names or len(labels) == 0:
             return labels
         return apply_presence(labels, proba, side_region(points, context), self.names.index(self.presence.label),

@@ -125,8 +125,9 @@ def apply_presence(labels, proba, region, label: int, rule: PresenceRule, weight
     ``proba`` : (n, classes) float, the probabilities ``labels`` were decided from (an element
     whose label is taken away takes its most probable other label); ``region`` : (n,) bool,
     :func:`side_region`; ``label`` : the rule's label's class index; ``weights`` : (n,) float or
-    None, what each element weighs in the region's share (a mesh's face areas; None: one each);
-    ``grid`` : the elements are a voxel grid's voxels (the rule's ``grid_add`` applies).
+    None, what each element weighs in the region's share and mean probability (a mesh's face
+    areas; None: one each); ``grid`` : the elements are a voxel grid's voxels (the rule's
+    ``grid_add`` and ``grid_hint_add`` apply).
     """
     labels = np.asarray(labels, np.int64)
     region = np.asarray(region, bool)
@@ -141,8 +142,10 @@ def apply_presence(labels, proba, region, label: int, rule: PresenceRule, weight
         return np.where(labels == label, np.argmax(others, axis=1), labels).astype(np.int64)
     if not has:
         bar, hint_bar = (rule.grid_add, rule.grid_hint_add) if grid else (rule.add, rule.hint_add)
-        if share >= bar or (share > 0 and share >= hint_bar and rule.hint <= 1
-                            and np.average(np.asarray(proba, float)[region, label], weights=weights[region]) >= rule.hint):
+        # the hint: a smaller region when the labeller's mean probability of the label over it is high enough
+        leaning = share > 0 and share >= hint_bar and rule.hint <= 1 \
+            and np.average(np.asarray(proba, float)[region, label], weights=weights[region]) >= rule.hint
+        if share >= bar or leaning:
             return np.where(region, label, labels).astype(np.int64)
     if has and rule.fill <= 1:
         return np.where(region & (np.asarray(proba, float)[:, label] >= rule.fill), label, labels).astype(np.int64)

@@ -846,3 +846,20 @@ def test_the_closed_form_axes_are_eighs():
     np.testing.assert_allclose(got[1, 3:6], [0, 0, 1], atol=1e-15)  # the largest apart; the tied pair's smallest:
     assert abs(np.linalg.norm(got[1, 6:]) - 1) < 1e-12 and got[1, 8] < 1e-12  # any unit axis of their plane
     np.testing.assert_allclose(np.linalg.norm(got[:, 3:6], axis=1), 1, atol=1e-12)
+
+
+@pytest.mark.shared
+@pytest.mark.integration
+def test_the_shipped_chair_labeller_meets_its_stated_bars_on_the_test_chairs(shared_data):
+    """The chair model as ``primkit segment --semantic`` runs it (``Segmenter``, default flags) on
+    the 218 PartNet test chairs of scripts/partnet_chairs.py's split, scored as
+    ``scripts/labeller_curve.py model`` scores it: the README and docs/labeller.md state mean
+    back/seat/legs IoU 0.810, arm IoU 0.771, arm F1 0.906, and so issue 33's bars for the shipped
+    model (0.78, 0.65, 0.9). The labeller learned from validation chairs only (the test above)."""
+    from scripts.labeller_curve import model_figures
+
+    got = model_figures("chair", "test")
+    assert got["chairs"] == 218
+    assert got["mean"] >= 0.78 and got["arm_iou"] >= 0.65 and got["arm_f1"] >= 0.9
+    # each figure a chair or two from the stated one (an armed chair of about 90 moves F1 by 0.006)
+    assert abs(got["mean"] - 0.810) < 0.005 and abs(got["arm_iou"] - 0.771) < 0.01 and abs(got["arm_f1"] - 0.906) < 0.012
