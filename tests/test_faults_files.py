@@ -134,5 +134,74 @@ def test_a_model_of_another_category_is_said_once(tmp_path, capsys):
     assert main(["segment", str(folder), "--model", "airplane", "-o", str(tmp_path / "seg"), "--workers", "1",
                  "--cache", str(tmp_path / "cache")]) == 0
     printed = capsys.readouterr()
-    assert printed.err.count("times worse than its training data") == 1, printed.err
+    assert printed.err.count("times worse than shapes of its own kind") == 1, printed.err
     assert "summary: " in printed.out and "warning: the model fits these 3 shape(s)" in printed.out
+
+
+class _Model:
+    """What the model-card check reads of a model: its metadata."""
+
+    def __init__(self, reference=None, final=None):
+        self.metadata = {"training": {"final": final or {"coverage": 0.001, "consistency": 0.002}}}
+        if reference is not None:
+            self.metadata["fit_reference"] = reference
+
+
+def test_fit_reference_is_the_median_and_spread_of_the_log_losses():
+    from primkit.model.abstraction import fit_reference
+
+    losses = [0.002, 0.004, 0.008, 0.001, 0.016]
+    got = fit_reference(losses, "five")
+    logs = [np.log(v) for v in losses]
+    mean = sum(logs) / 5
+    assert got.median == pytest.approx(0.004) and got.shapes == 5 and got.data == "five"
+    assert got.log_spread == pytest.approx((sum((v - mean) ** 2 for v in logs) / 4) ** 0.5)
+    assert got.to_dict() == {"median": got.median, "log_spread": got.log_spread, "shapes": 5, "data": "five"}
+    with pytest.raises(ValueError):
+        fit_reference([0.1], "one")
+
+
+def test_the_check_against_a_reference_tests_the_median_by_the_batch_size():
+    """Against a reference (median m, log spread s), n shapes warn when their median loss is over
+    CARD_CHECK_RATIO times m and its log ratio over CARD_CHECK_Z standard errors of a median of n,
+    sqrt(pi / 2) s / sqrt(n): one shape twice as bad says nothing, a hundred do; without a
+    reference, the card's final training loss and CARD_LOSS_RATIO as before."""
+    from primkit.model.abstraction import CARD_CHECK_RATIO, CARD_CHECK_Z, CARD_LOSS_RATIO, _card_check
+
+    m, s = 0.006, 0.7
+    model = _Model({"median": m, "log_spread": s, "shapes": 400, "data": "x"})
+    for n in (1, 3, 11, 31, 101):
+        bar = max(CARD_CHECK_RATIO, np.exp(CARD_CHECK_Z * np.sqrt(np.pi / 2) * s / np.sqrt(n)))  # closed form
+        for factor, said in ((bar * 0.98, False), (bar * 1.02, True)):
+            losses = list(m * factor * np.exp(np.linspace(-1, 1, n) if n > 1 else np.zeros(1)))  # n odd: median m * factor
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                ratio, warning = _card_check(model, losses)
+            assert ratio == pytest.approx(factor) and (warning is not None) == said == bool(caught), (n, factor)
+            if said:
+                assert f"{n} shape(s)" in warning and "shapes of its own kind" in warning
+    assert _card_check(model, [m * 2.0])[1] is None  # one chair twice as bad: nothing said
+    with pytest.warns(UserWarning):
+        assert _card_check(model, [m * 2.0] * 100)[1] is not None
+    plain = _Model()  # no reference: the card's 0.003, the ratio bar
+    assert _card_check(plain, [0.003 * CARD_LOSS_RATIO * 0.99])[1] is None
+    with pytest.warns(UserWarning):
+        assert "training data" in _card_check(plain, [0.003 * CARD_LOSS_RATIO * 1.01])[1]
+
+
+@pytest.mark.shared
+def test_a_few_chairs_of_its_own_kind_do_not_set_the_chair_model_off(shared_data):
+    """The first 3 ShapeNetVox32 chairs (training chairs; against the card's training loss they
+    read 2.9 times worse and were told "a different category?") and 10 held-out chairs: the chair
+    model says nothing; the airplane model on the same 3 and the table model on the 10 do."""
+    from primkit.model.abstraction import CardMismatchWarning, abstract_shapes
+
+    files = sorted(data.find_shape_files(shared_data / "shapenetvox32" / "03001627"), key=data.shape_name)
+    _, held = data.split_files(files, 10)
+    first, ten = [str(f) for f in files[:3]], [str(f) for f in sorted(held, key=data.shape_name)[:10]]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", CardMismatchWarning)
+        assert abstract_shapes(first, "chair", progress=False).card_warning is None
+        assert abstract_shapes(ten, "chair", progress=False).card_warning is None
+        assert abstract_shapes(first, "airplane", progress=False).card_warning is not None
+        assert abstract_shapes(ten, "table", progress=False).card_warning is not None

@@ -210,7 +210,21 @@ def _parse_metadata(path, header: dict | None) -> dict:
     missing = [key for key in REQUIRED_KEYS if key not in metadata]
     if missing:
         raise ModelFileError(path, f"metadata lacks the required keys {missing}")
+    if "fit_reference" in metadata and not _is_fit_reference(metadata["fit_reference"]):
+        raise ModelFileError(path, "fit_reference must be an object with a positive median, a non-negative "
+                                   "log_spread, shapes (an integer of at least 2) and data (a string)")
     return metadata
+
+
+def _is_fit_reference(value) -> bool:
+    """Whether ``value`` is a ``fit_reference`` (:func:`primkit.model.abstraction.fit_reference`)."""
+    def number(x):
+        return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+
+    return (isinstance(value, dict) and set(value) == {"median", "log_spread", "shapes", "data"}
+            and number(value["median"]) and value["median"] > 0 and number(value["log_spread"])
+            and value["log_spread"] >= 0 and isinstance(value["shapes"], int) and not isinstance(value["shapes"], bool)
+            and value["shapes"] >= 2 and isinstance(value["data"], str))
 
 
 def _depth(value) -> int:

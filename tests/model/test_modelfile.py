@@ -224,3 +224,22 @@ def test_saves_to_relative_path(tmp_path, monkeypatch):
     path = save_model("rel.safetensors", {"w": torch.ones(2)}, example_metadata())
     assert load_model_file(path)[1]["grid"] == 32
     assert os.listdir(tmp_path) == ["rel.safetensors"]
+
+
+_REFERENCE = {"median": 0.006, "log_spread": 0.7, "shapes": 400, "data": "held-out chairs"}
+
+
+@pytest.mark.parametrize("reference", [None, "x", [1], {**_REFERENCE, "median": 0}, {**_REFERENCE, "median": -1.0},
+                                       {**_REFERENCE, "median": float("nan")}, {**_REFERENCE, "log_spread": -0.1},
+                                       {**_REFERENCE, "log_spread": True}, {**_REFERENCE, "shapes": 1},
+                                       {**_REFERENCE, "shapes": 2.5}, {**_REFERENCE, "data": 3},
+                                       {k: v for k, v in _REFERENCE.items() if k != "data"}, {**_REFERENCE, "extra": 1}])
+def test_a_hostile_fit_reference_is_refused_in_one_line(tmp_path, reference):
+    path, _ = saved_model(tmp_path)
+    good = _rewrite_metadata(path, tmp_path / "good.safetensors", lambda m: m.update(fit_reference=_REFERENCE))
+    assert read_metadata(good)["fit_reference"] == _REFERENCE
+    bad = _rewrite_metadata(path, tmp_path / "bad.safetensors", lambda m: m.update(fit_reference=reference))
+    for read in (load_model_file, read_metadata):
+        with pytest.raises(ModelFileError, match="fit_reference") as info:
+            read(bad)
+        assert_one_line_naming(info.value, bad)

@@ -16,7 +16,8 @@ from primkit.segmentation import labeller as lab
 from primkit.segmentation.evaluation import read_ground_truth
 
 #: what the labeller may not change: digests of each file's network tensors and of its metadata
-#: without the labeller, the card's labeller entry and the card text after "Part labeller", taken
+#: without the labeller, the card's labeller entry, the card text after "Part labeller" and the fit
+#: reference (:func:`primkit.model.abstraction.fit_reference`), taken
 #: from the files before they had a labeller (commit 455eeb7)
 FROZEN = {
     "table": "0ae0bd4a7f2dc5e67513165723abff43e6b9943cda9ad3c615a7bb983c48fe61",
@@ -39,7 +40,8 @@ def frozen_digest(path) -> str:
     meta = read_metadata(path)
     card = {k: v for k, v in meta["card"].items() if k not in ("labeller", "text")}
     card["text"] = meta["card"]["text"].split("\n\nPart labeller ")[0].rstrip("\n")  # the section follows a blank line
-    rest = {k: v for k, v in meta.items() if k not in ("card", lab.LABELLER_KEY, "created")}
+    # the fit reference came later, from scripts/fit_reference.py (which checks that it changes nothing else)
+    rest = {k: v for k, v in meta.items() if k not in ("card", lab.LABELLER_KEY, "created", "fit_reference")}
     h.update(json.dumps({"card": card, **rest}, sort_keys=True).encode())
     return h.hexdigest()
 
