@@ -8,9 +8,10 @@ few shapes of the model's own kind do not set it off. Without a reference it com
 card's final training loss, which the bundled chair model's own held-out chairs exceed 2.5 times
 about one time in three (``docs/faults.md``).
 
-This script abstracts the held-out ShapeNetVox32 shapes of the model's category (every 10th file
-of the split the bundled models were trained on; ``--shapes N`` of them, evenly spread over the
-sorted files) with default flags and writes a copy of the model file with the reference added.
+This script abstracts the shapes the model held out of its training (the split its file records:
+its input folder, found under ``../shared/data/shapenetvox32``, and ``hold_out_every``;
+``--shapes N`` of them, evenly spread over the sorted files) with default flags and writes a copy
+of the model file with the reference added.
 The weights and every other metadata key are copied unchanged (checked).
 
 Usage (from the repository root)::
@@ -28,33 +29,36 @@ from pathlib import Path
 import numpy as np
 
 from primkit import data
-from primkit.model.abstraction import CardMismatchWarning, abstract_shapes, fit_reference
+from primkit.model.abstraction import CardMismatchWarning, abstract_shapes, fit_reference, load_model
 from primkit.model.bundled import resolve_model
 from primkit.model.modelfile import load_model_file, read_metadata, update_metadata
 
-from scripts.build_labellers import SHARED, SYNSETS as LABELLED
+from scripts.build_labellers import SHARED
 
-SYNSETS = {**LABELLED, "chair": "03001627"}
+#: the bundled volume models (the image model abstracts pictures: no fit check)
+MODELS = ("chair", "table", "airplane")
 
 
 def reference_for(model: str, shapes: int = 400):
-    """The fit reference of bundled ``model`` (chair, table, airplane) from ``shapes`` held-out
-    ShapeNetVox32 grids of its category."""
-    _, held = data.split_files(data.find_shape_files(SHARED / "shapenetvox32" / SYNSETS[model]), 10)
+    """The fit reference of bundled ``model`` from ``shapes`` of the ShapeNetVox32 grids it held
+    out (its recorded input folder's name under ``SHARED``, split by its ``hold_out_every``)."""
+    abstractor = load_model(model)
+    folders = [SHARED / "shapenetvox32" / Path(p).name for p in abstractor.metadata["training"]["data"]["inputs"]]
+    _, held = data.split_files([f for d in folders for f in data.find_shape_files(d)], abstractor.hold_out_every)
     held = sorted(held, key=data.shape_name)
     files = [held[i] for i in np.unique(np.linspace(0, len(held) - 1, min(shapes, len(held))).astype(int))]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", CardMismatchWarning)  # the check being calibrated
-        got = abstract_shapes([str(f) for f in files], model, progress=True)
+        got = abstract_shapes([str(f) for f in files], abstractor, progress=True)
     if got.errors:
         raise SystemExit(f"{model}: {len(got.errors)} held-out files could not be abstracted: {got.errors[:3]}")
-    return fit_reference(got.fit_losses, f"{len(got.fit_losses)} held-out ShapeNetVox32 {model} grids (every 10th "
-                                         f"file of the training split), fit losses at 1000 points")
+    return fit_reference(got.fit_losses, f"{len(got.fit_losses)} held-out ShapeNetVox32 {model} grids (every "
+                                         f"{abstractor.hold_out_every}th file of the training split), fit losses at 1000 points")
 
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("model", choices=sorted(SYNSETS))
+    ap.add_argument("model", choices=MODELS)
     ap.add_argument("-o", "--output", type=Path, required=True)
     ap.add_argument("--shapes", type=int, default=400)
     ap.add_argument("--force", action="store_true")
