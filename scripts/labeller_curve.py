@@ -295,10 +295,9 @@ def _fit_self_trained(chairs, data, train, keep, settings, **fit):
 def _fit(data, parts, settings, position_only, **fit):
     if not position_only:
         labeller = Labeller.fit(data, NAMES, parts, settings=settings, **fit)
-        if FILL["fill"] is not None and labeller.presence is not None:  # --fill: the rule kept, another fill
-            labeller = replace(labeller, presence=replace(labeller.presence, fill=FILL["fill"]))
-        if FILL["hint"] is not None and labeller.presence is not None:  # --hint: the rule kept, another hint
-            labeller = replace(labeller, presence=replace(labeller.presence, hint=FILL["hint"]))
+        given = {k: v for k, v in FILL.items() if v is not None}  # --fill, --hint: the rule kept, these changed
+        if given and labeller.presence is not None:
+            labeller = replace(labeller, presence=replace(labeller.presence, **given))
         return labeller
     # the position-only baseline: the same classifier on three columns (not a storable labeller)
     from sklearn.ensemble import HistGradientBoostingClassifier
