@@ -31,7 +31,7 @@ Modules: :mod:`~primkit.geometry.frames` (the canonical frame), :mod:`~primkit.g
 (closest points and distance grids), :mod:`~primkit.geometry.sampling` (surface samples),
 :mod:`~primkit.geometry.voxels` (a voxel grid's surface without a mesh: exact closest points by a
 distance transform, samples), :mod:`~primkit.geometry.quantize` (the cache's compact codes of
-closest points and samples).
+closest points and samples), :mod:`~primkit.geometry.topology` (edge-sharing face pairs).
 ``primkit.geometry`` imports nothing else of primkit.
 """
 
@@ -41,9 +41,11 @@ from .grids import fill_voxels, grid_centres, occupancy_grid, surface_voxels, vo
 from .quantize import (POINT_ERROR, centres_planar, closest_error, closest_scales, decode_closest, decode_points,
                        encode_closest, encode_points, near_shift)
 from .sampling import SurfaceSamples, sample_surface
+from .topology import face_adjacency
 from .voxels import sample_voxel_surface, voxel_closest_points, voxel_surface_nodes, voxel_surface_squares
 
 __all__ = [
+    "face_adjacency",
     "CanonicalFrame",
     "axis_rotation",
     "canonical_frame",

@@ -283,6 +283,10 @@ class AbstractionNet(nn.Module):
     # ------------------------------------------------------------------ initialisation
     def reset_parameters(self) -> None:
         """Initialise every weight as described in the module docstring (head scales set to 1)."""
+        if self.head_scales.is_meta:
+            # a network built for its shapes only (abstraction_net_state_shapes): nothing to draw, and
+            # torch's meta-device normal_ imports torch._dynamo, 1.5-3 s of every command's start
+            return
         released = self.config.encoder == "released"
         for module in self.encoder.modules():
             if isinstance(module, (nn.Conv3d, nn.Linear)):

@@ -39,7 +39,6 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import sparse
 from scipy.sparse import csgraph
-from scipy.spatial import cKDTree
 
 from .. import primitives
 
@@ -244,11 +243,11 @@ def mesh_graph(vertices, faces) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     vertices : (n, 3) float, faces : (f, 3) int  ->  ``(edges (e, 2) int, contact (e,) float,
     mass (f,) float)``. Vertices at the same position are merged first (polygon soups from
     ShapeNet repeat them); two faces are adjacent when they share an edge (trimesh's
-    ``face_adjacency``). ``contact`` is the shared edge's length over the square root of the total
+    ``face_adjacency`` rule, :func:`primkit.geometry.face_adjacency`). ``contact`` is the shared edge's length over the square root of the total
     area times ``exp(-theta_eff^2 / 0.5)``, ``theta_eff`` the angle between the face normals
     (radians), times 0.2 when the crease is convex; ``mass`` is each face's area share.
     """
-    import trimesh  # imported on first use, as by the readers
+    from ..geometry import face_adjacency
 
     vertices = np.asarray(vertices, float)
     faces = np.asarray(faces, np.int64)
@@ -259,7 +258,7 @@ def mesh_graph(vertices, faces) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     span = np.ptp(vertices, axis=0).max() if len(vertices) else 1.0
     _, merged = np.unique(np.round(vertices / (span * 1e-7 + 1e-30)), axis=0, return_inverse=True)
     merged = merged.reshape(-1)
-    pairs, shared = trimesh.graph.face_adjacency(faces=merged[faces], return_edges=True)
+    pairs, shared = face_adjacency(merged[faces])
     if not len(pairs):
         return np.zeros((0, 2), np.int64), np.zeros(0), mass
     # positions of the merged vertices: any representative
@@ -311,6 +310,8 @@ def point_graph(points, k: int = 8) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     edge weighs ``1 / (k sqrt(n))`` (a cut across a surface sampled by ``n`` points crosses about
     ``k sqrt(n)`` of them), every point ``1/n``.
     """
+    from scipy.spatial import cKDTree  # on first use: a third of a second of every mesh-only run
+
     points = np.asarray(points, float)
     n = len(points)
     if n < 2:

@@ -154,6 +154,17 @@ def test_ply_face_colours_read_back_by_trimesh(tmp_path):
     assert np.array_equal(loaded.visual.face_colors, expected)
 
 
+@pytest.mark.parametrize("coloured", [False, True])
+def test_ply_bytes_equal_trimesh_exporter(tmp_path, coloured):
+    # primkit writes PLY with NumPy; trimesh's exporter is the reference layout, byte for byte
+    rng = np.random.default_rng(3)
+    vertices, faces = rng.normal(size=(40, 3)), rng.integers(0, 40, (70, 3))
+    colors = rng.integers(0, 256, (70, 4)).astype(np.uint8) if coloured else None
+    ours = write_mesh(tmp_path / "r.ply", vertices, faces, colors).read_bytes()
+    theirs = trimesh.Trimesh(vertices, faces, face_colors=colors, process=False).export(file_type="ply")
+    assert ours.split(b"\n", 3)[3] == theirs.split(b"\n", 3)[3]  # after the comment line
+
+
 def test_glb_face_colours_read_back_by_trimesh(tmp_path):
     vertices, faces = tetrahedron()
     path = write_mesh(tmp_path / "c.glb", vertices, faces, COLORS)

@@ -663,3 +663,15 @@ def test_prune_covered_many_is_prune_covered_on_each():
         np.testing.assert_array_equal(got.half_extents, c.half_extents)
         pruned += int(c.existence.sum() - got.existence.sum())
     assert pruned > 20  # the case is not trivial
+
+
+def test_part_colors_are_matplotlib_tab20():
+    from matplotlib import colormaps
+
+    from primkit.primitives.palette import part_colors
+
+    tab20 = colormaps["tab20"]
+    want = (np.array([tab20(i % 20)[:3] for i in range(45)]) * 255).astype(np.uint8)
+    got = part_colors(45)
+    assert got.dtype == np.uint8 and got.shape == (45, 3)
+    assert np.array_equal(got, want)
