@@ -283,3 +283,14 @@ def test_torch_decoding_of_closest_points_is_numpys_bit_for_bit():
     near = rng.integers(0, 256, (3, res**3 // 8), dtype=np.uint8)
     want = geometry.decode_closest(codes, near, res, planar=True)
     assert torch.equal(training.decode_closest_torch(codes, near, res), torch.from_numpy(want))
+
+
+def test_stack_limit_follows_the_environment_and_memory(monkeypatch):
+    monkeypatch.setenv("PRIMKIT_STACK_LIMIT_MIB", "3")
+    assert training.stack_limit_bytes() == 3 * 2**20
+    monkeypatch.delenv("PRIMKIT_STACK_LIMIT_MIB")
+    limit = training.stack_limit_bytes()
+    with open("/proc/meminfo") as f:  # Linux: MemAvailable, in kB
+        available = next(int(line.split()[1]) * 1024 for line in f if line.startswith("MemAvailable:"))
+    assert limit >= 2**30
+    assert abs(limit - max(2**30, available // 3)) <= max(available // 30, 2**26)  # memory moves between the reads
