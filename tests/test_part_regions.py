@@ -104,7 +104,9 @@ def test_absent_part_and_weights():
     np.testing.assert_allclose(X[1, 3:], 0.0, atol=1e-12)
     # default properties: those weighted above 0; a 0-weight property asked for counts 1
     assert RegionDescriptor().fit(table).what_ == tuple(p for p, w in REGION_WEIGHTS.items() if w > 0)
-    assert RegionDescriptor(what="fill").fit(table).weights_["fill"] == 1.0
+    assert RegionDescriptor(what="fill").fit(table).weights_["fill"] == (REGION_WEIGHTS["fill"] or 1.0)
+    with pytest.raises(ValueError, match="no property with a weight above 0"):
+        RegionDescriptor(what="fill", weights={"fill": 0.0}).fit(table)
     with pytest.raises(ValueError, match="unknown property"):
         RegionDescriptor(what="size").fit(table)
     with pytest.raises(ValueError, match="must be >= 0"):

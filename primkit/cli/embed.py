@@ -19,7 +19,7 @@ from ._common import (abstraction_options, add_abstraction_options, add_scale_ou
 
 #: primkit.embedding.REGION_WEIGHTS as the help states them (written out: importing the module would
 #: load scikit-learn and matplotlib for every command's --help; a test checks the two agree)
-_WEIGHTS_HELP = "extent=1, share=1, place=0, thickness=0.25, fill=0, signature=0.25"
+_WEIGHTS_HELP = "extent=1, share=1, place=0.25, thickness=0.25, fill=0.25, signature=0.5"
 
 #: Above this many shapes ``embed`` writes no full distance matrix unless --distances yes.
 _MATRIX_LIMIT = 4000
