@@ -5,7 +5,9 @@ the same on every shape. With one (:mod:`primkit.segmentation.labeller`), ``arms
 elements the labeller calls arms *on that shape*, whichever cuboids hold them:
 
 * ``embed --parts arms`` / ``similar --parts arms`` (and the embedding explorer) describe each
-  shape's labelled region (:func:`label_regions` here, then :func:`primkit.embedding.label_boxes`);
+  shape's labelled voxels (:func:`labelled_grid` here, then :class:`primkit.embedding.RegionTable`
+  and :class:`primkit.embedding.RegionDescriptor`); :func:`label_regions` gives them to
+  :func:`primkit.embedding.label_boxes`, one box per label;
 * ``edit --scale arms=1.2`` edits the cuboids whose surface the labeller mostly calls arms on that
   mesh (:func:`primkit.segmentation.labeller.names_by_index`).
 

@@ -12,7 +12,8 @@ neighbours with their distances.
 
 With the model's labeller (``labeller``) and ``parts`` naming only its names (``arms``;
 :func:`primkit.segmentation.bylabel.by_label`), the similarity looks at each shape's labelled
-regions, whichever cuboids hold them, as ``primkit embed --parts arms`` does (:func:`label_table`);
+voxels, whichever cuboids hold them, as ``primkit embed --parts arms`` does (:func:`label_table`,
+:class:`primkit.embedding.RegionDescriptor`);
 otherwise at the part indices the names select.
 """
 
