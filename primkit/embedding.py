@@ -46,6 +46,34 @@ tool built on Euclidean vectors (scikit-learn's neighbour indices, t-SNE on vect
   penalty in every block is not a Euclidean distance (no point is equally far from every size),
   and giving that up would cost the neighbour index and t-SNE on vectors.
 
+Parts by label (:class:`RegionDescriptor`)
+------------------------------------------
+With a model labeller, ``--parts back`` means the voxels the labeller names ``back`` on each shape,
+whichever cuboids hold them. Those voxels are described as a region (:func:`region_properties`, in
+units of the shape's height): extent (height, width, depth), share of the shape's voxels, place
+(centroid against the shape's box), thickness (voxels over the shadow along the thinnest extent),
+fill (voxels over the region's box: slats and frames score low) and a signature (the histogram of
+the distances between the region's voxels, a plain shape distribution). Each component is
+standardised over the collection and weighted by :data:`REGION_WEIGHTS`; the distance is Euclidean,
+so ``embed``'s matrix and map, ``similar`` and the explorer rank by one distance.
+
+Measured against PartNet's labelled parts (``python scripts/similarity_partnet.py``; the truth
+distance is that of the labelled part's extent and share, each standardised; Spearman over all
+pairs / top-5 retrieval gain, :func:`distance_spearman`, :func:`retrieval_gain`) on PartNet
+validation chairs 100-218, named by a labeller learned from validation chairs 0-99 (the bundled
+labeller learned from all of them, so it would flatter)::
+
+    part (chairs)    regions        signature only   label boxes     voxel IoU (whole shape)
+    back (119)       0.737 / 0.654  0.486 / 0.382    0.565 / 0.412   0.229 / 0.429
+    seat (119)       0.889 / 0.796  0.690 / 0.488    0.624 / 0.521   0.261 / 0.546
+    legs (119)       0.913 / 0.743  0.373 / 0.358    0.566 / 0.491   0.368 / 0.465
+    arms (54 armed)  0.581 / 0.561  0.455 / 0.469    0.283 / 0.424   0.103 / 0.458
+
+(label boxes: each labelled region's oriented box through :class:`PartDescriptor`, the previous
+meaning of ``--parts`` by label.) What holds back and arms down is the labeller on chairs it has not
+seen: where the back ends above the seat, and the arms' height and depth. The test chairs' figures
+are in docs/results.md.
+
 scikit-learn
 ------------
 :class:`PartDescriptor` is a scikit-learn transformer (``clone``, ``get_params``,
@@ -103,6 +131,11 @@ __all__ = [
     "PartDescriptor",
     "region_box",
     "label_boxes",
+    "REGION_PROPERTIES",
+    "REGION_WEIGHTS",
+    "region_properties",
+    "RegionTable",
+    "RegionDescriptor",
     "AbstractionTransformer",
     "Neighbors",
     "descriptor_distances",
@@ -110,6 +143,9 @@ __all__ = [
     "voxel_iou_distances",
     "tsne_map",
     "neighbour_agreement",
+    "retrieval_gain",
+    "distance_spearman",
+    "region_layers",
     "render_thumbnails",
     "draw_map",
     "draw_matches",
@@ -499,6 +535,285 @@ class PartDescriptor(TransformerMixin, BaseEstimator):
         return np.asarray(self.feature_names_, dtype=object)
 
 
+# ------------------------------------------------------------------------------------------------
+# Parts by their elements: what a labeller names on each shape, described as a region
+# ------------------------------------------------------------------------------------------------
+
+#: The properties of a part's region (:class:`RegionDescriptor`), in block order.
+REGION_PROPERTIES = ("extent", "share", "place", "thickness", "fill", "signature")
+
+#: The weight of each region property in the distance (each property standardised over the
+#: collection first). Chosen on PartNet validation chairs the labeller did not learn from
+#: (``scripts/similarity_partnet.py --choose-weights --model CHAIR-VAL100 --start 100``: a labeller
+#: learned from validation chairs 0-99 names chairs 100-218; docs/results.md, "Similarity by
+#: parts"): the best mean of Spearman and top-5 gain over back, seat, legs and arms among 324
+#: weight sets, ties (within 0.001) going to the set that uses more properties. The best 20 sets
+#: score within 0.007 of each other (the worst 0.063 below the best): near the choice, weights
+#: matter little.
+REGION_WEIGHTS = {"extent": 1.0, "share": 1.0, "place": 0.25, "thickness": 0.25, "fill": 0.25, "signature": 0.5}
+
+#: Bins of the ``signature`` histogram and the distance (in shape heights) its last bin ends at.
+SIGNATURE_BINS = 12
+SIGNATURE_RANGE = 1.5
+
+_AXES = ("height", "width", "depth")
+_REGION_COMPONENTS = {
+    "extent": _AXES, "share": ("",), "place": _AXES, "thickness": ("",), "fill": ("",),
+    "signature": tuple(f"d{i}" for i in range(SIGNATURE_BINS)),
+}
+#: canonical grid axes (x front, y up, z side) in the order height, width, depth
+_HWD = [1, 2, 0]
+
+
+def region_properties(occupancy, labels, count: int, max_elements: int = 512) -> tuple[dict, np.ndarray]:
+    """The properties of each labelled region of one voxel grid, in units of the shape's height.
+
+    Parameters
+    ----------
+    occupancy : (R, R, R) bool
+        The shape's grid in the canonical frame (index axes x front, y up, z to the side).
+    labels : (R, R, R) int
+        Each cell's label, an index into ``count`` part names; negative: no part.
+    count : int
+        The number of labels (part names).
+    max_elements : int
+        At most this many cells of a region enter its signature (every ``ceil(n / max_elements)``-th
+        cell in index order: deterministic).
+
+    Returns
+    -------
+    values : dict property -> (count, width) float, for :data:`REGION_PROPERTIES`:
+
+        extent     (height, width, depth) of the region's cells (last minus first cell, plus one)
+                   over the shape's height (its occupied cells' height)
+        share      the region's cells over the shape's occupied cells
+        place      the region's centroid minus the centre of the shape's box, (height, width, depth),
+                   over the shape's height
+        thickness  the region's cells over its shadow along its thinnest extent (the mean thickness
+                   across the part: a panel's, a leg's), over the shape's height
+        fill       the region's cells over its box's cells (a solid panel 1, slats or a frame less)
+        signature  the histogram of the distances between the region's cells (over the shape's
+                   height, :data:`SIGNATURE_BINS` bins on [0, :data:`SIGNATURE_RANGE`], the last
+                   taking the rest), summing to 1: a plain shape distribution of the part
+
+    present : (count,) bool
+        Labels with at least one cell; an absent label's rows are 0.
+    """
+    from scipy.spatial.distance import pdist
+
+    occ = np.asarray(occupancy, bool)
+    lab = np.asarray(labels)
+    if occ.ndim != 3 or lab.shape != occ.shape:
+        raise ValueError(f"`occupancy` and `labels` must be (R, R, R) grids of one shape, got {occ.shape} and {lab.shape}")
+    cells = np.argwhere(occ)
+    if not len(cells):
+        raise ValueError("an empty grid has no parts")
+    lo, hi = cells.min(axis=0), cells.max(axis=0) + 1
+    height = float(hi[1] - lo[1])
+    centre = (lo + hi) / 2.0
+    values = {p: np.zeros((count, len(_REGION_COMPONENTS[p]))) for p in REGION_PROPERTIES}
+    present = np.zeros(count, bool)
+    named = lab[tuple(cells.T)]
+    for j in range(count):
+        mine = cells[named == j]
+        if not len(mine):
+            continue
+        present[j] = True
+        a, b = mine.min(axis=0), mine.max(axis=0) + 1
+        extent = b - a
+        thin = int(np.argmin(extent))
+        region = np.zeros(occ.shape, bool)
+        region[tuple(mine.T)] = True
+        shadow = int(region.any(axis=thin).sum())  # the cells of the region's projection along ``thin``
+        sub = mine[:: -(-len(mine) // max_elements)]
+        d = pdist(sub.astype(float)) / height if len(sub) > 1 else np.zeros(1)
+        hist = np.histogram(np.minimum(d, SIGNATURE_RANGE * (1 - 1e-9)), SIGNATURE_BINS, range=(0.0, SIGNATURE_RANGE))[0]
+        values["extent"][j] = extent[_HWD] / height
+        values["share"][j] = len(mine) / len(cells)
+        values["place"][j] = (mine.mean(axis=0) + 0.5 - centre)[_HWD] / height
+        values["thickness"][j] = len(mine) / shadow / height
+        values["fill"][j] = len(mine) / np.prod(extent)
+        values["signature"][j] = hist / hist.sum()
+    return values, present
+
+
+@dataclass(frozen=True, eq=False)
+class RegionTable:
+    """The regions a labeller names on ``s`` shapes, as :func:`region_properties` describes them:
+    what :class:`RegionDescriptor` reads.
+
+    Attributes
+    ----------
+    values : dict property -> (s, m, width) float
+        :data:`REGION_PROPERTIES` of each of the ``m`` labels on each shape (0 where absent).
+    present : (s, m) bool
+    part_names : tuple of m str, the labels' names
+    names : tuple of s str, the shapes' names
+    """
+
+    values: dict
+    present: np.ndarray
+    part_names: tuple
+    names: tuple = ()
+
+    def __post_init__(self):
+        present = np.asarray(self.present, bool)
+        if present.ndim != 2 or present.shape[1] != len(self.part_names):
+            raise ValueError(f"`present` must be (s, {len(self.part_names)}) bool, got shape {present.shape}")
+        values = {}
+        for p in REGION_PROPERTIES:
+            v = np.asarray(self.values[p], float)
+            if v.shape != present.shape + (len(_REGION_COMPONENTS[p]),):
+                raise ValueError(f"values[{p!r}] must be {present.shape + (len(_REGION_COMPONENTS[p]),)}, got {v.shape}")
+            values[p] = v
+        object.__setattr__(self, "values", values)
+        object.__setattr__(self, "present", present)
+        object.__setattr__(self, "part_names", tuple(str(n) for n in self.part_names))
+        object.__setattr__(self, "names", tuple(str(n) for n in self.names))
+
+    @classmethod
+    def from_grids(cls, occupancy, labels, part_names, names=None, max_elements: int = 512) -> "RegionTable":
+        """The table of ``s`` shapes: ``occupancy`` and ``labels``, one ``(R, R, R)`` grid each per
+        shape (:func:`region_properties`; :func:`primkit.segmentation.bylabel.labelled_grid` names a
+        shape's cells with a model's labeller), ``part_names`` the labels' names."""
+        if len(occupancy) != len(labels):
+            raise ValueError(f"`occupancy` and `labels` differ in length ({len(occupancy)} and {len(labels)} shapes)")
+        if not len(occupancy):
+            raise ValueError("no shapes given")
+        rows = [region_properties(o, lab, len(part_names), max_elements) for o, lab in zip(occupancy, labels)]
+        values = {p: np.stack([r[0][p] for r in rows]) for p in REGION_PROPERTIES}
+        names = [f"shape{i}" for i in range(len(rows))] if names is None else names
+        return cls(values, np.stack([r[1] for r in rows]), tuple(part_names), tuple(names))
+
+    def __len__(self) -> int:
+        return len(self.present)
+
+    def __getitem__(self, rows) -> "RegionTable":
+        """The table of some shapes: a slice, or an index array or list."""
+        rows = rows if isinstance(rows, slice) else np.asarray(rows, np.int64).reshape(-1)
+        return RegionTable({p: v[rows] for p, v in self.values.items()}, self.present[rows], self.part_names,
+                           tuple(np.asarray(self.names, object)[rows]) if self.names else ())
+
+
+class RegionDescriptor(TransformerMixin, BaseEstimator):
+    """Per-part descriptors from the elements each shape's labeller puts on the part: a
+    scikit-learn transformer of :class:`RegionTable` s (what ``embed --parts back`` and
+    ``similar --parts back`` compare when the model has a labeller).
+
+    For each selected part and each selected property (:func:`region_properties`), a block of
+    numbers standardised over the fitted collection (each component minus its mean, over its
+    standard deviation; the ``signature`` block also over ``sqrt(bins)``, so the whole histogram
+    weighs as much as one component), times the property's weight. The distance between two
+    shapes is the Euclidean distance between their descriptors, so ``embed``'s distances, its map
+    and ``similar``'s ranking are one distance.
+
+    Parameters
+    ----------
+    parts : None, str or sequence of str
+        The labels to describe (``"back"``, ``"back,seat"``); None: all.
+    what : None, str or sequence of str
+        Properties from :data:`REGION_PROPERTIES`; None: those with a weight above 0 in
+        :data:`REGION_WEIGHTS` (all six by default). A property named here whose weight is 0
+        counts with weight 1 unless ``weights`` says otherwise.
+    weights : dict, optional
+        Overrides of :data:`REGION_WEIGHTS` (``{"signature": 1.0}``).
+
+    An absent part has extent, share, thickness and fill 0 and the collection's mean place and
+    signature: a chair without arms is as far from a chair with small arms as those arms are small.
+
+    Fitted attributes
+    -----------------
+    parts_ : (k,) int, the selected labels; part_names_ : list of str; what_ : tuple of str;
+    weights_ : dict; mean_, scale_ : dict property -> (k, width) float; fill_ : dict of the mean
+    place and signature of present parts; present_fraction_ : (k,) float; feature_names_ : list of str.
+    """
+
+    def __init__(self, parts=None, what=None, weights=None):
+        self.parts = parts
+        self.what = what
+        self.weights = weights
+
+    def fit(self, X, y=None) -> "RegionDescriptor":
+        """Learn the selection, the absent parts' values and each component's mean and scale from a :class:`RegionTable`."""
+        if not isinstance(X, RegionTable):
+            raise TypeError(f"expected a RegionTable, got {type(X).__name__}")
+        names = list(X.part_names)
+        self.part_names_ = names
+        self.parts_ = _parts.resolve_parts(self.parts, names)
+        if len(self.parts_) == 0:
+            raise ValueError("no parts selected")
+        weights = dict(REGION_WEIGHTS)
+        for key, value in (self.weights or {}).items():
+            if key not in REGION_PROPERTIES:
+                raise ValueError(f"unknown weight {key!r}: choose from {', '.join(REGION_PROPERTIES)}")
+            if not float(value) >= 0:
+                raise ValueError(f"weight {key!r} must be >= 0, got {value}")
+            weights[key] = float(value)
+        if self.what is None:
+            what = tuple(p for p in REGION_PROPERTIES if weights[p] > 0)
+        else:
+            items = [w.strip() for w in self.what.split(",")] if isinstance(self.what, str) else list(self.what)
+            unknown = [w for w in items if w and w not in REGION_PROPERTIES]
+            if unknown:
+                raise ValueError(f"unknown propert{'y' if len(unknown) == 1 else 'ies'} {', '.join(unknown)}: "
+                                 f"choose from {', '.join(REGION_PROPERTIES)}")
+            what = tuple(p for p in REGION_PROPERTIES if p in items)
+            for p in what:
+                if REGION_WEIGHTS[p] == 0 and p not in (self.weights or {}):
+                    weights[p] = 1.0
+        if not what or not any(weights[p] > 0 for p in what):
+            raise ValueError("no property with a weight above 0 selected")
+        self.what_ = what
+        self.weights_ = weights
+        present = X.present[:, self.parts_]
+        self.present_fraction_ = present.mean(axis=0)
+        self.fill_ = {}
+        for p in ("place", "signature"):
+            v = X.values[p][:, self.parts_]
+            counts = np.maximum(present.sum(axis=0), 1)[:, None]
+            self.fill_[p] = np.where(present.any(axis=0)[:, None], (v * present[..., None]).sum(axis=0) / counts, 0.0)
+        self.mean_, self.scale_ = {}, {}
+        for p in self.what_:
+            v = self._filled(X, p)
+            std = v.std(axis=0)
+            self.mean_[p] = v.mean(axis=0)
+            self.scale_[p] = np.where(std > 1e-12, std, 1.0)
+        self.feature_names_ = [f"{names[k]}.{p}" + (f".{c}" if c else "")
+                               for k in self.parts_ for p in self.what_ for c in _REGION_COMPONENTS[p]]
+        return self
+
+    def _filled(self, X, p) -> np.ndarray:
+        v = X.values[p][:, self.parts_]
+        if p in self.fill_:
+            v = np.where(X.present[:, self.parts_, None], v, self.fill_[p][None])
+        return v
+
+    def transform(self, X) -> np.ndarray:
+        """Descriptors ``(s, d) float``, columns as :attr:`feature_names_`."""
+        from sklearn.utils.validation import check_is_fitted
+
+        check_is_fitted(self, "parts_")
+        if not isinstance(X, RegionTable):
+            raise TypeError(f"expected a RegionTable, got {type(X).__name__}")
+        if list(X.part_names) != self.part_names_:
+            raise ValueError(f"the table's labels {list(X.part_names)} are not the fitted ones {self.part_names_}")
+        blocks = []
+        for p in self.what_:
+            v = (self._filled(X, p) - self.mean_[p][None]) / self.scale_[p][None]
+            if p == "signature":
+                v = v / np.sqrt(SIGNATURE_BINS)
+            blocks.append(self.weights_[p] * v)
+        return np.concatenate(blocks, axis=2).reshape(len(X), -1)
+
+    def get_feature_names_out(self, input_features=None) -> np.ndarray:
+        """The descriptor's column names (``"back.extent.height"``, ``"arms.signature.d3"``)."""
+        from sklearn.utils.validation import check_is_fitted
+
+        check_is_fitted(self, "parts_")
+        return np.asarray(self.feature_names_, dtype=object)
+
+
+
 class AbstractionTransformer(TransformerMixin, BaseEstimator):
     """Shapes -> their cuboids, as a scikit-learn transformer (inference only: nothing is learned).
 
@@ -692,6 +1007,46 @@ def tsne_map(descriptors=None, *, distances=None, n_components: int = 2, perplex
     return tsne.fit_transform(D)
 
 
+def retrieval_gain(distances, truth, k: int = 5) -> float:
+    """How much closer, in ``truth``, the ``k`` nearest shapes by ``distances`` are than random ones:
+    ``(random - ranked) / (random - best)``, 1 when the ranking finds the truth's own ``k`` nearest,
+    0 for chance, negative when worse.
+
+    ``distances``, ``truth``: ``(s, s) float``. For each query ``i``, ``ranked`` is the mean truth
+    distance from ``i`` to its ``k`` nearest by ``distances`` (``i`` itself left out, ties in index
+    order), ``best`` the same for its ``k`` nearest by ``truth``, ``random`` the mean truth distance
+    from ``i`` to all the others (what ``k`` shapes drawn at random give on average); each of the three
+    is averaged over the queries before the ratio is taken.
+    """
+    D = np.array(distances, float)
+    T = np.asarray(truth, float)
+    s = len(D)
+    if D.shape != (s, s) or T.shape != (s, s):
+        raise ValueError(f"`distances` and `truth` must be (s, s) float, got {D.shape} and {T.shape}")
+    if not 1 <= k <= s - 1:
+        raise ValueError(f"k must be between 1 and {s - 1} for {s} shapes, got {k}")
+    off = ~np.eye(s, dtype=bool)
+    D[~off] = np.inf
+    Tm = np.where(off, T, np.inf)
+    rows = np.arange(s)[:, None]
+    ranked = T[rows, np.argsort(D, axis=1, kind="stable")[:, :k]].mean()
+    best = T[rows, np.argsort(Tm, axis=1, kind="stable")[:, :k]].mean()
+    random = T[off].reshape(s, s - 1).mean()
+    return float((random - ranked) / (random - best))
+
+
+def distance_spearman(distances, truth) -> float:
+    """Spearman's rank correlation between two ``(s, s)`` distance matrices over the ``s (s - 1) / 2``
+    pairs of distinct shapes (scipy's ``spearmanr``; ties get their mean rank)."""
+    from scipy.stats import spearmanr
+
+    D, T = np.asarray(distances, float), np.asarray(truth, float)
+    if D.shape != T.shape or D.ndim != 2 or D.shape[0] != D.shape[1]:
+        raise ValueError(f"`distances` and `truth` must be (s, s) float of one size, got {D.shape} and {T.shape}")
+    upper = np.triu_indices(len(D), 1)
+    return float(spearmanr(D[upper], T[upper]).statistic)
+
+
 def neighbour_agreement(neighbour_index, labels) -> float:
     """Fraction of shapes whose nearest neighbour has the same label: ``(s,) int`` (or ``(s, k)``,
     first column used) and ``(s,)`` labels. Chance for two classes of frequency p is ``p^2 + (1-p)^2``."""
@@ -706,12 +1061,42 @@ def neighbour_agreement(neighbour_index, labels) -> float:
 # ------------------------------------------------------------------------------------------------
 
 
+def region_layers(occupancy, labels, chosen, colours, rest_opacity: float = 0.22) -> list:
+    """The layers of one shape's thumbnail with chosen parts highlighted: the voxels labelled with
+    one of ``chosen`` as a voxel surface in that label's colour, the other voxels grey and
+    see-through.
+
+    ``occupancy (R, R, R) bool`` and ``labels (R, R, R) int`` (indices into the label names, negative:
+    none) in the canonical frame; ``chosen``: label indices; ``colours (count, 3) uint8``: each
+    label's colour (:func:`primkit.viz.palette.label_colors`). Returns a list of
+    :class:`primkit.viz.render.Layer` (empty for an empty grid), what :func:`render_thumbnails` draws.
+    """
+    from .geometry import voxel_boundary_mesh
+
+    occ = np.asarray(occupancy, bool)
+    labels = np.asarray(labels)
+    colours = np.asarray(colours, np.uint8).reshape(-1, 3)
+    layers = []
+    highlighted = np.zeros(occ.shape, bool)
+    for j in chosen:
+        mine = occ & (labels == j)
+        highlighted |= mine
+        v, f = voxel_boundary_mesh(mine)
+        if len(f):
+            layers.append(mesh_layer(v, f, np.repeat(colours[j][None], len(f), axis=0)))
+    v, f = voxel_boundary_mesh(occ & ~highlighted)
+    if len(f):
+        layers.append(mesh_layer(v, f, color="#9a9a9a", opacity=rest_opacity))
+    return layers
+
+
 def render_thumbnails(meshes, size: int = 96, progress: bool = False) -> list[np.ndarray]:
     """Small pictures of meshes in the canonical frame: ``(size, size, 4) uint8`` RGBA each.
 
-    ``meshes``: ``(vertices, faces)`` or ``(vertices, faces, (f, 3) uint8 face colours)``. One
-    off-screen plotter is reused (:class:`primkit.viz.render.ThumbnailRenderer`); every thumbnail is
-    framed on the canonical frame's origin at one scale, so sizes compare across thumbnails.
+    ``meshes``: ``(vertices, faces)``, ``(vertices, faces, (f, 3) uint8 face colours)``, or a list of
+    :class:`primkit.viz.render.Layer` (:func:`region_layers`). One off-screen plotter is reused
+    (:class:`primkit.viz.render.ThumbnailRenderer`); every thumbnail is framed on the canonical
+    frame's origin at one scale, so sizes compare across thumbnails.
     """
     from tqdm import tqdm
 
@@ -720,9 +1105,12 @@ def render_thumbnails(meshes, size: int = 96, progress: bool = False) -> list[np
     images = []
     with ThumbnailRenderer(size=size) as renderer:
         for item in tqdm(meshes, desc="thumbnails", unit="shape", disable=not progress):
-            v, f = item[0], item[1]
-            colors = item[2] if len(item) > 2 else None
-            layers = [mesh_layer(v, f, colors, color="#b8c4d6")] if len(f) else []
+            if isinstance(item, list):
+                layers = item
+            else:
+                v, f = item[0], item[1]
+                colors = item[2] if len(item) > 2 else None
+                layers = [mesh_layer(v, f, colors, color="#b8c4d6")] if len(f) else []
             images.append(renderer.render(Tile("", layers, frame=frame), radius=radius, transparent=True))
     return images
 

@@ -140,18 +140,33 @@ def test_label_regions_are_each_shapes_voxels_of_the_chosen_labels(armed_chairs)
 
 
 def test_embed_parts_by_label_and_by_index(armed_chairs, tmp_path):
+    """By label, ``embed`` describes each chair's labelled voxels (RegionDescriptor of labelled_grid,
+    the same numbers), and ``similar`` from a chair with arms finds chairs with arms."""
+    from primkit.embedding import RegionDescriptor, RegionTable
+    from primkit.model.abstraction import abstract_shapes
+    from primkit.model.bundled import resolve_model
+    from primkit.segmentation.bylabel import labelled_grid
+    from primkit.segmentation.labeller import read_labeller
+
     folder, paths = armed_chairs
     has = np.array([json.loads(p.with_suffix(".json").read_text())["attributes"]["has_arms"] for p in paths])
     out = tmp_path / "arms"
-    assert main(["embed", str(folder), "--model", "chair", "--parts", "arms", "--what", "presence", "-o", str(out),
+    assert main(["embed", str(folder), "--model", "chair", "--parts", "arms", "--what", "share", "-o", str(out),
                  "-q", "--perplexity", "3"]) == 0
     X = np.load(out / "descriptors.npy")
     assert X.shape == (len(paths), 1)
-    assert ((X[:, 0] > 0) == has).mean() >= 0.8
+    labeller = read_labeller(resolve_model("chair"))
+    shapes = list(abstract_shapes(paths, "chair"))
+    grids = [a.canonical_shape().occupancy for a in shapes]
+    table = RegionTable.from_grids(grids, [labelled_grid(labeller, g, a.result.canonical) for g, a in zip(grids, shapes)],
+                                   labeller.names)
+    np.testing.assert_allclose(X, RegionDescriptor("arms", "share").fit_transform(table))
+    found = table.present[:, labeller.names.index("arms")]
+    assert (found == has).mean() >= 0.8
     # similar: from a chair whose arms are found, the nearest by arms are chairs with arms
-    query = next(p for p, x, h in zip(paths, X[:, 0], has) if x > 0 and h)
+    query = next(p for p, f, h in zip(paths, found, has) if f and h)
     sim = tmp_path / "sim"
-    assert main(["similar", str(query), str(folder), "--model", "chair", "--parts", "arms", "--what", "presence",
+    assert main(["similar", str(query), str(folder), "--model", "chair", "--parts", "arms",
                  "-k", "3", "-o", str(sim), "-q"]) == 0
     import csv
 
@@ -162,9 +177,7 @@ def test_embed_parts_by_label_and_by_index(armed_chairs, tmp_path):
     out2 = tmp_path / "index"
     assert main(["embed", str(folder), "--model", "chair", "--parts", "12", "--what", "presence", "-o", str(out2),
                  "-q", "--perplexity", "3"]) == 0
-    from primkit.model.abstraction import abstract_shapes
-
-    results = abstract_shapes(paths, "chair").results
+    results = [a.result for a in shapes]
     want = PartDescriptor("12", "presence").fit(results).transform(results)
     np.testing.assert_allclose(np.load(out2 / "descriptors.npy"), want)
 

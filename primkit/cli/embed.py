@@ -8,6 +8,7 @@ compares the prepared occupancy grids instead (the paper's baseline).
 from __future__ import annotations
 
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +16,10 @@ import numpy as np
 from ._common import add_command
 from ._common import (abstraction_options, add_abstraction_options, add_scale_out, add_force, add_output, add_png, check_command_outputs, collect,
                       err, input_paths, model_file, output_names, progress_of, report_errors)
+
+#: primkit.embedding.REGION_WEIGHTS as the help states them (written out: importing the module would
+#: load scikit-learn and matplotlib for every command's --help; a test checks the two agree)
+_WEIGHTS_HELP = "extent=1, share=1, place=0.25, thickness=0.25, fill=0.25, signature=0.5"
 
 #: Above this many shapes ``embed`` writes no full distance matrix unless --distances yes.
 _MATRIX_LIMIT = 4000
@@ -49,14 +54,21 @@ def _abstract(args, files):
     return abstractor, out.results, np.array(grids, dtype=bool), out.errors
 
 
-def _thumb_meshes(results, grids, kind, selected):
+def _thumb_meshes(results, grids, kind, selected, regions=None):
     """One mesh per shape for its thumbnail: the voxel boundary, or the cuboids coloured by part
-    index with the unselected parts grey."""
+    index with the unselected parts grey. With ``regions`` (the compared parts by label), each
+    shape's voxels of those parts in their label colours and the rest grey and translucent, as
+    layers (:func:`primkit.embedding.region_layers`)."""
+    from ..embedding import region_layers
     from ..viz.palette import part_colors
     from ..geometry import voxel_boundary_mesh
 
     meshes = []
-    for r, g in zip(results, grids):
+    for i, (r, g) in enumerate(zip(results, grids)):
+        if regions is not None and kind == "shape":
+            labels, chosen, colours = regions
+            meshes.append(region_layers(g, labels[i], chosen, colours))
+            continue
         if kind == "shape":
             meshes.append(voxel_boundary_mesh(g))
             continue
@@ -82,31 +94,66 @@ def _write_csv(path, rows, force):
             csv.writer(fh).writerows(rows)
 
 
-def _describe(args, abstractor, results, grids, queries=None, query_grids=None):
-    """Descriptor matrix of the collection (and of extra query results), or None for voxel IoU."""
-    from ..embedding import PartDescriptor
+@dataclass
+class _Description:
+    """What ``embed`` and ``similar`` compare: the descriptor (None for voxel IoU), the collection's
+    and the queries' descriptors, and with parts by label each shape's labelled grid (collection
+    first, then the queries), the label indices compared and the labels' colours."""
+
+    desc: object = None
+    X: np.ndarray | None = None
+    Q: np.ndarray | None = None
+    labels: list | None = None
+    chosen: np.ndarray | None = None
+    colours: np.ndarray | None = None
+
+
+def _weights(text):
+    """``"signature=1,place=0.5"`` -> dict (the region weights)."""
+    out = _scales(text)
+    return out or None
+
+
+def _describe(args, abstractor, results, grids, queries=None, query_grids=None) -> _Description:
+    """The descriptors of the collection (and of extra query results); nothing for voxel IoU.
+
+    With a model labeller and ``--parts`` naming only its labels, each shape's voxels named by it
+    are described as regions (:class:`primkit.embedding.RegionDescriptor`); otherwise the chosen
+    part indices' cuboids (:class:`primkit.embedding.PartDescriptor`)."""
+    from ..embedding import PROPERTIES, PartDescriptor, RegionDescriptor, RegionTable
 
     if args.metric == "voxel-iou":
-        return None, None, None
-    labelled = _label_tables(args, results, grids, queries, query_grids)
-    if labelled is not None:  # --parts names the labeller's labels: each shape's labelled regions
-        table, qtable = labelled
-        desc = PartDescriptor(None, args.what, _scales(args.scale)).fit(table)
+        return _Description()
+    labelled = _label_grids(args, results, grids, queries, query_grids)
+    if labelled is not None:  # --parts names the labeller's labels: each shape's labelled voxels
+        names, chosen, labels = labelled
+        if args.scale:
+            raise ValueError("--scale sets the cuboid descriptor's scales; parts by label take --weights")
+        all_grids = list(grids) + (list(query_grids) if queries else [])
+        table = RegionTable.from_grids(all_grids, labels, names, [r.name for r in list(results) + list(queries or [])])
+        s = len(results)
+        desc = RegionDescriptor(chosen, args.what, _weights(args.weights)).fit(table[:s])
         desc.by_label_ = True
-        return desc, desc.transform(table), (desc.transform(qtable) if qtable is not None else None)
-    desc = PartDescriptor(args.parts, args.what, _scales(args.scale), part_names=abstractor.part_names).fit(results)
+        X = desc.transform(table)
+        from ..viz.palette import label_colors
+
+        return _Description(desc, X[:s], X[s:] if queries else None, labels, desc.parts_, label_colors(len(names)))
+    if args.weights:
+        raise ValueError("--weights sets the weights of parts by label (a model with a labeller); cuboids take --scale")
+    desc = PartDescriptor(args.parts, args.what or PROPERTIES, _scales(args.scale),
+                          part_names=abstractor.part_names).fit(results)
     X = desc.transform(results)
     Q = desc.transform(queries) if queries else None
-    return desc, X, Q
+    return _Description(desc, X, Q)
 
 
-def _label_tables(args, results, grids, queries=None, query_grids=None):
-    """With a model labeller and --parts naming only its labels: the boxes of those labels on each
-    shape (:func:`primkit.embedding.label_boxes` of :func:`primkit.segmentation.bylabel.label_regions`),
-    for the collection and the queries; None otherwise (index-based parts)."""
-    from ..embedding import label_boxes
+def _label_grids(args, results, grids, queries=None, query_grids=None):
+    """With a model labeller and --parts naming only its labels: ``(label names, chosen names,
+    labelled grids)``, each shape's canonical voxels named by the labeller
+    (:func:`primkit.segmentation.bylabel.labelled_grid`), the collection's then the queries'; None
+    otherwise (index-based parts)."""
     from ..model.bundled import resolve_model
-    from ..segmentation.bylabel import by_label, label_regions
+    from ..segmentation.bylabel import by_label, labelled_grid
     from ..segmentation.labeller import read_labeller
 
     if args.parts is None:
@@ -115,15 +162,17 @@ def _label_tables(args, results, grids, queries=None, query_grids=None):
     chosen = by_label(args.parts, None if labeller is None else labeller.names)
     if chosen is None:
         return None
+    rs = list(results) + list(queries or [])
+    gs = list(grids) + (list(query_grids) if queries else [])
+    return list(labeller.names), chosen, [labelled_grid(labeller, g, r.canonical) for r, g in zip(rs, gs)]
 
-    def table(rs, gs):
-        regions = label_regions(labeller, chosen, gs, [r.canonical for r in rs])
-        return label_boxes(*regions, chosen, names=[r.name for r in rs])
 
-    qtable = None
-    if queries:
-        qtable = table(queries, query_grids)
-    return table(results, grids), qtable
+def _regions(described, rows):
+    """``(labelled grids, compared label indices, label colours)`` of the shapes ``rows`` for their
+    thumbnails, or None when the parts are not compared by label."""
+    if described.labels is None:
+        return None
+    return [described.labels[i] for i in rows], described.chosen, described.colours
 
 
 def _selected(desc):
@@ -133,7 +182,7 @@ def _selected(desc):
 
 def _chosen(args, desc) -> str:
     if getattr(desc, "by_label_", False):
-        return f"labels {','.join(desc.part_names_)} (each shape's labelled regions)"
+        return f"{','.join(desc.part_names_[k] for k in desc.parts_)} (the labeller's voxels)"
     return f"parts {args.parts or 'all'} ({len(desc.parts_)} indices)"
 
 
@@ -163,7 +212,8 @@ def _cmd_embed(args) -> int:
         report_errors(errors)
         return 2
     names = [r.name for r in results]
-    desc, X, _ = _describe(args, abstractor, results, grids)
+    described = _describe(args, abstractor, results, grids)
+    desc, X = described.desc, described.X
     s = len(results)
     if X is None:
         D = embedding.voxel_iou_distances(grids)
@@ -188,7 +238,7 @@ def _cmd_embed(args) -> int:
                args.force)
     what = "voxel IoU" if X is None else f"{_chosen(args, desc)}, {','.join(desc.what_)}"
     if args.png or args.svg:
-        meshes = _thumb_meshes(results, grids, args.thumbnails, _selected(desc))
+        meshes = _thumb_meshes(results, grids, args.thumbnails, _selected(desc), _regions(described, range(s)))
         images = embedding.render_thumbnails(meshes, size=args.thumb_size, progress=progress_of(args))
         embedding.draw_map(coords, images, args.png, svg=args.svg, title=f"t-SNE map of {s} shapes: {what}")
     print(f"{s} shapes embedded ({what}) -> {out}")
@@ -217,7 +267,8 @@ def _cmd_similar(args) -> int:
     if k < 1:
         err("no usable shapes to rank")
         return report_errors(errors) or 1
-    desc, X, Q = _describe(args, abstractor, results, grids, [query], qgrid)
+    described = _describe(args, abstractor, results, grids, [query], qgrid)
+    desc, X, Q = described.desc, described.X, described.Q
     if X is None:
         d = embedding.voxel_iou_distances(qgrid, grids)[0]
         order = np.argsort(d, kind="stable")[:k]
@@ -233,7 +284,9 @@ def _cmd_similar(args) -> int:
         print(f"{i + 1:3d}  {dv:10.4g}  {results[j].name}")
     if args.png:
         sel = _selected(desc)
-        meshes = _thumb_meshes([query] + [results[j] for j in order], np.concatenate([qgrid, grids[order]]), args.thumbnails, sel)
+        shown = [len(results)] + list(order)  # the query's labelled grid comes after the collection's
+        meshes = _thumb_meshes([query] + [results[j] for j in order], np.concatenate([qgrid, grids[order]]), args.thumbnails,
+                               sel, _regions(described, shown))
         images = embedding.render_thumbnails(meshes, size=160, progress=progress_of(args))
         what = "voxel IoU" if X is None else f"{_chosen(args, desc)}, {','.join(desc.what_)}"
         embedding.draw_matches(images[0], images[1:], [results[j].name for j in order], dist, args.png,
@@ -243,16 +296,24 @@ def _cmd_similar(args) -> int:
 
 def _common_options(p) -> None:
     p.add_argument("--parts", default=None, help="parts to compare, by name or index: back,seat or 3,7 (default: all); "
-                   "with a model labeller, names it knows (arms) are each shape's labelled regions (docs/labeller.md)")
-    p.add_argument("--what", default="size,position,orientation,presence",
-                   help="properties compared: any of size, position, orientation, presence (default: all)")
+                   "with a model labeller, names it knows (back, seat, legs, arms) compare each shape's voxels the "
+                   "labeller names so (docs/labeller.md), otherwise the parts' cuboids")
+    p.add_argument("--what", default=None,
+                   help="properties compared. Cuboids: any of size, position, orientation, presence (default: all). "
+                        "Parts by label: any of extent, share, place, thickness, fill, signature (default: those "
+                        "weighted above 0)")
     p.add_argument("--scale", default=None, metavar="NAME=VALUE,...",
-                   help="per-property scales: a difference of one scale counts 1 (defaults size=0.05, position=0.1 "
-                        "in canonical units, orientation=15 degrees, presence=0.5: an absent/present part costs 2)")
+                   help="cuboids: per-property scales, a difference of one scale counts 1 (defaults size=0.05, "
+                        "position=0.1 in canonical units, orientation=15 degrees, presence=0.5: an absent/present part costs 2)")
+    p.add_argument("--weights", default=None, metavar="NAME=VALUE,...",
+                   help="parts by label: each property's weight after standardising it over the collection; defaults "
+                        f"{_WEIGHTS_HELP} (chosen on the PartNet validation chairs; docs/results.md)")
     p.add_argument("--metric", choices=["descriptor", "voxel-iou"], default="descriptor",
-                   help="descriptor (the parts' cuboids) or voxel-iou (1 - IoU of the occupancy grids, the baseline)")
+                   help="descriptor (the parts' labelled voxels, or their cuboids) or voxel-iou (1 - IoU of the occupancy grids, "
+                        "the whole-shape baseline)")
     p.add_argument("--thumbnails", choices=["shape", "cuboids"], default="shape",
-                   help="draw each shape's voxel surface, or its cuboids (selected parts coloured)")
+                   help="draw each shape's voxel surface (parts by label: the compared parts in their label colours, the "
+                        "rest grey and see-through), or its cuboids (selected parts coloured)")
     add_abstraction_options(p)
     add_scale_out(p, shard=False)
     p.add_argument("--samples", type=int, default=None, help="surface samples per shape (default 10000)")

@@ -5,7 +5,9 @@ the same on every shape. With one (:mod:`primkit.segmentation.labeller`), ``arms
 elements the labeller calls arms *on that shape*, whichever cuboids hold them:
 
 * ``embed --parts arms`` / ``similar --parts arms`` (and the embedding explorer) describe each
-  shape's labelled region (:func:`label_regions` here, then :func:`primkit.embedding.label_boxes`);
+  shape's labelled voxels (:func:`labelled_grid` here, then :class:`primkit.embedding.RegionTable`
+  and :class:`primkit.embedding.RegionDescriptor`); :func:`label_regions` gives them to
+  :func:`primkit.embedding.label_boxes`, one box per label;
 * ``edit --scale arms=1.2`` edits the cuboids whose surface the labeller mostly calls arms on that
   mesh (:func:`primkit.segmentation.labeller.names_by_index`).
 
@@ -21,7 +23,7 @@ import numpy as np
 from .. import geometry, io
 from .labeller import grid_elements, label_elements, mesh_elements, point_elements
 
-__all__ = ["by_label", "labelled_voxels", "label_regions", "labelled_surface"]
+__all__ = ["by_label", "labelled_voxels", "labelled_grid", "label_regions", "labelled_surface"]
 
 
 def by_label(spec, label_names) -> list | None:
@@ -61,6 +63,17 @@ def labelled_voxels(labeller, occupancy, canonical) -> tuple[np.ndarray, np.ndar
     identity = geometry.CanonicalFrame(np.eye(3), np.zeros(3), 1.0)
     elements, _ = grid_elements(grid, identity)
     return elements.points, label_elements(labeller, elements, canonical)
+
+
+def labelled_grid(labeller, occupancy, canonical) -> np.ndarray:
+    """``(R, R, R) int``: :func:`labelled_voxels` written back into the grid: each occupied cell's
+    label (an index into ``labeller.names``), -1 for an empty cell or one without a name. What
+    :meth:`primkit.embedding.RegionTable.from_grids` reads beside the occupancy."""
+    occupancy = np.asarray(occupancy, bool)
+    _, labels = labelled_voxels(labeller, occupancy, canonical)  # the occupied cells in np.argwhere order
+    out = np.full(occupancy.shape, -1, np.int64)
+    out[tuple(np.argwhere(occupancy).T)] = labels
+    return out
 
 
 def label_regions(labeller, chosen, grids, canonicals) -> tuple[list, list]:

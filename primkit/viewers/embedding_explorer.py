@@ -12,7 +12,8 @@ neighbours with their distances.
 
 With the model's labeller (``labeller``) and ``parts`` naming only its names (``arms``;
 :func:`primkit.segmentation.bylabel.by_label`), the similarity looks at each shape's labelled
-regions, whichever cuboids hold them, as ``primkit embed --parts arms`` does (:func:`label_table`);
+voxels, whichever cuboids hold them, as ``primkit embed --parts arms`` does (:func:`label_table`,
+:class:`primkit.embedding.RegionDescriptor`);
 otherwise at the part indices the names select.
 """
 
@@ -101,16 +102,16 @@ def _rgb(color):
     return Color(color).float_rgb
 
 
-def label_table(labeller, chosen, shapes) -> "embedding.CuboidTable":
-    """Each shape's regions of the labels ``chosen`` (names of ``labeller``) as boxes, one slot per
-    label (:func:`primkit.embedding.label_boxes` of the shape's canonical grid named voxel by voxel,
-    :func:`primkit.segmentation.bylabel.label_regions`): what ``embed --parts arms`` describes.
-    ``shapes``: abstractions (or the viewers' point shapes, :class:`primkit.viewers.common.PointShape`)."""
-    from ..segmentation.bylabel import label_regions
+def label_table(labeller, shapes) -> "embedding.RegionTable":
+    """Each shape's voxels named by ``labeller``, as regions (:meth:`primkit.embedding.RegionTable.from_grids`
+    of :func:`primkit.segmentation.bylabel.labelled_grid` on the shape's canonical grid): what
+    ``embed --parts arms`` describes. ``shapes``: abstractions (or the viewers' point shapes,
+    :class:`primkit.viewers.common.PointShape`)."""
+    from ..segmentation.bylabel import labelled_grid
 
     grids = [getattr(s, "abstraction", s).canonical_shape().occupancy for s in shapes]
-    regions = label_regions(labeller, chosen, grids, [s.result.canonical for s in shapes])
-    return embedding.label_boxes(*regions, chosen, names=[s.name for s in shapes])
+    labels = [labelled_grid(labeller, g, s.result.canonical) for g, s in zip(grids, shapes)]
+    return embedding.RegionTable.from_grids(grids, labels, labeller.names, [s.name for s in shapes])
 
 
 def embedding_explorer(shapes, part_names=None, *, parts="all", neighbors: int = 4, style: str = "thumbnails",
@@ -134,8 +135,8 @@ def embedding_explorer(shapes, part_names=None, *, parts="all", neighbors: int =
 
     chosen = by_label(parts, None if labeller is None else labeller.names)
     if chosen is not None:  # each shape's labelled regions
-        X = embedding.PartDescriptor(parts=None).fit_transform(label_table(labeller, chosen, shapes))
-        what = f"labels {','.join(chosen)}, each shape's labelled regions"
+        X = embedding.RegionDescriptor(chosen).fit_transform(label_table(labeller, shapes))
+        what = f"labels {','.join(chosen)}, each shape's labelled voxels"
     else:
         X = embedding.PartDescriptor(parts=parts, part_names=part_names).fit_transform([s.result for s in shapes])
         what = str(parts)

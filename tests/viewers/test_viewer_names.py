@@ -151,13 +151,18 @@ def test_embedding_explorer_parts_by_label(shapes, labeller):
     coords = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0], [1.0, 1.0]])
     explorer = ee.embedding_explorer(shape_list, model.part_names, parts="arms,back", neighbors=2, coords=coords,
                                      off_screen=True, window_size=(500, 400), labeller=labeller)
-    # the boxes of each shape's voxels named arms and back, built here from labelled_voxels
-    pts, labs = [], []
+    # the regions of each shape's voxels named arms and back, their grids built here from labelled_voxels
+    grids, grid_labels = [], []
     for s in shape_list:
-        p, named = labelled_voxels(labeller, s.canonical_shape().occupancy, s.result.canonical)
-        pts.append(p)
-        labs.append(np.where(named == 3, 0, np.where(named == 0, 1, -1)))
-    X = embedding.PartDescriptor(parts=None).fit_transform(embedding.label_boxes(pts, labs, ["arms", "back"]))
+        occupancy = s.canonical_shape().occupancy
+        p, named = labelled_voxels(labeller, occupancy, s.result.canonical)
+        cells = np.rint((p + 0.5) * occupancy.shape[0] - 0.5).astype(int)
+        lab = np.full(occupancy.shape, -1)
+        lab[tuple(cells.T)] = named
+        grids.append(occupancy)
+        grid_labels.append(lab)
+    table = embedding.RegionTable.from_grids(grids, grid_labels, labeller.names)
+    X = embedding.RegionDescriptor("arms,back").fit_transform(table)
     D = np.linalg.norm(X[:, None] - X[None], axis=-1)
     np.fill_diagonal(D, np.inf)
     for i in range(len(shape_list)):
