@@ -145,7 +145,7 @@ class Trainer:
 
         from primkit.model.losses import MovingBaseline, SlotPlacement
         from primkit.model.network import AbstractionNet, NetworkConfig
-        from primkit.model.training import ShapeTensors, channels_last
+        from primkit.model.training import ShapeTensors, training_layout
 
         torch.set_flush_denormal(True)  # as training does
         torch.manual_seed(seed)
@@ -153,7 +153,7 @@ class Trainer:
         self.tensors = shapes if isinstance(shapes, ShapeTensors) else ShapeTensors(shapes)
         width = 100 if encoder == "paper" else 64
         self.net = AbstractionNet(NetworkConfig(parts=PARTS, grid=self.tensors.resolution, encoder=encoder, fc_width=width)).to(device)
-        channels_last(self.net)  # as train()
+        training_layout(self.net, device)  # as train()
         self.optimizer = torch.optim.Adam(self.net.parameters(), lr=1e-3, fused=torch.device(device).type in ("cpu", "cuda"))  # as train()
         self.generator = torch.Generator().manual_seed(seed)
         self.baseline = MovingBaseline(0.9)
