@@ -27,6 +27,8 @@ quaternion through torch. Checked against torch's autograd of the torch form in 
 import numba
 import numpy as np
 
+from ._compiled import over_batch
+
 __all__ = ["nearest_cells", "consistency_forward", "consistency_backward"]
 
 
@@ -243,8 +245,8 @@ def consistency_forward(rot, z, t, uv, planar, resolution: int):
     k = uv.shape[2]
     zero, one, half, res, top, four, per_face, tiny = _scalars(z.dtype, 0.0, 1.0, 0.5, resolution, resolution - 1,
                                                                4.0, k // 6, 1e-12)
-    _consistency_forward(rot, z, t, uv, planar, resolution, zero, one, half, res, top, four, per_face, tiny, out,
-                         winners)
+    over_batch(_consistency_forward, (rot, z, t, uv, planar), (resolution, zero, one, half, res, top, four, per_face, tiny),
+               (out, winners))
     return out, winners
 
 
@@ -254,5 +256,6 @@ def consistency_backward(rot, z, t, uv, winners, grad_out):
     grad_z = np.empty(z.shape, z.dtype)
     grad_t = np.empty(t.shape, z.dtype)
     zero, one, four, per_face, tiny = _scalars(z.dtype, 0.0, 1.0, 4.0, uv.shape[2] // 6, 1e-12)
-    _consistency_backward(rot, z, t, uv, winners, grad_out, zero, one, four, per_face, tiny, grad_rot, grad_z, grad_t)
+    over_batch(_consistency_backward, (rot, z, t, uv, winners, grad_out), (zero, one, four, per_face, tiny),
+               (grad_rot, grad_z, grad_t))
     return grad_rot, grad_z, grad_t

@@ -18,6 +18,8 @@ the winner held: with ``l = R^T x - R^T t`` and ``e = max(|l| - z, 0)``, ``d/dl 
 import numba
 import numpy as np
 
+from ._compiled import over_batch
+
 __all__ = ["union_forward", "union_backward"]
 
 
@@ -120,7 +122,8 @@ def union_forward(rot, offset, z, absent, present, points, toggles: bool, far: f
     out = np.empty(points.shape[:2], rot.dtype)
     nearest = np.empty(points.shape[:2], np.int64)
     effect = np.zeros(rot.shape[:2], rot.dtype)
-    _union_forward(rot, offset, z, absent, present, points, bool(toggles), t(0.0), t(far), out, nearest, effect)
+    over_batch(_union_forward, (rot, offset, z, absent, present, points), (bool(toggles), t(0.0), t(far)),
+               (out, nearest, effect))
     return out, nearest, effect
 
 
@@ -129,5 +132,6 @@ def union_backward(rot, offset, z, points, nearest, grad_out):
     grad_rot = np.empty(rot.shape, rot.dtype)
     grad_offset = np.empty(offset.shape, rot.dtype)
     grad_z = np.empty(z.shape, rot.dtype)
-    _union_backward(rot, offset, z, points, nearest, grad_out, rot.dtype.type(0.0), grad_rot, grad_offset, grad_z)
+    over_batch(_union_backward, (rot, offset, z, points, nearest, grad_out), (rot.dtype.type(0.0),),
+               (grad_rot, grad_offset, grad_z))
     return grad_rot, grad_offset, grad_z
