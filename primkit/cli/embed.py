@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._common import add_command
+from ._common import DeprecatedAlias, add_command
 from ._common import (abstraction_options, add_abstraction_options, add_scale_out, add_force, add_output, add_png, check_command_outputs, collect,
                       err, input_paths, model_file, output_names, progress_of, report_errors)
 
@@ -30,7 +30,7 @@ def _scales(text):
         try:
             out[key.strip()] = float(value)
         except ValueError:
-            raise ValueError(f"--scale: expected NAME=NUMBER items, got {item!r}") from None
+            raise ValueError(f"--units: expected NAME=NUMBER items, got {item!r}") from None
     return out
 
 
@@ -91,10 +91,10 @@ def _describe(args, abstractor, results, grids, queries=None, query_grids=None):
     labelled = _label_tables(args, results, grids, queries, query_grids)
     if labelled is not None:  # --parts names the labeller's labels: each shape's labelled regions
         table, qtable = labelled
-        desc = PartDescriptor(None, args.what, _scales(args.scale)).fit(table)
+        desc = PartDescriptor(None, args.what, _scales(args.units)).fit(table)
         desc.by_label_ = True
         return desc, desc.transform(table), (desc.transform(qtable) if qtable is not None else None)
-    desc = PartDescriptor(args.parts, args.what, _scales(args.scale), part_names=abstractor.part_names).fit(results)
+    desc = PartDescriptor(args.parts, args.what, _scales(args.units), part_names=abstractor.part_names).fit(results)
     X = desc.transform(results)
     Q = desc.transform(queries) if queries else None
     return desc, X, Q
@@ -246,9 +246,11 @@ def _common_options(p) -> None:
                    "with a model labeller, names it knows (arms) are each shape's labelled regions (docs/labeller.md)")
     p.add_argument("--what", default="size,position,orientation,presence",
                    help="properties compared: any of size, position, orientation, presence (default: all)")
-    p.add_argument("--scale", default=None, metavar="NAME=VALUE,...",
-                   help="per-property scales: a difference of one scale counts 1 (defaults size=0.05, position=0.1 "
-                        "in canonical units, orientation=15 degrees, presence=0.5: an absent/present part costs 2)")
+    p.add_argument("--units", default=None, metavar="NAME=VALUE,...",
+                   help="the distance's unit for each property: a difference of one unit counts 1 (defaults size=0.05, "
+                        "position=0.1 in canonical units, orientation=15 degrees, presence=0.5: an absent/present part "
+                        "costs 2)")
+    p.add_argument("--scale", dest="units", action=DeprecatedAlias, new="--units")  # the old name: edit --scale scales parts
     p.add_argument("--metric", choices=["descriptor", "voxel-iou"], default="descriptor",
                    help="descriptor (the parts' cuboids) or voxel-iou (1 - IoU of the occupancy grids, the baseline)")
     p.add_argument("--thumbnails", choices=["shape", "cuboids"], default="shape",
@@ -270,7 +272,7 @@ def register(subparsers) -> None:
     p.add_argument("--distances", choices=["auto", "yes", "no"], default="auto",
                    help=f"write the full distance matrix (auto: up to {_MATRIX_LIMIT} shapes)")
     p.add_argument("--perplexity", type=float, default=30.0, help="t-SNE perplexity (default 30; lowered for small collections)")
-    p.add_argument("--seed", type=int, default=0, help="t-SNE random state")
+    p.add_argument("--seed", type=int, default=0, help="t-SNE random state: the same seed gives the same map")
     p.add_argument("--svg", default=None, metavar="PATH", help="also draw the map into this SVG file")
     p.add_argument("--thumb-size", type=int, default=96, help="thumbnail size in pixels")
     p.set_defaults(func=_cmd_embed)
