@@ -500,7 +500,7 @@ def _fill_slow(kernels, buf: np.ndarray, flat: np.ndarray, slow: np.ndarray) -> 
         flat[slow[:, 0]] = np.array(tokens, dtype=np.float64)
 
 
-# Measured against meshio (benchmarks/bench_mesh_reader.py): `primkit segment` on the 10 COSEG chairs is NOT measurably faster with this parser (medians of 5: 11.26 s, meshio 11.80 s, runs spread 10.9-16.8 s; reading alone 81 against 144 ms).
+# Not measurably faster than meshio for `primkit segment` on the COSEG chairs: 11.26 s vs 11.80 s (bench_mesh_reader.py)
 def _parse_mesh_text(path, data: bytes):
     """(vertices, faces) of a plain OFF or OBJ file by the compiled parser, or None (not plain,
     another format): the caller then reads it with trimesh."""
