@@ -71,7 +71,7 @@ def _bundled_step(out: Path, folder: Path, cache: Path, quick: bool, progress: b
 
 
 def _demo_outputs(out: Path, train_count: int, test_count: int) -> list:
-    """The files the demo writes into ``out`` (the report's thumbnails aside, in ``report/images``)."""
+    """The files the demo writes into ``out``."""
     from .model.training import training_outputs
 
     shapes = [out / "shapes" / kind / f"chair_{i:04d}{ext}" for kind, n in (("train", train_count), ("heldout", test_count))

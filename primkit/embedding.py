@@ -201,9 +201,31 @@ def _slot_labels(names) -> list[str]:
     return [n if names.count(n) == 1 else f"{n}{k}" for k, n in enumerate(names)]
 
 
+def _names_from_columns(columns) -> list[str] | None:
+    """The part names behind a table's column names (:meth:`CuboidTable.feature_names`, what a
+    pandas output of :class:`AbstractionTransformer` carries), or None when the columns are not
+    laid out so. Inverse of :func:`_slot_labels`: a label ``<name><k>`` on slot ``k`` is ``name``
+    when another slot's label is ``<name><j>`` too (a shared name), except ``part<k>``, the default
+    name of an unnamed slot."""
+    columns = [str(c) for c in columns]
+    if not columns or len(columns) % _NCOL:
+        return None
+    labels = []
+    for k in range(len(columns) // _NCOL):
+        block = columns[k * _NCOL:(k + 1) * _NCOL]
+        label = block[0][: -len(CUBOID_COLUMNS[0]) - 1]
+        if block != [f"{label}.{c}" for c in CUBOID_COLUMNS]:
+            return None
+        labels.append(label)
+    bases = [label[: -len(str(k))] if label.endswith(str(k)) and len(label) > len(str(k)) and label != f"part{k}"
+             else None for k, label in enumerate(labels)]
+    names = [b if b is not None and bases.count(b) > 1 else label for b, label in zip(bases, labels)]
+    return names if _slot_labels(names) == labels else labels
+
+
 def _is_shape_list(X) -> bool:
     """True for a list of Cuboids / AbstractionResult / Abstraction (or an Abstractions), not a numeric table."""
-    if isinstance(X, (np.ndarray, CuboidTable)) or not hasattr(X, "__getitem__") or not len(X):
+    if isinstance(X, (np.ndarray, CuboidTable)) or hasattr(X, "shape") or not hasattr(X, "__getitem__") or not len(X):
         return False
     first = X[0]
     return isinstance(first, primitives.Cuboids) or isinstance(getattr(first, "canonical", None), primitives.Cuboids)
@@ -285,6 +307,24 @@ class CuboidTable:
 
     def __array__(self, dtype=None, copy=None):
         return self.values.astype(dtype or self.values.dtype, copy=bool(copy))
+
+    def __iter__(self):
+        """The rows, ``(11 m,) float`` each (so ``pandas.DataFrame(table)`` is the numbers)."""
+        return iter(self.values)
+
+    def __getitem__(self, key) -> "CuboidTable | np.ndarray":
+        """Rows: ``table[3]`` is row 3's numbers; ``table[rows]`` (indices, a mask or a slice, also
+        ``table[rows, ...]`` as scikit-learn's cross-validation asks) is a table of those shapes, with
+        the part names, so a precomputed table keeps them through ``GridSearchCV``."""
+        if isinstance(key, tuple):
+            if len(key) != 2 or not (key[1] is Ellipsis or key[1] == slice(None)):
+                raise IndexError("a CuboidTable is indexed by rows only: table[rows] or table[rows, ...]")
+            key = key[0]
+        if isinstance(key, (int, np.integer)):
+            return self.values[key]
+        rows = np.arange(len(self.values))[key]
+        names = tuple(self.names[i] for i in rows) if len(self.names) == len(self.values) else ()
+        return CuboidTable(self.values[rows], self.part_names, names)
 
     def feature_names(self) -> list[str]:
         """One name per column: ``"<part>.<column>"`` (``"seat.size.x"``, ``"legs3.present"``)."""
@@ -452,6 +492,8 @@ class PartDescriptor(TransformerMixin, BaseEstimator):
         if isinstance(X, CuboidTable):
             names = X.part_names
             X = X.values
+        elif hasattr(X, "columns"):  # a DataFrame (set_output): the names from its columns
+            names = _names_from_columns(X.columns)
         A = validate_data(self, X, reset=reset, dtype=np.float64)
         if A.shape[1] % _NCOL:
             raise ValueError(f"a cuboid table has {_NCOL} columns per part slot ({', '.join(CUBOID_COLUMNS)}); "
@@ -533,6 +575,14 @@ class PartDescriptor(TransformerMixin, BaseEstimator):
             raise ValueError(f"input_features has {len(input_features)} names but the descriptor was fitted on "
                              f"{self.n_features_in_} columns")
         return np.asarray(self.feature_names_, dtype=object)
+
+    def __sklearn_tags__(self):
+        # a cuboid table (11 columns per part slot, see Input), not any 2-D array: scikit-learn's
+        # estimator checks then leave out those that fit on their own generic data of 1-10 columns,
+        # as for its own DictVectorizer; tests/test_embedding.py checks what they check on real tables
+        tags = super().__sklearn_tags__()
+        tags.input_tags.two_d_array = False
+        return tags
 
 
 # ------------------------------------------------------------------------------------------------

@@ -163,12 +163,12 @@ def _text(args) -> str:
 
 def load_page(url, *, ready: str = "document.body && document.body.dataset.ready === '1'", timeout: float = 120.0,
               width: int = 1200, height: int = 900, settle: float = 0.5, screenshot: bool = True,
-              evaluate=()) -> PageLoad:
+              evaluate=(), media: str | None = None) -> PageLoad:
     """Open ``url`` (a path or a URL) in a fresh headless Chromium and watch it load.
 
     ``ready`` is a JavaScript expression polled until it is true; then the events of ``settle`` more
     seconds are collected, the expressions of ``evaluate`` are evaluated (JSON-serialisable results)
-    and the viewport is captured.
+    and the viewport is captured. ``media``: the CSS media type to emulate (``"print"``), or None.
     """
     if not str(url).startswith(("file:", "http:", "https:", "about:", "data:")):
         url = Path(url).resolve().as_uri()
@@ -181,6 +181,8 @@ def load_page(url, *, ready: str = "document.body && document.body.dataset.ready
             browser.send(f"{domain}.enable")
         browser.send("Emulation.setDeviceMetricsOverride", {"width": width, "height": height, "deviceScaleFactor": 1,
                                                             "mobile": False})
+        if media is not None:
+            browser.send("Emulation.setEmulatedMedia", {"media": media})
         browser.send("Page.navigate", {"url": str(url)})
         out = PageLoad()
         deadline = time.monotonic() + timeout

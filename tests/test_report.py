@@ -28,7 +28,8 @@ def report_dir(tmp_path_factory):
     root = tmp_path_factory.mktemp("report")
     synthetic.write_collection(root / "in", "chair", 4, seed=11)
     out = root / "out"
-    assert main(["report", str(root / "in"), "--model", "chair", "-o", str(out), "--cache", str(root / "cache")]) == 0
+    assert main(["report", str(root / "in"), "--model", "chair", "-o", str(out), "--cache", str(root / "cache"),
+                 "--images"]) == 0
     return out
 
 
@@ -43,6 +44,11 @@ def report_by_part(report_dir):
     return out
 
 
+#: the page drawn, then scrolled to its 3D scene (below the cards): the screenshots are of the viewport
+SCENE_READY = ("document.body && document.body.dataset.ready === '1' && "
+               "(document.getElementById('scene').scrollIntoView(), true)")
+
+
 def _scene(page: str) -> dict:
     m = re.search(r'<script id="scene-data" type="application/json">(.*?)</script>', page, re.S)
     return json.loads(m.group(1))
@@ -51,8 +57,12 @@ def _scene(page: str) -> dict:
 def test_report_files_and_numbers(report_dir):
     page = (report_dir / "index.html").read_text()
     markup = re.sub(r"<script\b.*?</script>", "", page, flags=re.S)  # the page's own elements
-    for src in re.findall(r'src="([^"]+)"', markup):
-        assert (report_dir / src).is_file(), src
+    sources = re.findall(r'(?:src|href)="(data:[^"]{0,30})', markup)
+    assert len(sources) >= 4 * 4 and all(src.startswith("data:image/webp;base64,") for src in sources)  # inlined
+    assert not re.search(r'src="(?!data:)', markup)
+    # with --images, each picture also as a PNG beside the page (which needs none of them)
+    assert sorted(p.name for p in (report_dir / "images").iterdir()) == sorted(
+        ["deformation.png"] + [f"{i:03d}.{k}.png" for i in range(4) for k in ("mesh", "cuboids", "segmentation", "names")])
     # nothing fetched at view time: no remote src/href; the browser test checks every request
     assert not re.search(r'(src|href)\s*=\s*["\']?(https?:)?//', markup)
     assert "Plotly.newPlot" in page and "plotly.js v" in page  # the library is inlined
@@ -135,7 +145,8 @@ def test_report_refuses_to_overwrite_and_degrades_with_two_shapes(tmp_path, repo
                                   cache_dir=tmp_path / "cache", progress=False)
     assert errors == [] and "similarity" in report.notes and "3 shapes" in report.notes["similarity"]
     page = report.path.read_text()
-    assert "similarity map not drawn" in page and "deformation.png" in page
+    assert "similarity map not drawn" in page and 'alt="deformation"' in page
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["index.html", "report.json"]  # one page, no images/
 
 
 def _colour_counts(img: np.ndarray, colours: np.ndarray) -> np.ndarray:
@@ -170,7 +181,7 @@ def test_report_loads_in_headless_chromium(report_by_part):
 
     box = "JSON.stringify(document.getElementById('scene').getBoundingClientRect())"
     legend = "JSON.stringify(document.querySelector('#scene .legend').getBoundingClientRect())"
-    got = load_page(report_dir / "index.html", width=1200, height=1100, evaluate=[box, legend])
+    got = load_page(report_dir / "index.html", ready=SCENE_READY, width=1200, height=1100, evaluate=[box, legend])
     assert got.ready_ms is not None, got.console
     assert any("primkit report ready: 4 shapes" in text for _, text in got.console)
     assert not got.problems(), got.problems()
@@ -228,7 +239,7 @@ def test_the_3d_scene_frames_every_shape_at_any_width(report_dir, width):
 
     size = "JSON.stringify(Object.assign({top: document.getElementById('scene').getBoundingClientRect().top, " \
            "left: document.getElementById('scene').getBoundingClientRect().left}, document.getElementById('scene')._fullLayout._size))"
-    got = load_page(report_dir / "index.html", width=width, height=1100, evaluate=[size])
+    got = load_page(report_dir / "index.html", ready=SCENE_READY, width=width, height=1100, evaluate=[size])
     assert got.ready_ms is not None and not got.problems(), got.problems()
     box = json.loads(got.values[size])
     img = np.array(Image.open(BytesIO(got.screenshot)).convert("RGB")).astype(int)
@@ -260,7 +271,7 @@ def test_the_report_names_each_shape_with_the_models_labeller(report_dir):
     assert names == ["back", "seat", "legs", "arms"]
     labeller = lab.read_labeller(resolve_model("chair"))
     page = (report_dir / "index.html").read_text()
-    assert "Names (the model's labeller" in page and "co-segmentation, names (the model's labeller)" in page
+    assert "Names (the model's labeller" in page and "(parts, cuboids, mesh, names: click to switch" in page
     for i, s in enumerate(summary["shapes"]):
         mesh = io.read_mesh(s["source"])
         a = abstract((mesh.vertices, mesh.faces), "chair")
@@ -296,7 +307,7 @@ def test_the_3d_scene_shows_each_surface_by_name(report_dir):
     traces = _scene((report_dir / "index.html").read_text())["data"]
     hide = [n for n, t in enumerate(traces) if t.get("meta", {}).get("kind") in ("cuboid", "edges")]
     assert hide
-    ready = ("document.body.dataset.ready === '1' && (window.hid === undefined ? (window.hid = false, "
+    ready = (SCENE_READY + " && (window.hid === undefined ? (window.hid = false, "
              f"Plotly.restyle(document.getElementById('scene'), {{visible: false}}, {json.dumps(hide)})"
              ".then(function(){ window.hid = true; }), false) : window.hid)")
     box = "JSON.stringify(document.getElementById('scene').getBoundingClientRect())"

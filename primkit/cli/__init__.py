@@ -24,7 +24,7 @@ def build_parser() -> argparse.ArgumentParser:
     from ..version import __version__
 
     parser = argparse.ArgumentParser(prog="primkit", description="Explain 3D shapes with a few cuboids (Tulsiani et al. 2017).")
-    parser.add_argument("--version", action="version", version=f"primkit {__version__}")
+    parser.add_argument("-V", "--version", action="version", version=f"primkit {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
 
     # The commands live in the modules beside this one: the core ones (core.py) first, then the

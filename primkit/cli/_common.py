@@ -22,6 +22,8 @@ from typing import TypedDict
 
 __all__ = [
     "err",
+    "add_command",
+    "DeprecatedAlias",
     "command_logging",
     "report_errors",
     "collect",
@@ -207,11 +209,40 @@ def abstraction_options(args) -> AbstractionOptions:
     return options
 
 
+class _HelpFormatter(argparse.RawDescriptionHelpFormatter):
+    """Raw descriptions and examples, and every option's default said: `` (default: X)`` after
+    the help of an option that has a default (not None, not a flag's False) and does not say it
+    already. An option whose default is computed (None) says what it is in its own help."""
+
+    def _get_help_string(self, action):
+        text = action.help or ""
+        default = action.default
+        if (action.option_strings and default is not None and default is not False and default != argparse.SUPPRESS
+                and "default" not in text
+                and not isinstance(action, (argparse._StoreConstAction, argparse._CountAction))):
+            text += " (default: %(default)s)"
+        return text
+
+
 def add_command(subparsers, name: str, *, examples, **kwargs):
     """A subcommand whose ``--help`` ends with its ``examples`` (one command line each, shown as
-    written: argparse's raw description formatter keeps their line breaks)."""
+    written: argparse's raw description formatter keeps their line breaks), and whose options say
+    their defaults."""
     epilog = "examples:\n" + "".join(f"  {line}\n" for line in examples)
-    return subparsers.add_parser(name, epilog=epilog, formatter_class=argparse.RawDescriptionHelpFormatter, **kwargs)
+    return subparsers.add_parser(name, epilog=epilog, formatter_class=_HelpFormatter, **kwargs)
+
+
+class DeprecatedAlias(argparse.Action):
+    """A hidden old name of an option: stores into the new one's ``dest`` and says on stderr that
+    ``new`` replaces it (``primkit: note: --scale is deprecated here: use --units``)."""
+
+    def __init__(self, option_strings, dest, *, new: str, **kwargs):
+        self.new = new
+        super().__init__(option_strings, dest, help=argparse.SUPPRESS, **kwargs)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        print(f"primkit: note: {option_string} is deprecated here: use {self.new}", file=sys.stderr)
+        setattr(namespace, self.dest, values)
 
 
 def add_model(p) -> None:

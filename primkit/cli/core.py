@@ -314,7 +314,7 @@ def register(sub) -> None:
 
     p = add_command(sub, "train", help="train an abstractor on a folder of shapes",
         description="Train a cuboid abstractor on a collection of shapes (unsupervised). Writes the model file, a checkpoint beside it (Ctrl-C saves and stops; --resume goes on) and a plot of the losses.",
-        examples=["primkit train chairs/ -o chair.safetensors", "primkit train ../shared/data/shapenetvox32/03001627 --preset chair -o chair.safetensors"])
+        examples=["primkit train chairs/ -o chair.safetensors", "primkit train SHAPENETVOX32/03001627 --preset chair -o chair.safetensors"])
     p.add_argument("inputs", nargs="+", help="folders or files of shapes")
     add_output(p, "model file to write (.safetensors)")
     p.add_argument("--preset", default=None, help="a bundled model's recipe (chair, table, airplane): schedule, "

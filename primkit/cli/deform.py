@@ -328,7 +328,8 @@ def _common_options(p) -> None:
     add_abstraction_options(p)
     add_output(p, "the deformed mesh (.ply, .obj, .off, .glb, .stl), or points (.xyz, .npy, .ply)")
     p.add_argument("--falloff", type=float, default=None,
-                   help="blending distance at seams, canonical units (default: widened to the seams' discrepancy)")
+                   help="blending distance at seams, canonical units (default: 3%% of the shape's size, widened to 3 "
+                   "times where two parts' maps disagree at a seam, at most 25%%)")
     add_png(p)
     p.add_argument("--json", default=None, help="quality measures (default OUTPUT with .json)")
     add_force(p)

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._common import add_command
+from ._common import DeprecatedAlias, add_command
 from ._common import (abstraction_options, add_abstraction_options, add_scale_out, add_force, add_output, add_png, check_command_outputs, collect,
                       err, input_paths, model_file, output_names, progress_of, report_errors)
 
@@ -35,7 +35,7 @@ def _scales(text):
         try:
             out[key.strip()] = float(value)
         except ValueError:
-            raise ValueError(f"--scale: expected NAME=NUMBER items, got {item!r}") from None
+            raise ValueError(f"--units: expected NAME=NUMBER items, got {item!r}") from None
     return out
 
 
@@ -127,8 +127,8 @@ def _describe(args, abstractor, results, grids, queries=None, query_grids=None) 
     labelled = _label_grids(args, results, grids, queries, query_grids)
     if labelled is not None:  # --parts names the labeller's labels: each shape's labelled voxels
         names, chosen, labels = labelled
-        if args.scale:
-            raise ValueError("--scale sets the cuboid descriptor's scales; parts by label take --weights")
+        if args.units:
+            raise ValueError("--units sets the cuboid descriptor's units; parts by label take --weights")
         all_grids = list(grids) + (list(query_grids) if queries else [])
         table = RegionTable.from_grids(all_grids, labels, names, [r.name for r in list(results) + list(queries or [])])
         s = len(results)
@@ -139,8 +139,8 @@ def _describe(args, abstractor, results, grids, queries=None, query_grids=None) 
 
         return _Description(desc, X[:s], X[s:] if queries else None, labels, desc.parts_, label_colors(len(names)))
     if args.weights:
-        raise ValueError("--weights sets the weights of parts by label (a model with a labeller); cuboids take --scale")
-    desc = PartDescriptor(args.parts, args.what or PROPERTIES, _scales(args.scale),
+        raise ValueError("--weights sets the weights of parts by label (a model with a labeller); cuboids take --units")
+    desc = PartDescriptor(args.parts, args.what or PROPERTIES, _scales(args.units),
                           part_names=abstractor.part_names).fit(results)
     X = desc.transform(results)
     Q = desc.transform(queries) if queries else None
@@ -302,9 +302,11 @@ def _common_options(p) -> None:
                    help="properties compared. Cuboids: any of size, position, orientation, presence (default: all). "
                         "Parts by label: any of extent, share, place, thickness, fill, signature (default: those "
                         "weighted above 0)")
-    p.add_argument("--scale", default=None, metavar="NAME=VALUE,...",
-                   help="cuboids: per-property scales, a difference of one scale counts 1 (defaults size=0.05, "
-                        "position=0.1 in canonical units, orientation=15 degrees, presence=0.5: an absent/present part costs 2)")
+    p.add_argument("--units", default=None, metavar="NAME=VALUE,...",
+                   help="cuboids: the distance's unit for each property, a difference of one unit counts 1 (defaults "
+                        "size=0.05, position=0.1 in canonical units, orientation=15 degrees, presence=0.5: an "
+                        "absent/present part costs 2)")
+    p.add_argument("--scale", dest="units", action=DeprecatedAlias, new="--units")  # the old name: edit --scale scales parts
     p.add_argument("--weights", default=None, metavar="NAME=VALUE,...",
                    help="parts by label: each property's weight after standardising it over the collection; defaults "
                         f"{_WEIGHTS_HELP} (chosen on the PartNet validation chairs; docs/results.md)")
@@ -331,7 +333,7 @@ def register(subparsers) -> None:
     p.add_argument("--distances", choices=["auto", "yes", "no"], default="auto",
                    help=f"write the full distance matrix (auto: up to {_MATRIX_LIMIT} shapes)")
     p.add_argument("--perplexity", type=float, default=30.0, help="t-SNE perplexity (default 30; lowered for small collections)")
-    p.add_argument("--seed", type=int, default=0, help="t-SNE random state")
+    p.add_argument("--seed", type=int, default=0, help="t-SNE random state: the same seed gives the same map")
     p.add_argument("--svg", default=None, metavar="PATH", help="also draw the map into this SVG file")
     p.add_argument("--thumb-size", type=int, default=96, help="thumbnail size in pixels")
     p.set_defaults(func=_cmd_embed)

@@ -161,7 +161,7 @@ def _teacher_arrays(coll, geometric: bool):
 def register(subparsers) -> None:
     p = add_command(subparsers, "train-image", help="distil a volume model into an image model (rendered views)",
         description="Distil a volume model into an image model: render views of the teacher's training shapes and train a network to predict the teacher's cuboids (same indices and names) and the viewpoint from one picture.",
-        examples=["primkit train-image ../shared/data/shapenetvox32/03001627 --teacher chair -o chair-image.safetensors"])
+        examples=["primkit train-image SHAPENETVOX32/03001627 --teacher chair -o chair-image.safetensors"])
     p.add_argument("inputs", nargs="+", help="shape files or folders (the teacher's category)")
     add_output(p, "the image model file to write (.safetensors)")
     p.add_argument("--teacher", default="chair", help="the volume model to distil (a file or a bundled name)")

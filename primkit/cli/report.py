@@ -22,7 +22,8 @@ def _run(args) -> int:
                                   settings=settings_from_args(args, model.settings), model_label=args.model,
                                   align=args.align, up=args.up, front=args.front, overwrite=args.force,
                                   cache_dir=args.cache, workers=args.workers, adapt=args.adapt,
-                                  progress=progress_of(args), labeller=read_labeller(model_file(args.model)))
+                                  progress=progress_of(args), labeller=read_labeller(model_file(args.model)),
+                                  images=args.images)
     for note in report.notes.values():
         print(f"primkit: note: {note}")
     print(f"wrote {report.path} ({report.shapes} shapes)")
@@ -32,11 +33,13 @@ def _run(args) -> int:
 def register(subparsers) -> None:
     p = add_command(subparsers, "report", help="a static HTML report of a collection: thumbnails, segmentation, "
                               "similarity map, deformation, metrics, interactive 3D scene",
-        description="Run the whole chain (abstract, segment, embed, deform) on a collection and write one static HTML page that opens offline: thumbnails, co-segmentation, the similarity map, a deformation, a metrics table and a 3D scene.",
+        description="Run the whole chain (abstract, segment, embed, deform) on a collection and write one static, self-contained HTML page that opens offline: a card per shape (co-segmentation, cuboids, mesh, names), the similarity map, a deformation, the metrics defined and tabulated, and a 3D scene.",
         examples=["primkit report chairs/ --model chair -o report/"])
     p.add_argument("inputs", nargs="+", help="folders or files of shapes")
     add_abstraction_options(p)
-    add_output(p, "output folder (index.html, report.json, images/)")
+    add_output(p, "output folder: index.html (one self-contained page, pictures inlined) and report.json")
+    p.add_argument("--images", action="store_true", help="also write each picture as a PNG into OUTPUT/images/ "
+                   "(the page needs none of them)")
     p.add_argument("--limit", type=int, default=0, help="at most this many shapes (0: all)")
     add_force(p)
     p.set_defaults(func=_run)

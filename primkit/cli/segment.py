@@ -115,7 +115,10 @@ def _segmentation_line(s, paths) -> str:
     if isinstance(s, PointSegmentation):
         present = len(np.unique(s.labels[s.labels >= 0]))
         return f"{s.name}: {len(s.points)} points in {present} parts -> {paths.labels}, {paths.mesh}"
-    return f"{s.name}: {len(s.faces)} faces in {len(set(s.face_labels.tolist()))} parts -> {paths.labels}"
+    line = f"{s.name}: {len(s.faces)} faces in {len(set(s.face_labels.tolist()))} parts -> {paths.labels}"
+    if s.polygons is not None:
+        line += f" (triangulated: the file's {s.polygons} faces are polygons; a label per triangle)"
+    return line
 
 
 def _cmd_name_parts(args) -> int:
@@ -226,7 +229,7 @@ def register(sub) -> None:
         "(the paper's mapping is fitted over every shape) and are refused with --shard: run once over all the inputs "
         "for them. A shard killed half-way keeps each output it wrote whole; run it again with --skip-done to do only "
         "what it left, or with --force to redo it all.",
-        examples=["primkit segment chairs/ --model chair -o seg/ --refine 200 --png seg.png", "primkit segment clouds/ --model chair -o seg/ --semantic", "primkit segment CHAIRS --model chair -o seg/ --gt ../shared/data/partnet_chair_boxes"])
+        examples=["primkit segment chairs/ --model chair -o seg/ --refine 200 --png seg.png", "primkit segment clouds/ --model chair -o seg/ --semantic", "primkit segment CHAIRS --model chair -o seg/ --gt PARTNET_VOXLABELS/"])
     p.add_argument("inputs", nargs="+", help="mesh, voxel (.binvox) or point-cloud (.xyz, .npy, .ply) files, or folders")
     add_output(p, "output folder")
     add_abstraction_options(p)
@@ -242,11 +245,12 @@ def register(sub) -> None:
                    help="how faces (voxels, points) get their index: each to its nearest cuboid, or a graph cut over "
                    "the shape's adjacency that follows creases (docs/surface-labels.md; default: graphcut)")
     p.add_argument("--smoothness", type=float, default=None, metavar="W",
-                   help="graph cut: weight of label changes against cuboid distances (default: chosen on validation data)")
+                   help="graph cut: weight of label changes against cuboid distances (default: 1e-4 for meshes and "
+                   "point clouds, 3e-4 for voxel grids, chosen on validation data)")
     p.add_argument("--gt", action="append", metavar="PATH",
                    help="ground truth: a folder of .seg files for meshes (same stems), or for voxel grids a per-voxel "
-                   "label archive (an .npz keyed by shape name, or a folder holding voxlabels.npz, e.g. "
-                   "../shared/data/partnet_chair_boxes); repeatable")
+                   "label archive (an .npz keyed by shape name, or a folder holding voxlabels.npz, as PartNet's "
+                   "voxel labels come); repeatable")
     p.add_argument("--gt-names", action="append", metavar="NAMES",
                    help="what the ground-truth values mean: 'back,seat,legs' names values 1,2,3 ('0=back,1=seat' also); "
                    "'legs/base' accepts either model name; once, or once per --gt (voxel archives default to PartNet's "
@@ -258,7 +262,7 @@ def register(sub) -> None:
 
     p = add_command(sub, "name-parts", help="name a model's part indices from labelled shapes; writes a copy of the model",
         description="Name a model's parts from labelled shapes: learn a labeller that names each face, voxel or point from where it sits in the shape's cuboids (stored in the model file, no code), and name each part index by the label holding most of its area (or voxels). Writes a copy of the model; the input model is never modified.",
-        examples=["primkit name-parts labelled/ --model chair -o chair-named.safetensors", "primkit name-parts CHAIRS --model chair --labels ../shared/data/partnet_chair_boxes -o named.safetensors"])
+        examples=["primkit name-parts labelled/ --model chair -o chair-named.safetensors", "primkit name-parts CHAIRS --model chair --labels PARTNET_VOXLABELS/ -o named.safetensors"])
     p.add_argument("inputs", nargs="+", help="labelled mesh, voxel (.binvox) or point-cloud files, or folders (a "
                    "cloud's labels: <stem>.labels.npy beside it, one integer per point)")
     add_output(p, "model file to write (the input model is never modified)")

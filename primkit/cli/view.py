@@ -257,8 +257,8 @@ def _options(p) -> None:
 
 
 def register(subparsers) -> None:
-    p = add_command(subparsers, "view", help="interactive viewers (pyvista windows): abstraction, collection, embedding, "
-                              "deformation; --png: the first frame into a PNG instead of a window",
+    p = add_command(subparsers, "view", help="interactive viewers: abstraction, collection, embedding, deformation "
+                              "(pyvista windows) and open3d (Open3D's window); --png: the first frame into a PNG",
         description="Interactive viewers: pyvista windows (abstraction, collection, embedding, deformation) and Open3D's window (open3d). --png PATH draws the first frame into a picture instead of opening a window.",
         examples=["primkit view abstraction chair.off --model chair", "primkit view collection chairs/ --model chair --png grid.png"])
     sub = p.add_subparsers(dest="viewer", required=True)

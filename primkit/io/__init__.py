@@ -59,9 +59,10 @@ Modules: :mod:`~primkit.io.values` (the value types and the error), :mod:`~primk
 (the bounds). ``primkit.io`` is the bottom layer: it imports nothing else of primkit.
 """
 
-from . import files, formats, limits, values
+from . import faces, files, formats, limits, values
+from .faces import declared_face_count
 from .files import OutputError, atomic_output, check_outputs, check_suffix, is_temporary, refuse_existing, write_array
 from .formats import LABEL_SUFFIXES, MESH_SUFFIXES, MESH_WRITE_SUFFIXES, POINT_SUFFIXES, VOXEL_SUFFIXES, is_shape_file, read_labels, read_mesh, read_points, read_shape, read_voxels, write_labels, write_like, write_mesh, write_points, write_voxels
 from .values import Mesh, PointCloud, ShapeFileError, VoxelGrid
 
-__all__ = values.__all__ + formats.__all__ + files.__all__
+__all__ = values.__all__ + formats.__all__ + files.__all__ + faces.__all__

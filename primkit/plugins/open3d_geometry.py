@@ -50,6 +50,7 @@ its ``part`` attributes back.
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -178,6 +179,8 @@ def write(path, geometry, *, overwrite: bool = False):
 
     path = Path(path)
     kind = _kind(geometry)
+    if not overwrite and os.path.lexists(path):  # said to a library caller: no --force here
+        raise FileExistsError(f"{path}: exists (pass overwrite=True to replace it)")
     suffix = path.suffix.lower()
     has_part = "part" in (geometry.triangle if kind == "TriangleMesh" else geometry.point) or \
         (kind == "TriangleMesh" and "part" in geometry.vertex)

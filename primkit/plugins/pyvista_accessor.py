@@ -12,7 +12,7 @@ let ``pv.read`` open ``.off``, ``.binvox``, ``.xyz`` and ``.npy`` the same way::
     parts["part"]                                      # (f,) int, the part index of each face
     parts.plot()                                       # primkit's colours (active "part_rgb")
     pl = pv.Plotter()
-    pl.add_mesh(parts, scalars="part", cmap=parts.primkit.lookup_table())   # the same colours
+    pl.add_mesh(parts, scalars="part", cmap=parts.primkit.lookup_table(), preference="cell")   # the same
     boxes = chair.primkit.cuboids(model="chair")       # pyvista.MultiBlock, one block per part
     a = chair.primkit.abstract(model="chair")          # primkit.model.abstraction.Abstraction
 
@@ -20,10 +20,17 @@ On a ``PolyData`` (or any dataset: its surface is taken) with faces, :meth:`Prim
 labels faces (``cell_data["part"]``) and vertices (``point_data["part"]``); on one with points only
 (a point cloud) it labels points (``point_data["part"]``); on an ``ImageData`` with
 ``cell_data["occupancy"]`` (a ``.binvox`` grid, see :mod:`~primkit.plugins.pyvista_readers`) it
-abstracts the voxel grid and labels voxels (``cell_data["part"]``, -1 for empty ones). Next to
-each ``part`` array is ``part_rgb`` ((.., 3) uint8, primkit's colour of each part,
-:func:`primkit.viz.palette.part_colors`; grey where ``part`` is -1), the active cell scalars when
-there are cells. The copy also carries ``field_data["part_names"]`` (one per slot) and
+abstracts the voxel grid and labels voxels (``cell_data["part"]``, -1 for empty ones). Beside the
+``part`` of the elements labelled (faces, voxels, or a cloud's points) is ``part_rgb`` ((.., 3)
+uint8, primkit's colour of each part, :func:`primkit.viz.palette.part_colors`; grey where ``part``
+is -1), the copy's only active scalars, so ``plot()`` with no arguments draws primkit's colours
+(pyvista takes an array whose name ends in ``_rgb`` as colours). A surface's ``point_data["part"]``
+(each vertex) has no colour array beside it and is not active: ``scalars="part_rgb"`` then names
+one array only, and colours interpolated between vertices never blur a part's border. For
+``scalars="part"`` with :func:`lookup_table` pass ``preference="cell"`` (pyvista prefers point
+data, and point labels interpolated through a table draw stripes of other parts' colours along
+every border). A quad or polygon surface comes back triangulated (a ``part`` per triangle),
+which a ``UserWarning`` says. The copy also carries ``field_data["part_names"]`` (one per slot) and
 ``field_data["primkit_cuboids"]`` (the cuboids as primkit's schema-versioned JSON, so they survive
 ``save("x.vtp")``); :meth:`cuboids` of a segmented copy reads them back without running the
 model again.
@@ -36,6 +43,7 @@ from __future__ import annotations
 
 import json
 import os
+import warnings
 
 import numpy as np
 
@@ -78,10 +86,11 @@ def _rgb(labels: np.ndarray, count: int) -> np.ndarray:
     return table[np.where(labels < 0, count, labels)]
 
 
-def _label(out, where: str, labels: np.ndarray, count: int) -> None:
+def _label(out, where: str, labels: np.ndarray, count: int, colours: bool = True) -> None:
     data = out.cell_data if where == "cell" else out.point_data
     data["part"] = labels.astype(np.int64)
-    data["part_rgb"] = _rgb(labels, count)
+    if colours:
+        data["part_rgb"] = _rgb(labels, count)
 
 
 def _finish(out, labelled: Labelled):
@@ -91,8 +100,11 @@ def _finish(out, labelled: Labelled):
         out.field_data["label_names"] = np.array(labelled.label_names)
     out.field_data["part_names"] = np.array(labelled.part_names)
     out.field_data[CUBOIDS_FIELD] = np.array([json.dumps(labelled.cuboids.to_dict())])
-    if "part_rgb" in out.cell_data:
-        out.cell_data.active_scalars_name = "part_rgb"
+    # "part_rgb" the only active scalars: pyvista's plot() looks at point data first (and so does
+    # its fallback when the dataset's record of what is active is lost, e.g. after copy or save)
+    out.GetPointData().SetActiveScalars(None)
+    out.GetCellData().SetActiveScalars(None)
+    out.set_active_scalars("part_rgb", preference="cell" if "part_rgb" in out.cell_data else "point")
     return out
 
 
@@ -110,11 +122,13 @@ def segmented_copy(dataset, labelled: Labelled):
         if poly.n_cells and not poly.is_all_triangles:
             # from_pyvista labelled the triangulated surface: label the copy's own triangles
             out = out.triangulate()
+            warnings.warn(f"the surface's {poly.n_cells} cells are not all triangles: the segmented copy is its "
+                          f"triangulation, {out.n_cells} triangles with a part each", stacklevel=3)
         if out.n_cells != len(labelled.face_labels):
             raise ValueError(f"the surface has {out.n_cells} cells, {len(labelled.face_labels)} of them faces: part "
                              "labels are per face; keep the faces only first (e.g. remove its lines and vertices)")
         _label(out, "cell", labelled.face_labels, count)
-    _label(out, "point", labelled.point_labels, count)
+    _label(out, "point", labelled.point_labels, count, colours=labelled.face_labels is None)
     return _finish(out, labelled)
 
 

@@ -19,6 +19,10 @@ model's name or a model file, default ``"chair"``), ``RefineSteps`` (gradient st
 default 0), ``Up`` and ``Front`` (the input's axes; default ``"auto"``: found by the model, as
 ``primkit segment`` finds them without ``--up``/``--front``; :func:`primkit.model.orientation.resolve_align`).
 
+An update that cannot run (no such model, an input it cannot use) leaves the outputs empty and says
+why on one line, ``primkit segmentation: nosuchmodel: no such model file, ...``, in VTK's output
+window and in the filter's ``last_error``.
+
 For ParaView see :mod:`primkit.plugins.paraview_plugin`: ParaView's Python carries its own VTK,
 which cannot share a process with pip's, so its plugin is a separate, NumPy-only file.
 """
@@ -47,6 +51,8 @@ class PrimkitSegmentation(VTKPythonAlgorithmBase):
                                         outputType="vtkPolyData")
         self._model, self._refine, self._up, self._front = "chair", 0, "auto", "auto"
         self._loaded = None  # (model name, Abstractor, Labeller or None): loaded once per model
+        #: why the last update failed, one line (None: it did not); also shown in VTK's output window
+        self.last_error = None
         for name, value in properties.items():
             setter = getattr(self, f"Set{name}", None)
             if setter is None:
@@ -120,9 +126,12 @@ class PrimkitSegmentation(VTKPythonAlgorithmBase):
             labelled = label_shapes([shape], abstractor, up=self._up, front=self._front, refine=self._refine,
                                     labeller=labeller)[0]
             parts = segmented_copy(source, labelled)
-        except (ValueError, TypeError) as exc:
-            vtkOutputWindow.GetInstance().DisplayErrorText(f"primkit segmentation: {str(exc).splitlines()[0]}\n")
+        except (ValueError, TypeError, OSError, KeyError) as exc:  # OSError: no such model file, unreadable
+            # one line saying why, in VTK's output window (as ParaView's plugin says it), and on the filter
+            self.last_error = f"primkit segmentation: {(str(exc) or type(exc).__name__).splitlines()[0]}"
+            vtkOutputWindow.GetInstance().DisplayErrorText(self.last_error + "\n")
             return 0
+        self.last_error = None
         cuboids = to_pyvista(labelled.cuboids)
         cuboids.field_data["part_names"] = np.array(labelled.part_names)
         vtkPolyData.GetData(outInfo, 0).ShallowCopy(parts)

@@ -151,6 +151,14 @@ class Segmentation:
         """(f,) float"""
         return io.Mesh(self.vertices, self.faces).face_areas()
 
+    @property
+    def polygons(self) -> int | None:
+        """The number of faces of the source file when they were polygons that reading
+        triangulated (``faces``, ``face_labels`` and the ``.seg`` then hold one entry per
+        triangle, more than the file's faces), else None (:func:`primkit.io.declared_face_count`)."""
+        declared = io.declared_face_count(self.source) if self.source else None
+        return declared if declared is not None and 0 < declared < len(self.faces) else None
+
     def part_areas(self) -> np.ndarray:
         """Surface area assigned to each index: ``(m,) float`` (zero for parts holding no face)."""
         return np.bincount(self.face_labels, weights=self.face_areas, minlength=self.cuboids.count)

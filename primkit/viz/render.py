@@ -27,6 +27,7 @@ from .interop import to_pyvista
 from .palette import part_colors
 
 __all__ = [
+    "write_image",
     "Layer",
     "Tile",
     "mesh_layer",
@@ -208,6 +209,13 @@ def _save_image(image: np.ndarray, path, overwrite: bool) -> None:
 
     with atomic_output(path, overwrite=overwrite) as tmp:
         Image.fromarray(image).save(tmp, format="PNG", optimize=True)
+
+
+def write_image(path, image: np.ndarray, *, overwrite: bool = False) -> Path:
+    """Write a rendered picture (``(h, w, 3) uint8``) as a PNG, atomically; an existing file is kept
+    unless ``overwrite``. Returns the path."""
+    _save_image(np.asarray(image, np.uint8), path, overwrite)
+    return Path(path)
 
 
 def write_png(path, tiles, *, overwrite: bool = False, **kwargs):

@@ -45,7 +45,7 @@ def test_subcommand_has_a_description(path, parser):
 def test_subcommand_epilog_shows_examples_that_parse(path, parser):
     examples = _examples(parser)
     assert examples, f"primkit {' '.join(path)}: no example in its epilog"
-    assert parser.formatter_class is argparse.RawDescriptionHelpFormatter, "the examples would be re-wrapped"
+    assert issubclass(parser.formatter_class, argparse.RawDescriptionHelpFormatter), "the examples would be re-wrapped"
     for example in examples:
         argv = shlex.split(example)[1:]
         assert tuple(argv[: len(path)]) == path, f"the example {example!r} is not of primkit {' '.join(path)}"

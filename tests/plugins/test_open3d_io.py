@@ -90,9 +90,12 @@ def test_a_segmented_point_cloud_through_o3d_t_io(segmented, suffix, tmp_path):
 def test_write_refuses_to_overwrite_and_legacy_geometry(segmented, tmp_path):
     seg = segmented[0]
     pk.write(tmp_path / "a.npz", seg.geometry)
-    with pytest.raises(FileExistsError):
-        pk.write(tmp_path / "a.npz", seg.geometry)
-    pk.write(tmp_path / "a.npz", seg.geometry, overwrite=True)
+    pk.write(tmp_path / "a.ply", seg.geometry)  # primkit's own PLY writer
+    for name in ("a.npz", "a.ply"):  # a library caller is told the library's word, not the command's
+        with pytest.raises(FileExistsError, match=r"exists \(pass overwrite=True to replace it\)") as caught:
+            pk.write(tmp_path / name, seg.geometry)
+        assert "--force" not in str(caught.value)
+        pk.write(tmp_path / name, seg.geometry, overwrite=True)
     with pytest.raises(TypeError, match="tensor TriangleMesh or PointCloud"):
         pk.write(tmp_path / "b.ply", seg.geometry.to_legacy())
 

@@ -157,6 +157,21 @@ def test_vtk_filter_reports_bad_input_in_one_line(capfd, caplog):
     assert f.GetOutputDataObject(0).GetNumberOfCells() == 0
 
 
+def test_vtk_filter_says_why_a_bad_model_fails(capfd, caplog):
+    from vtkmodules.vtkFiltersSources import vtkSphereSource
+
+    from primkit.plugins.vtk_filter import PrimkitSegmentation
+
+    sphere = vtkSphereSource()
+    f = PrimkitSegmentation(Model="nosuchmodel")
+    f.SetInputConnection(sphere.GetOutputPort())
+    f.Update()
+    err = capfd.readouterr().err + caplog.text
+    why = "primkit segmentation: nosuchmodel: no such model file, and not a bundled model"
+    assert why in err and f.last_error.startswith(why) and "\n" not in f.last_error
+    assert f.GetOutputDataObject(0).GetNumberOfCells() == 0
+
+
 def test_the_paraview_plugin_file_declares_a_proxy_and_imports_nothing_of_primkit(monkeypatch):
     """ParaView loads the file by path with its decorators importable; a recording stand-in for
     ``paraview.util.vtkAlgorithm`` checks what the file declares (the real ParaView: test_paraview.py)."""

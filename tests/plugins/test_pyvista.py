@@ -115,7 +115,13 @@ def test_segmented_copies_carry_primkits_colours_and_a_progress_bar(tmp_path, ca
     palette = part_colors(len(names))
     assert seg.cell_data.active_scalars_name == "part_rgb"
     assert np.array_equal(seg.cell_data["part_rgb"], palette[seg.cell_data["part"]])
-    assert np.array_equal(seg.point_data["part_rgb"], palette[seg.point_data["part"]])
+    # the only active scalars, and the only array of that name: plot() and scalars="part_rgb" (which
+    # pyvista looks up in point data first) both draw the faces' colours
+    assert seg.point_data.active_scalars_name is None and "part_rgb" not in seg.point_data
+    assert seg.copy().active_scalars_name == "part_rgb"
+    cloud = pv.PolyData(seg.points).primkit.segment(model="chair")
+    assert cloud.point_data.active_scalars_name == "part_rgb"
+    assert np.array_equal(cloud.point_data["part_rgb"], palette[cloud.point_data["part"]])
     lut = seg.primkit.lookup_table()
     for k in range(len(names)):  # the lookup table sends part k to primkit's colour of k
         assert np.allclose(np.array(lut.map_value(k)[:3]) * 255, palette[k], atol=0.6)
@@ -123,7 +129,7 @@ def test_segmented_copies_carry_primkits_colours_and_a_progress_bar(tmp_path, ca
 
     # scalars="part" with the table draws the very picture the rgb colours draw
     images = []
-    for kwargs in ({"scalars": "part", "cmap": lut}, {"scalars": "part_rgb", "rgb": True}):
+    for kwargs in ({"scalars": "part", "cmap": lut}, {"scalars": "part_rgb"}):
         pl = pv.Plotter(off_screen=True, window_size=(200, 200))
         pl.add_mesh(seg, preference="cell", show_scalar_bar=False, lighting=False, **kwargs)
         pl.camera_position = "xy"
@@ -131,6 +137,16 @@ def test_segmented_copies_carry_primkits_colours_and_a_progress_bar(tmp_path, ca
         pl.close()
     drawn = (np.abs(images[1] - 255).sum(-1) > 30).mean()
     assert drawn > 0.05 and np.abs(images[0] - images[1]).max() <= 2
+
+
+def test_a_quad_surface_comes_back_triangulated_with_a_warning(tmp_path):
+    import pyvista as pv
+
+    quads = pv.Box(level=4)  # 6 * 25 quads
+    assert not quads.is_all_triangles
+    with pytest.warns(UserWarning, match=r"150 cells are not all triangles: .*300 triangles"):
+        seg = quads.primkit.segment(model="chair")
+    assert seg.n_cells == 300 and len(seg.cell_data["part"]) == 300
 
 
 def test_the_reader_entry_points_name_functions_of_this_checkout():
