@@ -155,6 +155,40 @@ def _options(up, front, align, refine, existence_threshold, prune_threshold, pro
             "prune_threshold": prune_threshold, "progress_bar": progress_bar}
 
 
+def _is_loaded(model) -> bool:
+    return not isinstance(model, (str, os.PathLike))
+
+
+def _model_key(model):
+    """What names a model's answer: a loaded model by identity (checked with ``is``), a file by its
+    path, size and modification time, a bundled name by itself."""
+    if _is_loaded(model):
+        return ("loaded", id(model))
+    try:
+        st = os.stat(model)
+        return ("file", os.path.abspath(os.fspath(model)), st.st_size, st.st_mtime_ns)
+    except OSError:
+        return ("name", os.fspath(model))
+
+
+def _digest(shape) -> str:
+    """A digest of what is abstracted: the arrays' bytes, shapes and dtypes (a few ms for a large mesh)."""
+    import hashlib
+
+    h = hashlib.blake2b(digest_size=16)
+    if isinstance(shape, tuple):
+        arrays = shape
+    elif hasattr(shape, "occupancy"):  # a voxel grid: its cells and where they are
+        arrays = (shape.occupancy, shape.translate, np.float64(shape.scale))
+    else:
+        arrays = (shape,)
+    for a in arrays:
+        a = np.asarray(a)
+        h.update(f"{a.shape}{a.dtype}".encode())
+        h.update(np.ascontiguousarray(a).tobytes())
+    return h.hexdigest()
+
+
 #: The parameters every method shares, written once and added to each method's docstring (help()).
 PARAMETERS = """
         Parameters
@@ -185,9 +219,19 @@ class PrimkitAccessor:
 
     def __init__(self, dataset):
         self._dataset = dataset
+        self._last = None  # (key, model, Labelled) of the last run: cuboids() after segment() runs nothing
 
     def _labelled(self, model, options) -> Labelled:
-        return label_shapes([_as_input(self._dataset)], model, **options)[0]
+        """The dataset abstracted and labelled, or the last answer when the model, the options and the
+        dataset's contents are the same (pyvista keeps one accessor per dataset, so ``segment``,
+        ``abstract`` and ``cuboids`` on one dataset share one abstraction)."""
+        shape = _as_input(self._dataset)
+        key = (_model_key(model), {k: v for k, v in options.items() if k != "progress_bar"}, _digest(shape))
+        if self._last is not None and self._last[0] == key and (not _is_loaded(model) or self._last[1] is model):
+            return self._last[2]
+        labelled = label_shapes([shape], model, **options)[0]
+        self._last = (key, model, labelled)
+        return labelled
 
     def abstract(self, model: str | os.PathLike = "chair", *, up: str | None = None, front: str | None = None,
                  align: str | None = None, refine: int = 0, existence_threshold: float = 0.5,

@@ -162,3 +162,26 @@ def test_the_reader_entry_points_name_functions_of_this_checkout():
     for _, target in entries:
         module, name = target.strip().split(":")
         assert callable(getattr(importlib.import_module(module), name)), target
+
+
+def test_segment_abstract_and_cuboids_on_one_dataset_share_one_run(tmp_path, monkeypatch):
+    import pyvista as pv
+
+    from primkit.plugins import pyvista_accessor
+
+    calls = []
+    real = pyvista_accessor.label_shapes
+    monkeypatch.setattr(pyvista_accessor, "label_shapes", lambda *a, **k: calls.append(k) or real(*a, **k))
+    path = synthetic.write_collection(tmp_path, "chair", 1, seed=4)[0]
+    poly = pv.read(path)
+    seg = poly.primkit.segment(model="chair")
+    boxes = poly.primkit.cuboids(model="chair")
+    a = poly.primkit.abstract(model="chair", progress_bar=True)  # the bar does not change the answer
+    assert len(calls) == 1
+    assert boxes.n_blocks == len(a.cuboids.present)  # the same abstraction's parts
+    assert set(np.unique(seg.cell_data["part"])) <= set(a.cuboids.present.tolist())
+    poly.primkit.cuboids(model="chair", refine=5)  # other options: a new run
+    assert len(calls) == 2
+    poly.points[:, 1] *= 1.5  # new contents (in place): a new run, not the stale answer
+    poly.primkit.abstract(model="chair", refine=5)
+    assert len(calls) == 3
