@@ -26,8 +26,11 @@ This file imports only the standard library, NumPy and ParaView's VTK: ParaView'
 9.2, and primkit needs pip's VTK (9.3 or later, through pyvista), which cannot be imported into
 the same process (on the path first it crashes ``pvpython``; after ParaView's, pyvista refuses to
 load). So :meth:`PrimkitSegmentation.RequestData` writes the polydata's points and triangles to
-a temporary ``.npz`` and runs :mod:`primkit.plugins.paraview_worker` in the Python primkit is
-installed in, which writes the labels and the cuboids back as arrays. That Python is, in order:
+a temporary ``.npz`` and hands it to :mod:`primkit.plugins.paraview_worker`, running in the Python
+primkit is installed in, which writes the labels and the cuboids back as arrays. One worker is
+started at the first apply and kept while ParaView runs (the imports and the model load, about
+5 s, are paid once; a later apply takes the labelling's own time); it ends with ParaView, and a
+worker that died is started again at the next apply. That Python is, in order:
 the filter's ``Python`` property, ``$PRIMKIT_PYTHON``, the interpreter of the environment this file
 is installed in (``<env>/bin/python`` for ``<env>/lib/pythonX.Y/site-packages/primkit/...``, or a
 source checkout's ``.venv/bin/python``), then the interpreter of the ``primkit`` command on
@@ -50,6 +53,7 @@ if not hasattr(inspect, "getargspec"):  # ParaView 5.11 on Python >= 3.11 (see t
     # getfullargspec's result has the .args that ParaView's loader reads (its only use of it)
     inspect.getargspec = inspect.getfullargspec
 
+import atexit  # noqa: E402
 import json  # noqa: E402
 import os  # noqa: E402
 import shutil  # noqa: E402
@@ -72,7 +76,7 @@ except ImportError:  # a plain VTK (e.g. primkit's own tests): the decorators le
 
     smproxy = smproperty = smdomain = smhint = _Inert()
 
-__all__ = ["PrimkitSegmentation", "find_python", "PLUGIN_FILE"]
+__all__ = ["PrimkitSegmentation", "find_python", "worker", "close_workers", "PLUGIN_FILE"]
 
 #: This file (what ParaView's *Load New* and ``LoadPlugin`` are given); None when run by ``--script``.
 PLUGIN_FILE = globals().get("__file__")
@@ -120,6 +124,68 @@ def _worker_env() -> dict:
     if root is not None and root.name != "site-packages":
         env["PYTHONPATH"] = str(root)
     return env
+
+
+class _Worker:
+    """One ``paraview_worker --serve`` process: requests on its stdin, answers on its stdout, its
+    stderr in a temporary file (its last line is the message when it dies)."""
+
+    def __init__(self, python: str):
+        self.log = tempfile.TemporaryFile(mode="w+", encoding="utf-8", errors="replace")
+        self.proc = subprocess.Popen([python, "-m", "primkit.plugins.paraview_worker", "--serve"],
+                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=self.log, text=True,
+                                     encoding="utf-8", env=_worker_env(), bufsize=1)
+
+    def alive(self) -> bool:
+        return self.proc.poll() is None
+
+    def ask(self, given: str, result: str):
+        """``(status, message)``: 0 and "" when ``result`` was written; None as the status when the
+        worker died (the message then is its last line on stderr)."""
+        self.log.seek(0)
+        self.log.truncate()
+        try:
+            self.proc.stdin.write(json.dumps({"in": given, "out": result}) + "\n")
+            self.proc.stdin.flush()
+            line = self.proc.stdout.readline()
+        except OSError:
+            line = ""
+        if line:
+            reply = json.loads(line)
+            return int(reply["status"]), str(reply["error"])
+        self.proc.wait()
+        self.log.seek(0)
+        lines = [ln for ln in self.log.read().splitlines() if ln.strip()]
+        return None, lines[-1] if lines else f"primkit segmentation: the worker exited with {self.proc.returncode}"
+
+    def close(self) -> None:
+        try:
+            self.proc.stdin.close()
+            self.proc.wait(timeout=10)
+        except (OSError, subprocess.TimeoutExpired):
+            self.proc.kill()
+        self.log.close()
+
+
+#: The workers started, by the Python they run in.
+_WORKERS: dict = {}
+
+
+def worker(python: str) -> _Worker:
+    """The running worker for ``python``, started when there is none (or it died)."""
+    w = _WORKERS.get(python)
+    if w is None or not w.alive():
+        if w is not None:
+            w.close()
+        w = _WORKERS[python] = _Worker(python)
+    return w
+
+
+@atexit.register
+def close_workers() -> None:
+    """End every worker (ParaView exiting closes their stdin anyway)."""
+    while _WORKERS:
+        _WORKERS.popitem()[1].close()
 
 
 def _triangles(poly):
@@ -232,11 +298,9 @@ class PrimkitSegmentation(VTKPythonAlgorithmBase):
         with tempfile.TemporaryDirectory(prefix="primkit-paraview-") as tmp:
             given_file, result_file = os.path.join(tmp, "in.npz"), os.path.join(tmp, "out.npz")
             np.savez(given_file, points=points, faces=faces, options=np.array(json.dumps(options)))
-            run = subprocess.run([python, "-m", "primkit.plugins.paraview_worker", given_file, result_file],
-                                 capture_output=True, text=True, env=_worker_env())
-            if run.returncode != 0:
-                lines = [ln for ln in run.stderr.splitlines() if ln.strip()]
-                return self._report(lines[-1] if lines else f"primkit segmentation: {python} exited with {run.returncode}")
+            status, message = worker(python).ask(given_file, result_file)
+            if status != 0:
+                return self._report(message)
             with np.load(result_file, allow_pickle=False) as got:
                 out = {k: got[k] for k in got.files}
 

@@ -7,7 +7,14 @@ the path crashes ``pvpython``; ParaView's first makes pyvista refuse to import).
 polydata to NumPy, and runs this module with the Python primkit is installed in::
 
     python -m primkit.plugins.paraview_worker IN.npz OUT.npz
+    python -m primkit.plugins.paraview_worker --serve      # answers requests until stdin closes
     python -m primkit.plugins.paraview_worker --where      # prints the plugin file's path
+
+The plugin keeps one ``--serve`` worker while ParaView runs, so that the imports and the model load
+(about 5 s) are paid once: each request is one line ``{"in": IN.npz, "out": OUT.npz}`` on its
+stdin, each answer one line ``{"status": 0|2, "error": "..."}`` on its stdout (anything else the
+libraries print goes to stderr); the models named are loaded once. It ends when its stdin closes,
+which the operating system does when ParaView exits, however it exits.
 
 ``IN.npz`` holds ``points`` ((n, 3) float), ``faces`` ((f, 3) int, empty for a point cloud) and
 ``options`` (a JSON object: ``model``, ``up``, ``front``, ``align``, ``refine``, the keywords of
@@ -29,16 +36,19 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["label_arrays", "main"]
+__all__ = ["label_arrays", "answer", "serve", "main"]
 
 
-def label_arrays(points: np.ndarray, faces: np.ndarray, options: dict) -> dict[str, np.ndarray]:
-    """Label one shape held as arrays; the arrays of ``OUT.npz`` (see the module notes)."""
+def label_arrays(points: np.ndarray, faces: np.ndarray, options: dict, models: dict | None = None) -> dict[str, np.ndarray]:
+    """Label one shape held as arrays; the arrays of ``OUT.npz`` (see the module notes). ``models``,
+    kept by a caller across calls, holds each named model loaded once with its labeller."""
     from ..viz.palette import part_colors
     from .common import label_shape
 
     options = dict(options)
     model = options.pop("model", "chair")
+    if models is not None and isinstance(model, str):
+        model, options["labeller"] = _loaded(model, models)
     points = np.asarray(points, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     shape = (points, faces) if len(faces) else points
@@ -56,26 +66,76 @@ def label_arrays(points: np.ndarray, faces: np.ndarray, options: dict) -> dict[s
     }
 
 
-def main(argv=None) -> int:
+def _loaded(name: str, models: dict):
+    """The model called ``name`` (a bundled name or a file) and its labeller, loaded once per file
+    version (a file rewritten since is loaded again)."""
+    import os
+
+    from ..model.abstraction import load_model
+    from ..segmentation import resolve_labeller
+
+    try:
+        st = os.stat(name)
+        key = (name, st.st_size, st.st_mtime_ns)
+    except OSError:
+        key = (name,)
+    if key not in models:
+        models[key] = (load_model(name), resolve_labeller(name))
+    return models[key]
+
+
+def answer(given: str, result: str, models: dict | None = None) -> tuple[int, str]:
+    """Label ``given`` (an ``IN.npz``) into ``result`` (``OUT.npz``, atomically): ``(0, "")``, or
+    ``(2, "primkit segmentation: <reason>")`` on a bad input or option."""
     from ..io import atomic_output
+
+    try:
+        with np.load(given, allow_pickle=False) as arrays:
+            out = label_arrays(arrays["points"], arrays["faces"], json.loads(str(arrays["options"])), models)
+    except (ValueError, TypeError, OSError, KeyError) as exc:
+        return 2, f"primkit segmentation: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}"
+    with atomic_output(result, overwrite=True) as tmp:
+        with open(tmp, "wb") as fh:
+            np.savez(fh, **out)
+    return 0, ""
+
+
+def serve(requests, replies) -> int:
+    """Answer requests (lines of ``requests``) until it ends, one line on ``replies`` each (module notes)."""
+    models: dict = {}
+    for line in requests:
+        if not line.strip():
+            continue
+        try:
+            request = json.loads(line)
+            status, error = answer(str(request["in"]), str(request["out"]), models)
+        except (ValueError, KeyError, TypeError) as exc:
+            status, error = 2, f"primkit segmentation: bad request to the worker ({exc})"
+        replies.write(json.dumps({"status": status, "error": error}) + "\n")
+        replies.flush()
+    return 0
+
+
+def main(argv=None) -> int:
+    import os
 
     argv = sys.argv[1:] if argv is None else argv
     if argv == ["--where"]:  # the plugin file, for ParaView's Load New and LoadPlugin
         print(Path(__file__).with_name("paraview_plugin.py"))
         return 0
+    if argv == ["--serve"]:
+        # the answers keep the real stdout; whatever else writes to fd 1 (Python or C) goes to stderr
+        replies = os.fdopen(os.dup(1), "w", encoding="utf-8")
+        os.dup2(2, 1)
+        sys.stdout = sys.stderr
+        return serve(sys.stdin, replies)
     if len(argv) != 2:
-        print("usage: python -m primkit.plugins.paraview_worker IN.npz OUT.npz", file=sys.stderr)
+        print("usage: python -m primkit.plugins.paraview_worker IN.npz OUT.npz | --serve | --where", file=sys.stderr)
         return 2
-    try:
-        with np.load(argv[0], allow_pickle=False) as given:
-            out = label_arrays(given["points"], given["faces"], json.loads(str(given["options"])))
-    except (ValueError, TypeError, OSError, KeyError) as exc:
-        print(f"primkit segmentation: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}", file=sys.stderr)
-        return 2
-    with atomic_output(argv[1], overwrite=True) as tmp:
-        with open(tmp, "wb") as fh:
-            np.savez(fh, **out)
-    return 0
+    status, error = answer(argv[0], argv[1])
+    if status:
+        print(error, file=sys.stderr)
+    return status
 
 
 if __name__ == "__main__":

@@ -212,6 +212,78 @@ def test_the_paraview_plugin_file_declares_a_proxy_and_imports_nothing_of_primki
     assert plugin.PrimkitSegmentation().GetNumberOfOutputPorts() == 2
 
 
+def _plugin_module():
+    from primkit import plugins
+
+    path = os.path.join(os.path.dirname(plugins.__file__), "paraview_plugin.py")
+    spec = importlib.util.spec_from_file_location("paraview_plugin_kept", path)
+    plugin = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(plugin)  # on pip's VTK here: the decorators are inert (ParaView itself: test_paraview.py)
+    return plugin
+
+
+@pytest.mark.integration  # a worker process
+def test_the_paraview_plugin_keeps_one_worker_between_applies(chair_file, expected, tmp_path):
+    import pyvista as pv
+
+    plugin = _plugin_module()
+    try:
+        f = plugin.PrimkitSegmentation()
+        f.SetInputDataObject(0, pv.read(chair_file[0]))
+        f.Update()
+        labels = expected[2]
+        first = np.asarray(pv.wrap(f.GetOutputDataObject(0)).cell_data["part"])
+        assert np.array_equal(first, labels)  # the labels of primkit's own segment_mesh
+        (w,) = plugin._WORKERS.values()
+        pid = w.proc.pid
+        other = synthetic.write_collection(tmp_path, "chair", 1, seed=11)[0]
+        f.SetInputDataObject(0, pv.read(other))
+        f.Update()
+        want = segment_mesh(*_mesh_arrays(other), abstract(io.read_mesh(other), load_model("chair")).cuboids).face_labels
+        assert np.array_equal(np.asarray(pv.wrap(f.GetOutputDataObject(0)).cell_data["part"]), want)
+        assert list(plugin._WORKERS.values()) == [w] and w.proc.pid == pid and w.alive()  # the same process served both
+        w.proc.kill()  # a worker that died is started again at the next apply
+        w.proc.wait()
+        f.SetInputDataObject(0, pv.read(chair_file[0]))
+        f.Modified()
+        f.Update()
+        assert np.array_equal(np.asarray(pv.wrap(f.GetOutputDataObject(0)).cell_data["part"]), labels)
+        assert plugin._WORKERS and next(iter(plugin._WORKERS.values())).proc.pid != pid
+    finally:
+        plugin.close_workers()
+    assert not plugin._WORKERS
+
+
+def test_the_paraview_worker_answers_requests_in_one_process(tmp_path, monkeypatch):
+    from primkit.model import abstraction
+    from primkit.plugins import paraview_worker
+
+    mesh = io.read_mesh(synthetic.write_collection(tmp_path, "chair", 1, seed=5)[0])
+    given = tmp_path / "in.npz"
+    np.savez(given, points=mesh.vertices, faces=mesh.faces, options=np.array(json.dumps({"model": "chair"})))
+    (tmp_path / "bad.npz").write_bytes(b"PK not a zip")
+    requests = [json.dumps({"in": str(given), "out": str(tmp_path / "a.npz")}), "not json",
+                json.dumps({"in": str(tmp_path / "bad.npz"), "out": str(tmp_path / "b.npz")}),
+                json.dumps({"in": str(given), "out": str(tmp_path / "c.npz")})]
+    loads = []
+    real = abstraction.load_model
+    monkeypatch.setattr(abstraction, "load_model", lambda *a, **k: loads.append(a) or real(*a, **k))
+    replies = __import__("io").StringIO()
+    assert paraview_worker.serve(iter(line + "\n" for line in requests), replies) == 0
+    answers = [json.loads(line) for line in replies.getvalue().splitlines()]
+    assert [a["status"] for a in answers] == [0, 2, 2, 0]
+    assert answers[1]["error"].startswith("primkit segmentation: bad request") and "\n" not in answers[2]["error"]
+    with np.load(tmp_path / "a.npz") as a, np.load(tmp_path / "c.npz") as c:
+        assert np.array_equal(a["face_labels"], c["face_labels"]) and len(a["face_labels"]) == len(mesh.faces)
+    assert not (tmp_path / "b.npz").exists()
+    assert [a for a in loads if isinstance(a[0], str)] == [("chair",)]  # two answers, one model read from its file
+
+
+def _mesh_arrays(path):
+    m = io.read_mesh(path)
+    return m.vertices, m.faces
+
+
 # ---------------------------------------------------------------------------------------------
 # Open3D
 # ---------------------------------------------------------------------------------------------
