@@ -119,6 +119,13 @@ def _segmentation_line(s, paths) -> str:
 
 
 def _cmd_name_parts(args) -> int:
+    from ..model.modelfile import claim_output
+
+    with claim_output(args.output, args.force):  # a second run into the same -o is refused before any work
+        return _name_parts_claimed(args)
+
+
+def _name_parts_claimed(args) -> int:
     from ..io import check_suffix
     from ..model.modelfile import update_metadata
     from ..model.parts import names_from_labels
