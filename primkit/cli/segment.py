@@ -71,12 +71,12 @@ def _cmd_segment(args) -> int:
                         overwrite=args.force, mean_over=_mean_over(args), cache_dir=args.cache, workers=args.workers,
                         executor=args.executor, progress=progress_of(args))
     plan = run.plan
-    if not plan.todo and not plan.done:
+    if not plan.todo and not plan.done and not plan.refused:
         print(f"shard {plan.shard[0]}/{plan.shard[1]}: none of the {len(plan.files)} inputs is in it (nothing to do)")
         return 0
     if not plan.todo:
-        print("nothing to do: every input's outputs are there")
-        return 0
+        print("nothing to do: every input's outputs are there" + (" but those it cannot write" if plan.refused else ""))
+        return report_errors(run.errors)
     if run.mismatch:  # the model-card warning on one line (and again in the summary)
         print(f"primkit: warning: {run.mismatch}", file=sys.stderr)
     for s in run.segmentations:

@@ -296,8 +296,9 @@ def abstract_shapes(
     """
     from tqdm.auto import tqdm  # tqdm: imported when the progress bar is drawn
 
+    refused = []
     if isinstance(inputs, data.RunPlan):  # a planned run: its files, named by it, what it does of them
-        inputs, shard = list(inputs.files), inputs.selection
+        inputs, shard, refused = list(inputs.files), inputs.selection, inputs.errors
     abstractor = load_model(model)
     mode = orientation.resolve_align(align, up, front)
     axes = {k: v for k, v in (("up", up), ("front", front)) if v not in (None, "auto")}
@@ -310,7 +311,7 @@ def abstract_shapes(
                "existence_threshold": existence_threshold, "prune_threshold": prune_threshold,
                "min_extent": min_extent}
     items = _inputs(inputs)
-    files, memory, errors = [], [], []
+    files, memory, errors = [], [], list(refused)
     order = []  # ("file", position in files) or ("memory", position in memory), in input order
     for i, item in enumerate(items):
         if isinstance(item, (str, os.PathLike)):
