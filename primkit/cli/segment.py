@@ -130,11 +130,13 @@ def _name_parts_claimed(args) -> int:
     from ..model.modelfile import update_metadata
     from ..model.parts import names_from_labels
     from ..segmentation import Segmenter
-    from ..segmentation.evaluation import POINT_LABELS, labelled_shapes
+    from ..segmentation.evaluation import POINT_LABELS, labelled_shapes, parse_label_names
     from ..segmentation.labeller import write_labeller
     from ..segmentation.segmenter import fit_labeller
 
     out = Path(args.output)
+    if args.names is not None:
+        parse_label_names(args.names)  # empty or malformed: one line before any work
     segmenter = Segmenter(args.model, up=args.up, front=args.front, align=args.align, refine=args.refine,
                           adapt=getattr(args, "adapt", None), labeller=None)
     files = [f for f in collect(args.inputs) if not f.name.endswith(POINT_LABELS)]  # a cloud's labels, not a cloud
