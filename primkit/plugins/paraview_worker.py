@@ -66,9 +66,18 @@ def main(argv=None) -> int:
     if len(argv) != 2:
         print("usage: python -m primkit.plugins.paraview_worker IN.npz OUT.npz", file=sys.stderr)
         return 2
+    from ..io.limits import max_faces, npz_members, read_npz_member
+
     try:
+        # checked from the members' headers before anything is loaded: a truncated archive, or a
+        # small one declaring GiBs, is one line (a BadZipFile traceback, a 6.7 GiB allocation before)
+        members = npz_members(argv[0], max_bytes=24 * max_faces())  # (f, 3) int64 faces at the bound
+        missing = [k for k in ("points", "faces", "options") if k not in members]
+        if missing:
+            raise KeyError(f"{argv[0]}: no {', '.join(missing)} array")
         with np.load(argv[0], allow_pickle=False) as given:
-            out = label_arrays(given["points"], given["faces"], json.loads(str(given["options"])))
+            points, faces, options = (read_npz_member(given, argv[0], k) for k in ("points", "faces", "options"))
+            out = label_arrays(points, faces, json.loads(str(options)))
     except (ValueError, TypeError, OSError, KeyError) as exc:
         print(f"primkit segmentation: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}", file=sys.stderr)
         return 2

@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import io
+from ..io.limits import max_grid, npz_members, read_npz_member
 from .handlabels import read_label_names
 from .points import PointSegmentation
 from .voxels import VoxelSegmentation
@@ -372,6 +373,9 @@ class VoxelLabelArchive:
         if not path.is_file():
             raise FileNotFoundError(f"{path}: no such voxel label archive")
         self.path = path
+        # every member's header checked first: a truncated archive is one line (a BadZipFile
+        # traceback before), and no member may declare more than the largest grid allowed
+        self._members = npz_members(path, max_bytes=8 * max_grid() ** 3)
         try:
             self._archive = np.load(path, allow_pickle=False)
         except (OSError, ValueError) as exc:
@@ -393,7 +397,7 @@ class VoxelLabelArchive:
 
     def get(self, name, shape=None) -> VoxelGroundTruth:
         """The ground truth of one shape; ``shape`` (a tuple) is checked when given."""
-        raw = np.asarray(self._archive[str(name)])
+        raw = np.asarray(read_npz_member(self._archive, self.path, str(name)))
         if shape is not None and raw.shape != tuple(shape):
             raise io.ShapeFileError(self.path, f"labels of {name} are {raw.shape}, the grid is {tuple(shape)}")
         codes = np.full(raw.shape, -1, np.int64)
