@@ -102,3 +102,69 @@ def test_a_labelled_clouds_labels_are_not_a_shape(tmp_path):
     np.save(tmp_path / "grid.npy", np.ones((4, 4, 4), bool))  # a shape of its own
     np.save(tmp_path / "lonely.labels.npy", np.ones((4, 4, 4), bool))  # no shape of that stem: a shape
     assert [p.name for p in find_shape_files(tmp_path)] == ["c0.xyz", "grid.npy", "lonely.labels.npy"]
+
+
+# ------------------------------------------------------------------ leftovers: one line each
+
+@pytest.mark.parametrize("suffix", [".off", ".obj"])
+def test_a_mesh_scaled_1e200_is_one_line_from_read_shape(tmp_path, suffix):
+    """Its area overflowed: a bare OverflowError before."""
+    from primkit import synthetic
+
+    chair = synthetic.generate("chair", 1, seed=0)[0]
+    path = tmp_path / f"huge{suffix}"
+    io.write_mesh(path, chair.vertices * 1e200, chair.faces)
+    with pytest.raises(io.ShapeFileError) as info:
+        io.read_shape(path)
+    assert str(path) in str(info.value) and "beyond" in str(info.value) and "\n" not in str(info.value)
+
+
+def test_an_all_true_grid_in_memory_is_refused_like_the_file_reader():
+    import primkit
+
+    with pytest.raises(io.ShapeFileError, match="every voxel is occupied"):
+        primkit.abstract(np.ones((16, 16, 16), bool))
+
+
+def test_a_model_answering_nan_names_its_file(tmp_path):
+    """A model file whose weights hold a NaN: its network's answer names the file (it was
+    "`half_extents` must be finite", no file named)."""
+    import primkit
+    from primkit.model import modelfile
+    from primkit.model.bundled import resolve_model
+
+    weights, meta = modelfile.load_model_file(resolve_model("chair"))
+    name = next(k for k, v in weights.items() if v.is_floating_point() and v.ndim > 1)
+    weights[name] = weights[name].clone()
+    weights[name].view(-1)[0] = float("nan")
+    damaged = modelfile.save_model(tmp_path / "nan.safetensors", weights, meta)
+    chair = primkit.synthetic.generate("chair", 1, seed=0)[0]
+    with pytest.raises(modelfile.ModelFileError) as info:
+        primkit.abstract((chair.vertices, chair.faces), model=damaged)
+    assert str(damaged) in str(info.value) and "NaN or inf" in str(info.value) and "\n" not in str(info.value)
+
+
+@pytest.mark.parametrize("variables", [{"RANK": "abc", "WORLD_SIZE": "2"}, {"RANK": "0", "WORLD_SIZE": "two"},
+                                       {"SLURM_PROCID": "x", "SLURM_NTASKS": "2"}])
+def test_a_rank_variable_that_is_not_a_number_is_named(monkeypatch, variables):
+    from primkit.parallel import parse_shard
+
+    for key in ("RANK", "WORLD_SIZE", "SLURM_ARRAY_TASK_ID", "SLURM_ARRAY_TASK_COUNT", "SLURM_PROCID", "SLURM_NTASKS"):
+        monkeypatch.delenv(key, raising=False)
+    for key, value in variables.items():
+        monkeypatch.setenv(key, value)
+    bad = next(k for k, v in variables.items() if not v.isdigit())
+    with pytest.raises(ValueError, match=f"{bad}="):
+        parse_shard("auto")
+
+
+@pytest.mark.parametrize("edit", [{"scale": {0: 1e308}}, {"scale": {0: 1e-308}}, {"move": {0: (0, 1e308, 0)}},
+                                  {"rotate": {0: float("inf")}}, {"lengthen": {0: 1e308}}])
+def test_an_edit_beyond_the_bounds_is_one_line(edit):
+    """``edit --scale legs=1e308`` ended in a rotation-matrix error."""
+    from primkit.deformation.edits import edit_cuboids
+    from primkit.primitives import Cuboids
+
+    cuboids = Cuboids(np.full((2, 3), 0.1), np.tile([1.0, 0, 0, 0], (2, 1)), [[0, 0.1, 0], [0, -0.2, 0]], [True, True])
+    with pytest.raises(ValueError, match="must be"):
+        edit_cuboids(cuboids, **edit)
