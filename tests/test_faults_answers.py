@@ -117,3 +117,63 @@ def test_deform_onto_an_identical_copy_reports_no_distance(shared_data, tmp_path
     q = report["quality"]
     assert q["chamfer_source_target"] < 1e-3 and q["chamfer_result_target"] < 2e-3, q
     assert "turned as the model's orientation search chose" in report["frame"]
+
+
+# ------------------------------------------------------------------ property: name-parts inputs
+
+hypothesis = pytest.importorskip("hypothesis", reason="hypothesis is in the dev extra")
+from hypothesis import HealthCheck, given, settings, strategies as st  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def segmented(tmp_path_factory):
+    """Two chairs segmented once (no labels read): ``(segmentations, results)``."""
+    from primkit.segmentation import Segmenter
+
+    root = tmp_path_factory.mktemp("named")
+    files = synthetic.write_collection(root / "in", "chair", 2, seed=8)
+    for f in files:  # the label files are the examples'
+        for extra in (f.with_suffix(".seg"), f.with_suffix(".json")):
+            extra.unlink(missing_ok=True)
+    segmenter = Segmenter("chair", refine=0)
+    results, errors = segmenter.abstract_files(files, cache_dir=root / "cache", workers=1)
+    segs, errors = segmenter.segment_results(results, workers=1, errors=errors)
+    assert not errors and len(segs) == 2
+    return segs, results
+
+
+name_texts = st.one_of(
+    st.none(),
+    st.lists(st.sampled_from(["back", "seat", "legs", "arms", "", " ", "x y", "é", "back"]), max_size=5).map(",".join),
+    st.lists(st.tuples(st.integers(-2, 6), st.sampled_from(["back", "seat", "", "legs"])), max_size=4).map(
+        lambda pairs: ",".join(f"{k}={v}" for k, v in pairs)),
+    st.sampled_from(["=", "1=", "=back", "1=back,seat", "a=b", ",,,", "1==2"]),
+)
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=list(HealthCheck), derandomize=True)
+@given(names=name_texts, values=st.lists(st.integers(-3, 9), min_size=1, max_size=4),
+       count_off=st.sampled_from([0, 0, 0, 1, -1]), seed=st.integers(0, 2**16))
+def test_name_parts_inputs_give_names_or_one_line(segmented, names, values, count_off, seed):
+    """Any label files (values -3..9, the wrong length now and then) and any ``--names`` text: the
+    names learned, or one ValueError line; never another exception, never a label value found (0
+    or more) left silently without a name by names given as a list."""
+    from primkit.model.parts import names_from_labels
+    from primkit.segmentation.evaluation import labelled_shapes
+
+    segs, results = segmented
+    rng = np.random.default_rng(seed)
+    for s in segs:
+        labels = rng.choice(values, size=max(len(s.faces) + count_off, 1))
+        np.savetxt(str(s.source)[: -len(".ply")] + ".seg", labels, fmt="%d")
+    try:
+        shapes = labelled_shapes(segs, results, None, names)
+        if shapes.used:
+            names_from_labels(shapes.assignments, shapes.labels, shapes.weights, shapes.names, 20)
+    except ValueError as exc:
+        assert str(exc) and "\n" not in str(exc), repr(exc)
+        return
+    if names is not None and "=" not in names and shapes.used:
+        named = set(parse_label_names(names))
+        found = {int(v) for v in values if v >= 0}
+        assert found <= named or len(shapes.used) < len(segs), (names, values)

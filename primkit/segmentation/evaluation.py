@@ -182,7 +182,7 @@ def read_ground_truth(label_path, face_count: int, label_names=None, names=None,
     names : list of str, optional
         A collection-wide list of names to extend (so codes agree across shapes).
     unnamed : set, optional
-        Filled with the label values found that ``label_names`` leaves without a name (unlabelled).
+        Filled with the label values (0 or more) found that ``label_names`` leaves without a name.
     """
     label_path = Path(label_path)
     raw = io.read_labels(label_path, face_count)
@@ -201,7 +201,7 @@ def read_ground_truth(label_path, face_count: int, label_names=None, names=None,
     for value in np.unique(raw):
         name = str(value) if label_names is None else label_names.get(int(value))
         if name is None:
-            if unnamed is not None:
+            if unnamed is not None and value >= 0:  # negative: unlabelled by convention
                 unnamed.add(int(value))
             continue  # a value with no name: unlabelled
         if name not in names:
@@ -698,7 +698,7 @@ def read_point_truth(path, count: int, label_names, names: list, unnamed=None) -
     for value in np.unique(raw):
         name = str(value) if meaning is None else meaning.get(int(value))
         if name is None:
-            if unnamed is not None:
+            if unnamed is not None and value >= 0:  # negative: unlabelled by convention
                 unnamed.add(int(value))
             continue
         if name not in names:
@@ -749,7 +749,8 @@ def labelled_shapes(segmentations, results, labels=None, label_names=None) -> La
 
     ``label_names`` (``--names``) must name every label value the shapes' label files hold: values
     left without a name would count as unlabelled, and the parts they cover would take the names of
-    the others (``back`` for labels 1-3 named the seat "back"). Names given as a list
+    the others (``back`` for labels 1-3 named the seat "back"); negative values are unlabelled by
+    convention. Names given as a list
     (``"back,seat"``) that leave values out raise ValueError naming them; names given value by value
     (``"1=back"``) leave the others out on purpose, with a warning naming them. Empty names raise."""
     unnamed: set = set()
