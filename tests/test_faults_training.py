@@ -1,7 +1,6 @@
 """Training loses no work (issue 36): any error of the checkpoint writer, a failing final save, and
 two runs into one model file. SIGTERM is in ``test_kills.py``."""
 
-import os
 import subprocess
 import sys
 from pathlib import Path

@@ -80,7 +80,7 @@ def check_grid(path, side: int) -> None:
         )
 
 
-def npz_members(path, max_bytes: int) -> dict:
+def npz_members(path, max_bytes: int) -> dict[str, tuple]:
     """``{name: (shape, dtype)}`` of the arrays of the ``.npz`` archive ``path``, read from each
     member's ``.npy`` header (a few bytes decompressed each), before any array is loaded.
 
