@@ -242,7 +242,7 @@ def test_an_unwritable_cache_prepares_in_memory(tmp_path, caplog):
     settings = data.PrepareSettings(samples=300)
     coll = data.prepare_collection(folder, settings, cache_dir=blocked, workers=2, progress=False)
     assert len(coll) == 3 and not coll.errors
-    assert _cache_notes(caplog) == [f"cache: {blocked / 'v2'} cannot be written (Not a directory): shapes prepared in memory"]
+    assert _cache_notes(caplog) == [f"cache: {blocked / f'v{data.CACHE_FORMAT}'} cannot be written (Not a directory): shapes prepared in memory"]
     assert coll[2].points.shape == (300, 3)
     assert blocked.read_text().startswith("a file")
     # the same values as through a cache

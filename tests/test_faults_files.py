@@ -205,3 +205,45 @@ def test_a_few_chairs_of_its_own_kind_do_not_set_the_chair_model_off(shared_data
         assert abstract_shapes(ten, "chair", progress=False).card_warning is None
         assert abstract_shapes(first, "airplane", progress=False).card_warning is not None
         assert abstract_shapes(ten, "table", progress=False).card_warning is not None
+
+
+# ------------------------------------------------------------------ long names (issue: a legal name stopped the batch)
+
+@pytest.fixture
+def long_names(chairs, tmp_path):
+    """A 234-byte input name (legal, its outputs too), a 250-byte one (its outputs are not), a short one."""
+    folder = tmp_path / "in"
+    folder.mkdir()
+    names = ["a" * 230 + ".ply", "b" * 246 + ".ply", "c.ply"]
+    for name, src in zip(names, chairs):
+        shutil.copy(src, folder / name)
+    return folder, names
+
+
+def test_the_temporary_of_an_output_never_makes_its_name_too_long(tmp_path):
+    path = tmp_path / ("x" * 250 + ".json")  # 255 bytes: the longest name the file system allows
+    with io.atomic_output(path) as tmp:
+        assert len(os.fsencode(tmp.name)) <= 40 and io.is_temporary(tmp) and tmp.suffix == ".json"
+        tmp.write_text("{}")
+    assert path.read_text() == "{}"
+
+
+@pytest.mark.parametrize("command", ["abstract", "segment"])
+def test_a_name_too_long_for_the_file_system_is_one_skipped_input(long_names, tmp_path, capsys, command):
+    """The 234-byte name is written (it stopped the batch, exit 2: the temporary added 25 bytes);
+    the 250-byte one, whose outputs no file system here can name, is one error line and the batch
+    goes on to the third; ``--skip-done`` then finds the first and third done and says the same."""
+    folder, names = long_names
+    out = tmp_path / "out"
+    args = [command, str(folder), "-o", str(out), "--workers", "1", "--cache", str(tmp_path / "cache")]
+    assert main(args) == 1
+    captured = capsys.readouterr()
+    skipped = [x for x in captured.err.splitlines() if x.startswith("primkit: skipped")]
+    assert len(skipped) == 1 and names[1] in skipped[0] and "too long" in skipped[0], captured.err
+    assert "primkit: error" not in captured.err
+    written = {p.name.split(".")[0] for p in out.iterdir() if p.name.endswith(".cuboids.json")}
+    assert written == {"a" * 230, "c"}
+    assert not [p for p in out.iterdir() if io.is_temporary(p)]
+    assert main(args + ["--skip-done"]) == 1
+    captured = capsys.readouterr()
+    assert [x for x in captured.err.splitlines() if x.startswith("primkit: skipped")] == skipped

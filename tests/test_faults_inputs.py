@@ -45,7 +45,7 @@ CASES = {
     "string vertices": ((BOX_V.astype(str), BOX_F), TypeError, "dtype"),
     "complex points": (BOX_V.astype(complex), TypeError, "dtype"),
     "(n, 2) points": (BOX_V[:, :2], ValueError, "(n, 3)"),
-    "a full voxel grid": (np.ones((8, 8, 8), bool), None, ""),
+    "a full voxel grid": (np.ones((8, 8, 8), bool), ValueError, "every voxel is occupied"),  # as from a file
     "tensors (v, f)": ((torch.as_tensor(BOX_V), torch.as_tensor(BOX_F)), None, ""),
     "an unreferenced NaN vertex": ((_with_row(BOX_V, [np.nan] * 3), BOX_F), None, ""),
     "a trimesh with faces past the vertices": (

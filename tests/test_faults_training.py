@@ -1,7 +1,6 @@
 """Training loses no work (issue 36): any error of the checkpoint writer, a failing final save, and
 two runs into one model file. SIGTERM is in ``test_kills.py``."""
 
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -99,40 +98,52 @@ def test_a_failing_final_save_through_the_cli_exits_non_zero_naming_the_checkpoi
     assert "wrote" not in err
 
 
+HOLDER = """
+import sys, time
+from primkit.model.modelfile import claim_output
+with claim_output(sys.argv[1]):
+    print("held", flush=True)
+    time.sleep(60)
+"""
+
+
+def _holder(out):
+    """The first run, still at work: a process holding the lock of ``out``."""
+    proc = subprocess.Popen([sys.executable, "-c", HOLDER, str(out)], stdout=subprocess.PIPE)
+    assert proc.stdout.readline().strip() == b"held"
+    return proc
+
+
 def test_a_second_run_into_the_same_output_is_refused(tmp_path, capsys):
-    """A run holds ``<model>.lock`` from its start to its end: a second run into the same ``-o``
-    is refused in one line (both finished and printed "wrote", the first model replaced); a lock
-    whose process is gone is taken over."""
+    """A run holds a lock on ``<model>.lock`` from its start to its end: a second run into the
+    same ``-o`` is refused in one line (both finished and printed "wrote", the first model
+    replaced); the lock file of a killed run is taken over, and gone at the end."""
     synthetic.write_collection(tmp_path / "in", "chair", 3, seed=0)
     out = tmp_path / "m.safetensors"
     lock = tmp_path / "m.safetensors.lock"
     args = ["train", str(tmp_path / "in"), "-o", str(out), "--stage1", "2", "--stage2", "2", "--parts", "4",
             "--batch-size", "3", "--workers", "1", "--cache", str(tmp_path / "cache")]
-    other = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])  # the first run, still at work
+    other = _holder(out)
     try:
-        lock.write_text(f"{other.pid}\n")
         assert main(args) == 2
         err = capsys.readouterr().err.strip().splitlines()
-        assert len(err) == 1 and "another training run" in err[0] and str(other.pid) in err[0], err
-        assert not out.exists() and lock.read_text() == f"{other.pid}\n"
+        assert len(err) == 1 and "another primkit run" in err[0] and str(other.pid) in err[0], err
+        assert not out.exists() and lock.exists()
     finally:
         other.kill()
         other.wait()
-    # the first run was killed: its lock is stale and taken over; the lock is gone at the end
+    assert lock.exists()  # the first run was killed: its lock file stays, free, and is taken over
     assert main(args) == 0
     assert out.is_file() and not lock.exists()
 
 
 def test_library_train_claims_its_output(shapes, tmp_path):
     out = tmp_path / "m.safetensors"
-    lock = out.with_name(out.name + ".lock")
-    other = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    other = _holder(out)
     try:
-        lock.write_text(f"{other.pid}\n")
-        with pytest.raises(FileExistsError, match="another training run"):
+        with pytest.raises(FileExistsError, match="another primkit run"):
             training.train(shapes, out, training.TrainConfig(**CONFIG), progress=False)
         assert not out.exists()
     finally:
         other.kill()
         other.wait()
-    os.unlink(lock)

@@ -51,8 +51,10 @@ def main(argv=None) -> int:
             stream.reconfigure(errors="surrogateescape")
         except (AttributeError, ValueError, OSError):  # a stream that is not a TextIOWrapper
             pass
-    try:
-        with command_logging(quiet=getattr(args, "quiet", False)):  # the library's notes and warnings on stderr
+    from ..parallel import sigterm_as_interrupt
+
+    try:  # SIGTERM (SLURM, Kubernetes, timeout) stops a command as Ctrl-C does: outputs whole, one line, 130
+        with sigterm_as_interrupt(), command_logging(quiet=getattr(args, "quiet", False)):
             return int(args.func(args) or 0)
     except KeyboardInterrupt:
         err("interrupted")

@@ -35,6 +35,13 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    from ..model.modelfile import claim_output
+
+    with claim_output(args.output, args.force):  # a second run into the same -o is refused before any work
+        return _run_claimed(args)
+
+
+def _run_claimed(args) -> int:
     from dataclasses import replace
 
     from ..data import prepare_collection

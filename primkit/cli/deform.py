@@ -21,6 +21,10 @@ from ._common import (abstraction_options, add_abstraction_options, add_force, a
 
 __all__ = ["register", "parse_edit"]
 
+#: the one frame every distance deform reports is measured in (its JSON says so)
+FRAME = ("canonical frame of each shape, as its cuboids are: bounding box centred, longest side 1, turned as the "
+         "model's orientation search chose (--align)")
+
 
 def parse_edit(text: str, names, *, kind: str) -> dict[int, float | np.ndarray]:
     """``"legs=1.3"`` / ``"back=15"`` / ``"seat=0,0.05,0"`` -> {slot: value} for every slot the
@@ -61,13 +65,15 @@ def _outputs(args, inputs, *, points: bool = False) -> tuple[Path, Path | None, 
 
 def _abstract(args, paths, model=None):
     """(model, [(prepared shape, result)] in the order of ``paths``, errors): the inputs through
-    :func:`primkit.model.abstraction.abstract_shapes`."""
+    :func:`primkit.model.abstraction.abstract_shapes`. Each prepared shape is in the frame of its
+    result's cuboids (turned as the orientation search chose: :meth:`Abstraction.canonical_shape`),
+    so that its samples, its frame and its cuboids agree, and every distance is measured there."""
     from ..model.abstraction import abstract_shapes
 
     out = abstract_shapes(paths, model or args.model, **abstraction_options(args))
     if out.errors:
         return out.model, None, out.errors
-    return out.model, [(a.prepared, a.result) for a in out], []
+    return out.model, [(a.canonical_shape(), a.result) for a in out], []
 
 
 def _labeller(model):
@@ -173,7 +179,7 @@ def _cmd_deform(args) -> int:
     print(_summary_line(q) + f"; blending distance {d.binding.falloff:.4f}")
     io.write_like(src, out, rs.frame.from_canonical(d.vertices), mesh.faces, overwrite=args.force)
     report = {"source": str(src), "target": str(tgt), "model": str(args.model), "output": str(out),
-              "frame": "canonical frame of each shape (bbox centred, longest side 1)",
+              "frame": FRAME,
               "chamfer": "Chamfer-L1 = (mean_A min_B |a-b| + mean_B min_A |b-a|) / 2, unsquared",
               "falloff": d.binding.falloff, "parts": {**d.transfer.to_dict(), "names": names}, "quality": _named(q, names)}
     with atomic_output(js, overwrite=args.force) as tmp:
@@ -219,7 +225,7 @@ def _deform_points(args, cloud, src, tgt, out, png, js, abstractor, ss, rs, ts, 
           f"blending distance {d.binding.falloff:.4f}")
     io.write_points(out, rs.frame.from_canonical(d.vertices), overwrite=args.force)
     report = {"source": str(src), "target": str(tgt), "model": str(args.model), "output": str(out), "kind": "points",
-              "frame": "canonical frame of each shape (bbox centred, longest side 1)",
+              "frame": FRAME,
               "chamfer": "Chamfer-L1 = (mean_A min_B |a-b| + mean_B min_A |b-a|) / 2, unsquared",
               "falloff": d.binding.falloff, "parts": {**d.transfer.to_dict(), "names": names}, "quality": q}
     with atomic_output(js, overwrite=args.force) as tmp:

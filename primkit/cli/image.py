@@ -88,6 +88,13 @@ def run_abstract_images(args) -> int:
 
 
 def run_train_image(args) -> int:
+    from ..model.modelfile import claim_output
+
+    with claim_output(args.output, args.force):  # a second run into the same -o is refused before any work
+        return _train_image_claimed(args)
+
+
+def _train_image_claimed(args) -> int:
     import numpy as np
     import torch
 

@@ -71,12 +71,12 @@ def _cmd_segment(args) -> int:
                         overwrite=args.force, mean_over=_mean_over(args), cache_dir=args.cache, workers=args.workers,
                         executor=args.executor, progress=progress_of(args))
     plan = run.plan
-    if not plan.todo and not plan.done:
+    if not plan.todo and not plan.done and not plan.refused:
         print(f"shard {plan.shard[0]}/{plan.shard[1]}: none of the {len(plan.files)} inputs is in it (nothing to do)")
         return 0
     if not plan.todo:
-        print("nothing to do: every input's outputs are there")
-        return 0
+        print("nothing to do: every input's outputs are there" + (" but those it cannot write" if plan.refused else ""))
+        return report_errors(run.errors)
     if run.mismatch:  # the model-card warning on one line (and again in the summary)
         print(f"primkit: warning: {run.mismatch}", file=sys.stderr)
     for s in run.segmentations:
@@ -122,15 +122,24 @@ def _segmentation_line(s, paths) -> str:
 
 
 def _cmd_name_parts(args) -> int:
+    from ..model.modelfile import claim_output
+
+    with claim_output(args.output, args.force):  # a second run into the same -o is refused before any work
+        return _name_parts_claimed(args)
+
+
+def _name_parts_claimed(args) -> int:
     from ..io import check_suffix
     from ..model.modelfile import update_metadata
     from ..model.parts import names_from_labels
     from ..segmentation import Segmenter
-    from ..segmentation.evaluation import POINT_LABELS, labelled_shapes
+    from ..segmentation.evaluation import POINT_LABELS, labelled_shapes, parse_label_names
     from ..segmentation.labeller import write_labeller
     from ..segmentation.segmenter import fit_labeller
 
     out = Path(args.output)
+    if args.names is not None:
+        parse_label_names(args.names)  # empty or malformed: one line before any work
     segmenter = Segmenter(args.model, up=args.up, front=args.front, align=args.align, refine=args.refine,
                           adapt=getattr(args, "adapt", None), labeller=None)
     files = [f for f in collect(args.inputs) if not f.name.endswith(POINT_LABELS)]  # a cloud's labels, not a cloud

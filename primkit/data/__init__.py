@@ -6,12 +6,13 @@ keyed by each file's content *and* the preparation settings, so an edited file o
 is prepared again and nothing stale is read. The torch ``Dataset`` on top lives in
 :mod:`primkit.model.training` (torch stays in the model and training code).
 
-Cache layout (:data:`CACHE_FORMAT` 2): ``<cache>/v2/<segment>/`` folders of up to
+Cache layout (:data:`CACHE_FORMAT` 3): ``<cache>/v3/<segment>/`` folders of up to
 :data:`SEGMENT_SHAPES` shapes each, one ``.npy`` file per array with a row per shape (compact codes,
 :mod:`primkit.geometry.quantize`; memory-mapped when read) and an ``index.json`` giving each row's
-key, CRC-32 and frame. ``key`` is the SHA-256 of the file's bytes, the bytes of a ``.seg`` label
-file beside it (if any), and the settings. The default cache is ``$PRIMKIT_CACHE`` or
-``~/.cache/primkit/prepared``.
+key, frame and CRC-32 (of its arrays and its metadata, the frame included). ``key`` is the SHA-256
+of the file's bytes, the bytes of a ``.seg`` label file beside it (if any), and the settings. Only
+regular files are read from the cache (a FIFO, a device or a link there is a damaged segment). The
+default cache is ``$PRIMKIT_CACHE`` (an empty one is an error) or ``~/.cache/primkit/prepared``.
 
 The package, by concept (each module imports only the ones listed after it; ``setup.cfg``'s
 import-linter contract checks it):

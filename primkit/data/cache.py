@@ -3,11 +3,13 @@ preparation settings (layout in :mod:`primkit.data`'s docstring)."""
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
 import secrets
 import shutil
+import stat
 import zlib
 from pathlib import Path
 
@@ -19,7 +21,47 @@ from .preparation import PreparedShape, PrepareSettings
 
 
 def default_cache_dir() -> Path:
-    return Path(os.environ.get("PRIMKIT_CACHE", Path.home() / ".cache" / "primkit" / "prepared"))
+    """``$PRIMKIT_CACHE``, else ``~/.cache/primkit/prepared``. A ``PRIMKIT_CACHE`` that is set but
+    empty (it put the cache in the working folder, read as input shapes by the next run) or that
+    names something other than a folder is a one-line ``ValueError`` naming the variable."""
+    value = os.environ.get("PRIMKIT_CACHE")
+    if value is None:
+        return Path.home() / ".cache" / "primkit" / "prepared"
+    if not value.strip():
+        raise ValueError("PRIMKIT_CACHE is set but empty: set it to a folder for the cache of prepared shapes, "
+                         "or unset it for ~/.cache/primkit/prepared")
+    path = Path(value)
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        return path  # made when the first shape is stored
+    except OSError as exc:
+        raise ValueError(f"PRIMKIT_CACHE={value}: cannot be used ({exc.strerror})") from None
+    if not stat.S_ISDIR(st.st_mode):
+        raise ValueError(f"PRIMKIT_CACHE={value}: {_kind(st.st_mode)}, not a folder")
+    return path
+
+
+class CacheFileError(ValueError):
+    """A file of the cache that is not what the cache wrote (``"<path>: <reason>"``, one line)."""
+
+
+def _kind(mode: int) -> str:
+    for test, name in ((stat.S_ISLNK, "a symbolic link"), (stat.S_ISFIFO, "a FIFO"), (stat.S_ISDIR, "a folder"),
+                       (stat.S_ISCHR, "a device"), (stat.S_ISBLK, "a device"), (stat.S_ISSOCK, "a socket")):
+        if test(mode):
+            return name
+    return "a regular file" if stat.S_ISREG(mode) else "not a regular file"
+
+
+def _regular(path: Path) -> Path:
+    """``path`` when it is a regular file itself (not a link to one); else :class:`CacheFileError`.
+    Checked before any open: opening a FIFO blocks until someone writes to it, a device may never
+    end, and a link may lead out of the cache."""
+    mode = os.lstat(path).st_mode
+    if not stat.S_ISREG(mode):
+        raise CacheFileError(f"{path}: {_kind(mode)}, not a regular file")
+    return path
 
 
 def cache_key(path: Path, settings: PrepareSettings) -> str:
@@ -35,7 +77,8 @@ def cache_key(path: Path, settings: PrepareSettings) -> str:
 
 
 #: the cache's layout and codes; bump when either changes. Its entries live in ``<cache>/v<CACHE_FORMAT>``
-CACHE_FORMAT = 2
+#: (3: each row's checksum covers its metadata, its frame included, as well as its arrays)
+CACHE_FORMAT = 3
 #: shapes per segment: a run that is killed keeps every whole segment it wrote
 SEGMENT_SHAPES = 256
 #: the arrays of a cache row, in the order of its checksum; ``solid`` and ``labels`` only where needed
@@ -70,12 +113,14 @@ def encode_row(shape: PreparedShape, compact: bool) -> dict:
     return {"arrays": row, "meta": meta}
 
 
-def _row_crc(arrays: dict) -> int:
+def _row_crc(arrays: dict, meta: dict) -> int:
+    """CRC-32 of a row's arrays and of its metadata (frame, kind, info: everything that changes
+    what is read back), the metadata as canonical JSON."""
     crc = 0
     for name in _ROW_ARRAYS + ("solid", "labels"):
         if name in arrays:
             crc = zlib.crc32(np.ascontiguousarray(arrays[name]).data, crc)
-    return crc
+    return zlib.crc32(json.dumps(meta, sort_keys=True, allow_nan=False).encode(), crc)
 
 
 def _save_rows(path: Path, rows: list) -> None:
@@ -125,16 +170,16 @@ class CacheSegment:
     def open(cls, folder) -> "CacheSegment":
         """The segment written in ``folder``; raises (any exception) when it is not a whole one."""
         folder = Path(folder)
-        index = json.loads((folder / "index.json").read_text())
+        index = json.loads(_regular(folder / "index.json").read_text())
         if index.get("format") != CACHE_FORMAT:
             raise ValueError(f"format {index.get('format')}, not {CACHE_FORMAT}")
         seg = cls({}, index["rows"], index["settings"], int(index["resolution"]), int(index["samples"]), folder,
                   compact={"compact": True, "float32": False}[index["codes"]])
         for name, (want, dtype) in seg._shapes().items():
             f = folder / f"{name}.npy"
-            if name in ("solid", "labels") and not f.exists():
+            if name in ("solid", "labels") and not os.path.lexists(f):
                 continue
-            a = np.load(f, mmap_mode="r", allow_pickle=False)
+            a = np.load(_regular(f), mmap_mode="r", allow_pickle=False)
             count = len(seg.rows) if name in _ROW_ARRAYS else 1 + max(r.get(name, -1) for r in seg.rows)
             if a.shape != (count,) + want or a.dtype != dtype:
                 raise ValueError(f"{f}: {a.dtype} {a.shape}, not {np.dtype(dtype)} {(count,) + want}")
@@ -148,7 +193,8 @@ class CacheSegment:
         rows, extra = [], {"solid": [], "labels": []}
         for key, rec in entries:
             arrays = rec["arrays"]
-            row = {"key": key, "crc": _row_crc(arrays), "meta": rec["meta"]}
+            meta = json.loads(json.dumps(rec["meta"], allow_nan=False))  # as read back from index.json
+            row = {"key": key, "crc": _row_crc(arrays, meta), "meta": meta}
             for opt in extra:
                 if opt in arrays:
                     row[opt] = len(extra[opt])
@@ -222,7 +268,7 @@ class CacheSegment:
     def verify(self, j: int) -> bool:
         """Whether row ``j`` reads back with its checksum (the bytes as written)."""
         try:
-            return _row_crc(self.row_arrays(j)) == self.rows[j]["crc"]
+            return _row_crc(self.row_arrays(j), self.rows[j]["meta"]) == self.rows[j]["crc"]
         except (OSError, ValueError, IndexError, KeyError, TypeError):
             return False
 
@@ -261,12 +307,15 @@ class CacheSegment:
 
 
 def old_cache_entries(cache: Path) -> int:
-    """Entries of the first cache format (``<cache>/<xx>/<key>.npz``) under ``cache``."""
+    """Entries of older cache formats under ``cache``: the first's (``<cache>/<xx>/<key>.npz``)
+    and the segments of ``<cache>/v2``."""
     count = 0
     try:
         for sub in cache.iterdir():
-            if len(sub.name) == 2 and sub.is_dir():
+            if len(sub.name) == 2 and sub.is_dir() and not sub.is_symlink():
                 count += sum(1 for f in sub.iterdir() if f.suffix == ".npz")
+            elif sub.name == "v2" and sub.is_dir() and not sub.is_symlink():
+                count += sum(1 for f in sub.iterdir() if not f.name.startswith("."))
     except OSError:
         pass
     return count
@@ -279,22 +328,39 @@ class CacheIndex:
         self.root = root
         self.where: dict = {}
         self.damaged = 0
+        #: why the first damaged segment was refused (one line), or None
+        self.reason = None
         #: keys stored with these settings in the other codes (float32 against compact): not read,
         #: since neither kind's values are the other's (:func:`compact_by_default`)
         self.other_codes: set = set()
         key = settings.key()
         try:
-            folders = sorted(p for p in root.iterdir() if not p.name.startswith(".") and p.is_dir())
+            folders = sorted(p for p in root.iterdir() if not p.name.startswith("."))
         except OSError:
             folders = []
         for folder in folders:
+            try:  # lstat: a segment is a folder the cache made, never a link to one
+                mode = os.lstat(folder).st_mode
+            except OSError:
+                continue
+            if not stat.S_ISDIR(mode) and not stat.S_ISLNK(mode):
+                continue  # not a segment (the cache writes folders only); nothing is read from it
             try:
+                if stat.S_ISLNK(mode):
+                    raise CacheFileError(f"{folder}: a symbolic link, not a segment folder")
                 seg = CacheSegment.open(folder)
-            except Exception:  # noqa: BLE001 - whatever is wrong with it, it holds no usable entry
+            except Exception as exc:  # noqa: BLE001 - whatever is wrong with it, it holds no usable entry
                 # segments are renamed into place whole, so a visible one that does not open is
                 # damaged for good: removed, and its shapes are misses
                 self.damaged += 1
-                shutil.rmtree(folder, ignore_errors=True)
+                if self.reason is None:
+                    self.reason = str(exc).splitlines()[0] if isinstance(exc, CacheFileError) else \
+                        f"{folder.name}: {type(exc).__name__}"
+                if stat.S_ISLNK(mode):
+                    with contextlib.suppress(OSError):
+                        os.unlink(folder)  # the link only, never what it points to
+                else:
+                    shutil.rmtree(folder, ignore_errors=True)
                 continue
             if seg.settings_key != key:
                 continue

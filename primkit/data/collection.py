@@ -130,7 +130,7 @@ def prepare_collection(
     Files that cannot be used are reported in ``errors`` (one line each, naming the file) and the
     rest go on. Files already in the cache (same bytes, same settings) are not prepared again.
 
-    The cache (``<cache>/v2``, :data:`CACHE_FORMAT`) holds segments of up to
+    The cache (``<cache>/v3``, :data:`CACHE_FORMAT`) holds segments of up to
     :data:`SEGMENT_SHAPES` shapes, memory-mapped when read, so that a collection of any size opens
     at once and training can hold only its batch in memory. ``compact`` (default: yes,
     unless ``PRIMKIT_CACHE_CODES=exact``, which stores float32 values) stores the codes of
@@ -233,8 +233,9 @@ def prepare_collection(
                 flush()
     flush()
     if index.damaged:
+        why = index.reason or "truncated, edited or not an entry"
         _logger.warning(f"cache: {index.damaged} damaged entr{'y' if index.damaged == 1 else 'ies'} in {root} "
-                        "(truncated or not an entry) prepared again")
+                        f"({why}) prepared again")
     other = sum(key in index.other_codes for key in misses)
     if other:
         kinds = ("float32 values (PRIMKIT_CACHE_CODES=exact)", "compact codes") if compact else \

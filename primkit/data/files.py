@@ -49,12 +49,17 @@ def prepare_file(path, settings: PrepareSettings = PrepareSettings()) -> Prepare
     return prepared
 
 
+#: files that belong to the shape beside them with this stem (a point cloud's labels), never shapes
+_BELONGS = ".labels.npy"
+
+
 def find_shape_files(folder) -> list[Path]:
     """Shape files under ``folder`` (recursively, sorted), by suffix (see :func:`primkit.io.is_shape_file`).
 
     Symbolically linked folders are searched too (each folder once, so a link back up is not a
     loop); the hidden temporaries a killed write leaves (:func:`primkit.io.is_temporary`) are not
-    shapes. A file given by name is returned as it is. An empty list means no shape file."""
+    shapes, nor is a ``<stem>.labels.npy`` beside a shape file of that stem (its labels). A file
+    given by name is returned as it is. An empty list means no shape file."""
     folder = Path(folder)
     if folder.is_file():
         return [folder]
@@ -67,7 +72,10 @@ def find_shape_files(folder) -> list[Path]:
             dirs[:] = []
             continue
         searched.add((st.st_dev, st.st_ino))
+        stems = {n.rsplit(".", 1)[0] for n in files if "." in n and io.is_shape_file(n)}
         for name in files:
+            if name.endswith(_BELONGS) and name[: -len(_BELONGS)] in stems:
+                continue  # a labelled cloud's labels (<stem>.labels.npy), not a shape of its own
             p = Path(root) / name
             # a dangling link is kept: its error line names it
             if io.is_shape_file(p) and not io.is_temporary(p) and (p.is_file() or p.is_symlink()):

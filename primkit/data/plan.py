@@ -17,7 +17,9 @@ their inputs: :func:`primkit.data.prepare_collection`, :func:`primkit.model.abst
 
 from __future__ import annotations
 
+import functools
 import logging
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -74,6 +76,10 @@ class RunPlan:
         What a cut run left of the inputs it did not finish: removed by :meth:`check`, then redone.
     skip_done : bool
         Whether the plan left out what a cut run finished (``done``, possibly empty).
+    refused : dict of int -> str
+        Positions of the shard left out because an output's name is too long for the file system
+        of its folder, each with its one-line error naming the input (:attr:`errors`); the rest of
+        the run goes on.
     """
 
     files: list
@@ -87,6 +93,7 @@ class RunPlan:
     reads: list = field(default_factory=list)
     leftovers: list = field(default_factory=list)
     skip_done: bool = False
+    refused: dict = field(default_factory=dict)
 
     def __len__(self) -> int:
         return len(self.todo)
@@ -100,10 +107,15 @@ class RunPlan:
         return [self.names[i] for i in self.todo]
 
     @property
+    def errors(self) -> list:
+        """One line per input the plan refused (:attr:`refused`), in input order."""
+        return [self.refused[i] for i in sorted(self.refused)]
+
+    @property
     def selection(self):
         """The ``shard`` argument that selects ``todo`` (:func:`primkit.parallel.shard_indices`):
-        the shard itself, or a :class:`primkit.parallel.Selection` when some of it is done."""
-        if self.skip_done:
+        the shard itself, or a :class:`primkit.parallel.Selection` when some of it is done or refused."""
+        if self.skip_done or self.refused:
             return parallel.Selection(self.todo)
         return self.shard
 
@@ -179,6 +191,8 @@ def plan_run(inputs, folder=None, *, outputs=(), extra=(), reads=(), shard=None,
         made = {i: [Path(p) for p in outputs(names[i], files[i])] for i in keep}
     else:
         made = {i: [folder / f"{names[i]}{suffix}" for suffix in outputs] for i in keep} if folder is not None else {}
+    refused = _names_too_long(files, made)
+    keep = [i for i in keep if i not in refused]
     todo, done, leftovers = list(keep), [], []
     if skip_done:
         finished = finished or (lambda name, paths: all(p.is_file() for p in paths))
@@ -188,4 +202,30 @@ def plan_run(inputs, folder=None, *, outputs=(), extra=(), reads=(), shard=None,
         _logger.info(f"--skip-done: {len(done)} of {len(keep)} input(s) already done")
     return RunPlan(files=files, names=names, todo=todo, done=done, shard=shard, folder=folder, outputs=made,
                    extra=[Path(p) for p in extra if p is not None], reads=list(reads), leftovers=leftovers,
-                   skip_done=skip_done)
+                   skip_done=skip_done, refused=refused)
+
+
+def _names_too_long(files, made) -> dict:
+    """``{position: error}`` for the inputs one of whose outputs has a name longer than its folder's
+    file system allows (``NAME_MAX``, 255 bytes on most): that input is one error, not a stopped run."""
+    refused = {}
+    for i, paths in made.items():
+        for path in paths:
+            size, limit = len(os.fsencode(path.name)), _name_max(str(path.parent))
+            if size > limit:
+                refused[i] = (f"{files[i]}: its output's name is too long for the file system ({path.name[:40]}... "
+                              f"is {size} bytes, at most {limit} in {path.parent}); rename the input")
+                break
+    return refused
+
+
+@functools.lru_cache(maxsize=64)
+def _name_max(folder: str) -> int:
+    """The longest file name (bytes) the file system of ``folder`` (or of its nearest existing
+    ancestor) allows; 255 where the system does not say."""
+    while folder and not os.path.isdir(folder) and os.path.dirname(folder) != folder:
+        folder = os.path.dirname(folder)
+    try:
+        return int(os.pathconf(folder or ".", "PC_NAME_MAX"))
+    except (OSError, ValueError, AttributeError):
+        return 255

@@ -154,6 +154,11 @@ def _top_height(cuboids: Cuboids, k: int, up: np.ndarray) -> float:
     return float(cuboids.translations[k] @ up + np.abs(cuboids.rotations[k].T @ up) @ cuboids.half_extents[k])
 
 
+#: the largest factor by which an edit may scale or lengthen a part (and the smallest, its inverse), and the
+#: largest move in canonical units (the shape is 1 long): beyond, a part's matrices overflow
+EDIT_LIMIT = 1e6
+
+
 def edit_cuboids(cuboids: Cuboids, *, scale=None, rotate=None, move=None, lengthen=None, up=_UP, front=_FRONT,
                  carry: bool = True, contact: float = 0.05, floor: float | None = None,
                  cut: float | None = None) -> Edit:
@@ -219,9 +224,12 @@ def edit_cuboids(cuboids: Cuboids, *, scale=None, rotate=None, move=None, length
         if k in lengthen:
             if k in scale or k in rotate or k in move:
                 raise ValueError(f"part {k} is lengthened; it cannot also be scaled, turned or moved")
-            if not (np.isfinite(lengthen[k]) and lengthen[k] > 0):
-                raise ValueError(f"length factors must be finite and > 0, got {lengthen[k]} for part {k}")
+            if not (1 / EDIT_LIMIT <= lengthen[k] <= EDIT_LIMIT):
+                raise ValueError(f"length factors must be > 0, between {1 / EDIT_LIMIT:g} and {EDIT_LIMIT:g}, got "
+                                 f"{lengthen[k]} for part {k}")
             continue
+        if k in rotate and not np.isfinite(float(rotate[k])):
+            raise ValueError(f"turns must be finite, got {rotate[k]} for part {k}")
         rot = cuboids.rotations[k]
         axes, signs = _axis_order(rot, front, up, side)
         frame = rot[:, axes] * signs  # columns: the part's front, up, side directions
@@ -229,12 +237,16 @@ def edit_cuboids(cuboids: Cuboids, *, scale=None, rotate=None, move=None, length
         lin = np.eye(3)
         if k in scale:
             s = np.broadcast_to(np.asarray(scale[k], float), (3,))
-            if np.any(s <= 0):
-                raise ValueError(f"scale factors must be > 0, got {s.tolist()} for part {k}")
+            if not np.all((s >= 1 / EDIT_LIMIT) & (s <= EDIT_LIMIT)):  # 1e308 overflowed the part's matrices
+                raise ValueError(f"scale factors must be > 0, between {1 / EDIT_LIMIT:g} and {EDIT_LIMIT:g}, got "
+                                 f"{s.tolist()} for part {k}")
             lin = frame @ np.diag(s) @ frame.T
         if k in rotate:
             lin = _rotation_about(frame[:, 2], float(rotate[k])) @ lin
-        offset = frame @ np.broadcast_to(np.asarray(move.get(k, 0.0), float), (3,))
+        shift = np.broadcast_to(np.asarray(move.get(k, 0.0), float), (3,))
+        if not np.all(np.abs(shift) <= EDIT_LIMIT):
+            raise ValueError(f"moves must be within +-{EDIT_LIMIT:g} (canonical units), got {shift.tolist()} for part {k}")
+        offset = frame @ shift
         own[k, :3, :3] = lin
         own[k, :3, 3] = pivot - lin @ pivot + offset
     stretch = _lengthening(cuboids, lengthen, up, contact, floor, cut) if lengthen else None

@@ -12,7 +12,7 @@ import torch
 from .. import primitives
 from ..io import atomic_output
 from ..model.bundled import resolve_model
-from ..model.modelfile import ModelFileError, check_tensors, load_model_file, read_header, save_model
+from ..model.modelfile import ModelFileError, check_tensors, load_model_file, read_header, write_model
 from ..model.cuboids_file import cuboids_document
 from ..model.parts import default_part_names
 from ..primitives.palette import part_colors
@@ -120,7 +120,7 @@ class ImageAbstractor:
 
     def save(self, path, metadata: dict, *, overwrite: bool = False) -> Path:
         meta = {"kind": KIND, "network": self.network.config.to_dict(), **metadata}
-        return save_model(path, self.network.state_dict(), meta, overwrite=overwrite)
+        return write_model(path, self.network.state_dict(), meta, overwrite=overwrite)
 
     @property
     def size(self) -> int:

@@ -8,7 +8,7 @@
   new file (``0666`` less the umask, ``0644`` usually), or those of the file it replaces.
 
 A write killed half-way leaves at most a hidden temporary beside its target
-(``.<name>.<8 hex digits>.tmp<suffix>``, :func:`is_temporary`), which is never taken for an input.
+(``.primkit.<8 hex digits>.tmp<suffix>``, :func:`is_temporary`), which is never taken for an input.
 """
 
 from __future__ import annotations
@@ -27,7 +27,8 @@ import numpy as np
 
 __all__ = ["OutputError", "check_outputs", "check_suffix", "refuse_existing", "atomic_output", "write_array", "is_temporary"]
 
-#: the name of :func:`atomic_output`'s temporaries: ``.<name>.<8 hex digits>.tmp<suffix>``
+#: the name of :func:`atomic_output`'s temporaries: ``.primkit.<8 hex digits>.tmp<suffix>`` (and
+#: ``.<name>.<8 hex digits>.tmp<suffix>``, which earlier versions wrote)
 _TEMPORARY = re.compile(r"^\..+\.[0-9a-f]{8}\.tmp(\.[^.]*)?$")
 
 
@@ -252,9 +253,14 @@ def _new_file_mode() -> int:
 
 
 def _create_temporary(path: Path) -> Path:
-    """Create an empty, uniquely named file beside ``path`` with the same suffix (see :func:`is_temporary`)."""
+    """Create an empty, uniquely named file beside ``path`` with the same suffix (see :func:`is_temporary`).
+
+    The name is short and does not grow with ``path``'s (``.primkit.<8 hex digits>.tmp<suffix>``,
+    the suffix left out past 16 bytes), so that an output whose own name the file system allows
+    can always be written (a 234-byte name plus 25 bytes of temporary was too long)."""
+    suffix = path.suffix if len(os.fsencode(path.suffix)) <= 16 else ""
     while True:
-        temporary = path.with_name(f".{path.name}.{secrets.token_hex(4)}.tmp{path.suffix}")
+        temporary = path.with_name(f".primkit.{secrets.token_hex(4)}.tmp{suffix}")
         try:
             os.close(os.open(temporary, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o666))
         except FileExistsError:

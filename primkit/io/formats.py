@@ -13,7 +13,7 @@ import numpy as np
 
 from . import limits
 from .files import atomic_output
-from .values import Mesh, PointCloud, ShapeFileError, VoxelGrid
+from .values import Mesh, PointCloud, ShapeFileError, VoxelGrid, check_coordinates
 
 __all__ = [
     "MESH_SUFFIXES",
@@ -725,6 +725,10 @@ def _checked_mesh(path, vertices, faces) -> Mesh:
     if len(faces) == 0:
         raise ShapeFileError(path, "no faces (a point cloud? use read_points)")
     _require_finite(path, vertices, "vertices")
+    try:  # a mesh scaled 1e200: its area overflows (a bare OverflowError before)
+        check_coordinates(vertices, "vertices")
+    except ValueError as exc:
+        raise ShapeFileError(path, str(exc)) from None
     if faces.min() < 0 or faces.max() >= len(vertices):
         raise ShapeFileError(
             path,

@@ -25,7 +25,8 @@ import os
 
 from .values import ShapeFileError
 
-__all__ = ["MAX_FACES", "MAX_GRID", "max_faces", "max_grid", "check_faces", "check_grid"]
+__all__ = ["MAX_FACES", "MAX_GRID", "max_faces", "max_grid", "check_faces", "check_grid", "npz_members",
+           "read_npz_member"]
 
 #: largest number of faces of one mesh (a scene's instances counted); ``PRIMKIT_MAX_FACES`` overrides
 MAX_FACES = 20_000_000
@@ -77,3 +78,60 @@ def check_grid(path, side: int) -> None:
             f"a {side}^3 voxel grid exceeds the bound of {bound}^3 "
             f"(raise it with PRIMKIT_MAX_GRID=N or primkit.io.limits.MAX_GRID)",
         )
+
+
+def npz_members(path, max_bytes: int) -> dict[str, tuple]:
+    """``{name: (shape, dtype)}`` of the arrays of the ``.npz`` archive ``path``, read from each
+    member's ``.npy`` header (a few bytes decompressed each), before any array is loaded.
+
+    Raises :class:`~primkit.io.ShapeFileError` (one line naming ``path``) when the file is not a
+    whole archive (truncated, damaged: ``BadZipFile`` before), a member is not a plain ``.npy``
+    (objects, a damaged header), declares more bytes than it stores, or more than ``max_bytes``:
+    a 7 MB archive of zeros can declare 6.7 GiB, which ``np.load`` would allocate.
+    """
+    import math
+    import zipfile
+
+    import numpy as np
+
+    fmt = np.lib.format
+    try:
+        with zipfile.ZipFile(path) as zf:
+            out = {}
+            for info in zf.infolist():
+                name = info.filename[:-4] if info.filename.endswith(".npy") else info.filename
+                with zf.open(info) as fh:
+                    version = fmt.read_magic(fh)
+                    read = {(1, 0): fmt.read_array_header_1_0, (2, 0): fmt.read_array_header_2_0}.get(version)
+                    if read is None:
+                        raise ValueError(f"member {name!r}: .npy version {version}")
+                    shape, _, dtype = read(fh)
+                if dtype.hasobject:
+                    raise ValueError(f"member {name!r} holds Python objects")
+                size = math.prod(shape) * dtype.itemsize
+                if size > info.file_size:
+                    raise ValueError(f"member {name!r} declares {size:,} bytes ({dtype} {shape}) but stores "
+                                     f"{info.file_size:,}")
+                if size > max_bytes:
+                    raise ValueError(f"member {name!r} declares {size / 2**20:,.0f} MiB ({dtype} {shape}), over the "
+                                     f"bound of {max_bytes / 2**20:,.0f} MiB")
+                out[name] = (tuple(shape), dtype)
+            return out
+    except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, OSError, ValueError, NotImplementedError) as exc:
+        reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        if isinstance(exc, (zipfile.BadZipFile, EOFError)):
+            reason = f"not a whole .npz archive (truncated or damaged: {reason})"
+        raise ShapeFileError(path, reason) from None
+
+
+def read_npz_member(archive, path, name: str):
+    """``archive[name]`` of an open ``np.load`` archive, a damaged member (a bad CRC, a truncated
+    stream) raising :class:`~primkit.io.ShapeFileError` naming ``path`` instead of zipfile's or
+    zlib's own errors."""
+    import zipfile
+    import zlib
+
+    try:
+        return archive[name]
+    except (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError) as exc:
+        raise ShapeFileError(path, f"member {name!r} cannot be read ({str(exc).splitlines()[0] if str(exc) else type(exc).__name__})") from None

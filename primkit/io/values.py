@@ -250,6 +250,8 @@ def usable_shape(shape):
     if isinstance(shape, VoxelGrid):
         if not shape.occupancy.any():
             raise ValueError("empty voxel grid (no occupied voxel)")
+        if shape.occupancy.all():  # as the file readers refuse it: no surface inside the grid
+            raise ValueError("every voxel is occupied (no surface inside the grid)")
         check_coordinates(shape.translate[None], "translations")
         if shape.scale > COORDINATE_LIMIT:
             raise ValueError(f"voxel grid scale {shape.scale:.3g} beyond {COORDINATE_LIMIT:g}")

@@ -339,7 +339,14 @@ class Abstractor:
                 pred = self.network(x)
                 for key in out:
                     out[key].append(getattr(pred, key).double().cpu().numpy())
-        return RawCuboids(**{k: np.concatenate(v) for k, v in out.items()})
+        raw = {k: np.concatenate(v) for k, v in out.items()}
+        for key, values in raw.items():
+            if not np.isfinite(values).all():  # "`half_extents` must be finite" named no file before
+                from .modelfile import ModelFileError
+
+                raise ModelFileError(self.model or "the model", f"its network answers NaN or inf {key} (weights "
+                                     "that are not finite?): the model file is damaged")
+        return RawCuboids(**raw)
 
     def _cuboids(self, raw: RawCuboids, i: int, existence_threshold: float) -> primitives.Cuboids:
         # max_half_extent * sigmoid(x) is exactly 0 in float32 below x of about -104 (a part driven to

@@ -815,4 +815,4 @@ def save_adapted(abstractor: Abstractor, path, *, overwrite: bool = False):
     """Write an adapted model (safetensors + JSON metadata, loadable by :meth:`Abstractor.load`)."""
     from . import modelfile
 
-    return modelfile.save_model(path, abstractor.network.state_dict(), abstractor.metadata, overwrite=overwrite)
+    return modelfile.write_model(path, abstractor.network.state_dict(), abstractor.metadata, overwrite=overwrite)

@@ -44,9 +44,13 @@ Every failure is one :class:`ModelFileError` line naming the file.
 
 from __future__ import annotations
 
+import contextlib
 import datetime as _dt
 import json
 import math
+import os
+import re
+import socket
 from pathlib import Path
 
 import torch
@@ -61,12 +65,15 @@ __all__ = [
     "REQUIRED_KEYS",
     "MAX_DEPTH",
     "ModelFileError",
+    "ModelWriteError",
+    "claim_output",
     "check_tensors",
     "load_model_file",
     "read_header",
     "read_metadata",
     "save_model",
     "update_metadata",
+    "write_model",
 ]
 
 #: Version of the file layout and metadata schema written by this primkit.
@@ -88,6 +95,18 @@ class ModelFileError(ValueError):
         self.path = Path(path)
         self.reason = " ".join(str(reason).split())  # one line, whatever the cause said
         super().__init__(f"{self.path}: {self.reason}")
+
+
+class ModelWriteError(OSError):
+    """A model file that could not be written (:func:`write_model`): one line naming the file, the
+    reason, and where the model was saved instead, if anywhere (``rescue``, else None)."""
+
+    def __init__(self, errno_: int, message: str, rescue=None) -> None:
+        super().__init__(errno_, message)
+        self.rescue = rescue
+
+    def __str__(self) -> str:
+        return self.strerror
 
 
 def _check_json(value, where: str) -> None:
@@ -165,6 +184,128 @@ def save_model(
     with atomic_output(path, overwrite=True) as tmp:
         save_file(tensors, str(tmp), metadata=header)
     return path
+
+
+def write_model(path, state_dict: dict[str, Tensor], metadata: dict, *, overwrite: bool = False) -> Path:
+    """Write a model file as :func:`save_model` does, or say in one line why not and where the model
+    went instead: the one way primkit writes a model (``train``, ``adapt``, ``name-parts``,
+    ``train-image``).
+
+    When the writer fails (a full disk or a file-size limit: safetensors raises ``SafetensorError``,
+    not ``OSError``; a folder removed or made read-only), the model is written to a new folder of
+    the system's temporary folder, and :class:`ModelWriteError` (an ``OSError``) is raised:
+    ``"m.safetensors: cannot write it (No space left on device); the model was saved to
+    /tmp/primkit-x/m.safetensors instead"``. Invalid arguments (a wrong suffix, metadata that is not
+    JSON, an existing file without ``overwrite``) raise as in :func:`save_model`, with nothing saved.
+    """
+    path = Path(path)
+    try:
+        return save_model(path, state_dict, metadata, overwrite=overwrite)
+    except (TypeError, ValueError, FileExistsError):  # the caller's mistake, not the disk's
+        raise
+    except Exception as exc:  # noqa: BLE001 - SafetensorError on a full disk is not an OSError
+        import tempfile
+
+        number, reason = _write_failure(exc)
+        rescue = None
+        try:
+            rescue = Path(tempfile.mkdtemp(prefix="primkit-")) / path.name
+            save_model(rescue, state_dict, metadata)
+            saved = f"the model was saved to {rescue} instead"
+        except Exception:  # noqa: BLE001 - the temporary folder may be full too
+            rescue, saved = None, "it could not be saved elsewhere either"
+        raise ModelWriteError(number, f"{path}: cannot write it ({reason}); {saved}", rescue) from None
+
+
+def _write_failure(exc: BaseException) -> tuple[int, str]:
+    """(errno, one-line reason) of a writer's exception; safetensors' errors carry the system's
+    code in their text (``IoError(Os { code: 28, ... })``)."""
+    number = getattr(exc, "errno", None)
+    if not number:
+        found = re.search(r"\bcode: (\d+)", str(exc))
+        number = int(found.group(1)) if found else 0
+    reason = getattr(exc, "strerror", None) or (os.strerror(number) if number else "")
+    if not reason:
+        reason = f"{type(exc).__name__}: {str(exc).splitlines()[0]}" if str(exc) else type(exc).__name__
+    return number, reason
+
+
+#: the locks this process holds: absolute path of ``<output>.lock`` -> its open file descriptor
+_HELD: dict[str, int] = {}
+
+
+@contextlib.contextmanager
+def claim_output(output, overwrite: bool = False):
+    """Hold an operating-system lock on ``<output>.lock`` for a block, so that a second run into the
+    same model file is refused in one line before it does any work, instead of both writing it.
+
+    The lock is ``flock`` on the lock file: the kernel (or the file server of a shared folder)
+    releases it when its holder ends however it ends, and it holds across processes, PID
+    namespaces (containers) and hosts, which a process id written in a file does not. The file
+    names its holder (process id and host) for the message, nothing else reads it. A claim this
+    process already holds is kept as it is (:func:`primkit.model.training.train` claims again what
+    the ``train`` command claimed). ``overwrite`` (``--force``) does not take a lock held by a
+    live run. A folder that does not exist yet or cannot be written claims nothing (the output
+    checks say which), nor does a system without ``fcntl``. Yields the lock's path.
+    """
+    output = Path(output)
+    lock = output.with_name(output.name + ".lock")
+    key = os.path.abspath(lock)
+    if key in _HELD:
+        yield lock
+        return
+    try:
+        fd = _lock(lock, output)
+    except FileExistsError:
+        raise
+    except OSError:  # a folder not made yet, or not writable: check_outputs says which
+        fd = None
+    if fd is None:
+        yield lock
+        return
+    _HELD[key] = fd
+    try:
+        yield lock
+    finally:
+        del _HELD[key]
+        with contextlib.suppress(OSError):
+            os.unlink(lock)  # removed while held: a run waiting on this file checks it is still there
+        os.close(fd)
+
+
+def _lock(lock: Path, output: Path):
+    """Open ``lock`` and take its flock without waiting; returns the descriptor (None where the
+    system has no ``fcntl``), raises FileExistsError naming the holder."""
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - not POSIX
+        return None
+    for _ in range(20):
+        fd = os.open(lock, os.O_RDWR | os.O_CREAT | getattr(os, "O_CLOEXEC", 0), 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            try:
+                holder = os.pread(fd, 200, 0).decode("utf-8", "replace").strip() or "a process"
+            except OSError:
+                holder = "a process"
+            os.close(fd)
+            raise FileExistsError(f"{output}: another primkit run ({holder}) is writing it; wait for it to end "
+                                  "or choose another -o") from None
+        except OSError as exc:  # a file system without locks
+            os.close(fd)
+            raise OSError(exc.errno, f"{lock}: cannot lock it ({exc.strerror})") from None
+        try:  # the previous holder may have removed the file between our open and our lock
+            here, now = os.fstat(fd), os.stat(lock)
+            current = (here.st_dev, here.st_ino) == (now.st_dev, now.st_ino)
+        except FileNotFoundError:
+            current = False
+        if current:
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, f"process {os.getpid()} on host {socket.gethostname()}\n".encode(), 0)
+            return fd
+        os.close(fd)
+    raise FileExistsError(f"{output}: could not claim {lock} (other runs keep taking it)")
 
 
 def _open(path, device: str = "cpu"):
@@ -330,4 +471,4 @@ def update_metadata(path, output, changes: dict, *, overwrite: bool = False) -> 
     weights, metadata = load_model_file(path)
     metadata = {**metadata, **changes}
     metadata.pop("created", None)
-    return save_model(output, weights, metadata, overwrite=overwrite)
+    return write_model(output, weights, metadata, overwrite=overwrite)

@@ -36,6 +36,7 @@ import torch
 
 from .. import geometry, io, parallel
 from . import modelfile
+from .modelfile import claim_output
 from .losses import (LossWeights, MovingBaseline, SlotPlacement, local_existence_surrogate, reinforce_surrogate,
                      shape_losses)
 from .network import AbstractionNet, NetworkConfig
@@ -405,70 +406,6 @@ def _save_checkpoint(path, net, optimizer, generator, baseline, iteration, histo
     return True
 
 
-def _claim_output(output: Path, overwrite: bool) -> Path:
-    """Claim ``output`` for this run: create ``<output>.lock`` exclusively (holding this process's
-    id), so that a second run into the same model file is refused before it starts instead of both
-    writing it. A lock whose process is gone (a killed run) is taken over; ``overwrite`` takes over
-    any lock. Returns the lock's path; :func:`train` removes it at the end."""
-    lock = output.with_name(output.name + ".lock")
-    for _ in range(2):
-        try:
-            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
-        except FileExistsError:
-            try:
-                pid = int(lock.read_text().split()[0])
-            except (OSError, ValueError, IndexError):
-                pid = None
-            alive = pid is not None and pid != os.getpid() and _process_alive(pid)
-            if alive and not overwrite:
-                raise FileExistsError(f"{output}: another training run (process {pid}) is writing it; wait for it, "
-                                      f"choose another -o, or remove {lock} if that run is gone") from None
-            lock.unlink(missing_ok=True)
-            continue
-        with os.fdopen(fd, "w") as fh:
-            fh.write(f"{os.getpid()}\n")
-        return lock
-    raise FileExistsError(f"{output}: could not claim {lock} (another run took it)")
-
-
-@contextlib.contextmanager
-def claim_output(output, overwrite: bool = False):
-    """Hold ``<output>.lock`` for a block (:func:`_claim_output`): the ``train`` command claims its
-    ``-o`` before preparing the shapes, :func:`train` before its first iteration; a claim this
-    process already holds is kept as it is (and left to its holder to remove)."""
-    output = Path(output)
-    lock = output.with_name(output.name + ".lock")
-    try:
-        mine = lock.read_text().split()[0] == str(os.getpid())
-    except (OSError, IndexError):
-        mine = False
-    if not mine:
-        try:
-            _claim_output(output, overwrite)
-        except FileExistsError:
-            raise
-        except OSError:  # a folder not made yet, or not writable: check_training_outputs says which
-            mine = True  # nothing claimed here, nothing to remove
-    try:
-        yield lock
-    finally:
-        try:  # removed if still ours (a --force run may have taken it over meanwhile)
-            if not mine and lock.read_text().split()[0] == str(os.getpid()):
-                lock.unlink()
-        except (OSError, IndexError):
-            pass
-
-
-def _process_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # someone else's process
-        return True
-    return True
-
-
 def _write_checkpoint(path, net, optimizer, generator, baseline, iteration, history, config, extra) -> None:
     weights = {f"model.{k}": v for k, v in net.state_dict().items()}
     opt_tensors, opt_scalars = _optimizer_tensors(optimizer)
@@ -526,22 +463,10 @@ def _read_checkpoint(path, network: NetworkConfig, config: TrainConfig) -> tuple
 
 
 def _save_trained(output: Path, state: dict, meta: dict) -> None:
-    """Save the trained model; if that fails (its folder removed, full or made read-only during the
-    run; any error of the writer), save it to the system's temporary folder instead and raise an
-    OSError saying where it is (:func:`train` adds where its checkpoint is)."""
-    try:
-        modelfile.save_model(output, state, meta, overwrite=True)  # claimed before the first iteration
-    except Exception as exc:  # noqa: BLE001 - SafetensorError on a full disk is not an OSError
-        import tempfile
-
-        reason = getattr(exc, "strerror", None) or (str(exc).splitlines()[0] if str(exc) else type(exc).__name__)
-        try:
-            rescue = Path(tempfile.mkdtemp(prefix="primkit-")) / output.name
-            modelfile.save_model(rescue, state, meta)
-            saved = f"the trained model was saved to {rescue} instead"
-        except Exception:  # noqa: BLE001 - the temporary folder may be full too
-            saved = "it could not be saved elsewhere either"
-        raise OSError(getattr(exc, "errno", None) or 0, f"cannot write {output} ({reason}); {saved}") from None
+    """Save the trained model through :func:`~primkit.model.modelfile.write_model`: if that fails
+    (its folder removed, full or made read-only during the run), the model goes to the system's
+    temporary folder and an OSError says where (:func:`train` adds where its checkpoint is)."""
+    modelfile.write_model(output, state, meta, overwrite=True)  # claimed before the first iteration
 
 
 def _plot_history(history, path, stage1: int) -> None:

@@ -16,14 +16,22 @@ def parse_shard(text) -> tuple[int, int] | None:
         return None
     text = str(text).strip()
     env = os.environ
+
+    def number(name: str, default=None) -> int:  # a variable that is not an integer is named
+        value = env.get(name, default)
+        try:
+            return int(str(value).strip())
+        except ValueError:
+            raise ValueError(f"--shard auto: the environment variable {name}={value!r} is not an integer") from None
+
     if text == "auto":
         if "WORLD_SIZE" in env and "RANK" in env:
-            k, n = int(env["RANK"]) + 1, int(env["WORLD_SIZE"])
+            k, n = number("RANK") + 1, number("WORLD_SIZE")
         elif "SLURM_ARRAY_TASK_ID" in env and "SLURM_ARRAY_TASK_COUNT" in env:
-            k = int(env["SLURM_ARRAY_TASK_ID"]) - int(env.get("SLURM_ARRAY_TASK_MIN", "0")) + 1
-            n = int(env["SLURM_ARRAY_TASK_COUNT"])
+            k = number("SLURM_ARRAY_TASK_ID") - number("SLURM_ARRAY_TASK_MIN", "0") + 1
+            n = number("SLURM_ARRAY_TASK_COUNT")
         elif "SLURM_PROCID" in env and "SLURM_NTASKS" in env:
-            k, n = int(env["SLURM_PROCID"]) + 1, int(env["SLURM_NTASKS"])
+            k, n = number("SLURM_PROCID") + 1, number("SLURM_NTASKS")
         else:
             return None
     else:

@@ -89,9 +89,18 @@ def answer(given: str, result: str, models: dict | None = None) -> tuple[int, st
     ``(2, "primkit segmentation: <reason>")`` on a bad input or option."""
     from ..io import atomic_output
 
+    from ..io.limits import max_faces, npz_members, read_npz_member
+
     try:
+        # checked from the members' headers before anything is loaded: a truncated archive, or a
+        # small one declaring GiBs, is one line (a BadZipFile traceback, a 6.7 GiB allocation before)
+        members = npz_members(given, max_bytes=24 * max_faces())  # (f, 3) int64 faces at the bound
+        missing = [k for k in ("points", "faces", "options") if k not in members]
+        if missing:
+            raise KeyError(f"{given}: no {', '.join(missing)} array")
         with np.load(given, allow_pickle=False) as arrays:
-            out = label_arrays(arrays["points"], arrays["faces"], json.loads(str(arrays["options"])), models)
+            points, faces, options = (read_npz_member(arrays, given, k) for k in ("points", "faces", "options"))
+            out = label_arrays(points, faces, json.loads(str(options)), models)
     except (ValueError, TypeError, OSError, KeyError) as exc:
         return 2, f"primkit segmentation: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}"
     with atomic_output(result, overwrite=True) as tmp:

@@ -30,12 +30,14 @@ and ``"model-names"``.
 from __future__ import annotations
 
 import json
+import warnings
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
 from .. import io
+from ..io.limits import max_grid, npz_members, read_npz_member
 from .handlabels import read_label_names
 from .points import PointSegmentation
 from .voxels import VoxelSegmentation
@@ -150,15 +152,21 @@ class GroundTruth:
 
 def parse_label_names(text) -> dict:
     """What label values mean, from a command line's text: ``"back,seat,legs"`` names label values 1, 2, 3; ``"0=seat,1=back"`` names values explicitly."""
-    items = [t.strip() for t in text.split(",") if t.strip()]
+    items = [t.strip() for t in str(text).split(",") if t.strip()]
+    if not items:
+        raise ValueError(f"label names {text!r}: empty; name the label values ('back,seat,legs' for 1, 2, 3)")
     if all("=" in t for t in items):
-        return {int(k): v.strip() for k, v in (t.split("=", 1) for t in items)}
+        pairs = [(k.strip(), v.strip()) for k, v in (t.split("=", 1) for t in items)]
+        bad = [f"{k}={v}" for k, v in pairs if not v or not k.lstrip("-").isdigit()]
+        if bad:
+            raise ValueError(f"label names {text!r}: {bad[0]!r} is not VALUE=NAME with an integer value and a name")
+        return {int(k): v for k, v in pairs}
     if any("=" in t for t in items):
         raise ValueError(f"label names {text!r}: give either all values (1=back,2=seat) or none (back,seat)")
     return {i + 1: name for i, name in enumerate(items)}
 
 
-def read_ground_truth(label_path, face_count: int, label_names=None, names=None) -> GroundTruth:
+def read_ground_truth(label_path, face_count: int, label_names=None, names=None, unnamed=None) -> GroundTruth:
     """Read a ``.seg`` file as a :class:`GroundTruth`.
 
     Parameters
@@ -173,6 +181,8 @@ def read_ground_truth(label_path, face_count: int, label_names=None, names=None)
         (``seat``, ``back``, ``legs``, ``arms``, ...); otherwise the values themselves are the names.
     names : list of str, optional
         A collection-wide list of names to extend (so codes agree across shapes).
+    unnamed : set, optional
+        Filled with the label values (0 or more) found that ``label_names`` leaves without a name.
     """
     label_path = Path(label_path)
     raw = io.read_labels(label_path, face_count)
@@ -191,6 +201,8 @@ def read_ground_truth(label_path, face_count: int, label_names=None, names=None)
     for value in np.unique(raw):
         name = str(value) if label_names is None else label_names.get(int(value))
         if name is None:
+            if unnamed is not None and value >= 0:  # negative: unlabelled by convention
+                unnamed.add(int(value))
             continue  # a value with no name: unlabelled
         if name not in names:
             names.append(name)
@@ -361,6 +373,9 @@ class VoxelLabelArchive:
         if not path.is_file():
             raise FileNotFoundError(f"{path}: no such voxel label archive")
         self.path = path
+        # every member's header checked first: a truncated archive is one line (a BadZipFile
+        # traceback before), and no member may declare more than the largest grid allowed
+        self._members = npz_members(path, max_bytes=8 * max_grid() ** 3)
         try:
             self._archive = np.load(path, allow_pickle=False)
         except (OSError, ValueError) as exc:
@@ -382,7 +397,7 @@ class VoxelLabelArchive:
 
     def get(self, name, shape=None) -> VoxelGroundTruth:
         """The ground truth of one shape; ``shape`` (a tuple) is checked when given."""
-        raw = np.asarray(self._archive[str(name)])
+        raw = np.asarray(read_npz_member(self._archive, self.path, str(name)))
         if shape is not None and raw.shape != tuple(shape):
             raise io.ShapeFileError(self.path, f"labels of {name} are {raw.shape}, the grid is {tuple(shape)}")
         codes = np.full(raw.shape, -1, np.int64)
@@ -665,7 +680,7 @@ def evaluate_grids_against(grids, sources, part_count: int, part_names, *, label
 POINT_LABELS = ".labels.npy"
 
 
-def read_point_truth(path, count: int, label_names, names: list) -> np.ndarray:
+def read_point_truth(path, count: int, label_names, names: list, unnamed=None) -> np.ndarray:
     """A point cloud's labels (``(count,)`` integers in a ``.npy``, read without pickles) as codes
     into the collection-wide ``names`` (extended); values named by ``label_names`` ('back,seat'
     for 1, 2) or by themselves; a value with no name is unlabelled (-1)."""
@@ -683,6 +698,8 @@ def read_point_truth(path, count: int, label_names, names: list) -> np.ndarray:
     for value in np.unique(raw):
         name = str(value) if meaning is None else meaning.get(int(value))
         if name is None:
+            if unnamed is not None and value >= 0:  # negative: unlabelled by convention
+                unnamed.add(int(value))
             continue
         if name not in names:
             names.append(name)
@@ -728,7 +745,17 @@ class LabelledShapes:
 def labelled_shapes(segmentations, results, labels=None, label_names=None) -> LabelledShapes:
     """Each segmentation with its ground truth: a voxel grid's in the archive ``labels``, a point
     cloud's in ``<stem>.labels.npy`` beside it, a mesh's ``.seg`` in the folder ``labels`` or beside
-    it. ``results``: the abstraction results the segmentations came from (by name)."""
+    it. ``results``: the abstraction results the segmentations came from (by name).
+
+    ``label_names`` (``--names``) must name every label value the shapes' label files hold: values
+    left without a name would count as unlabelled, and the parts they cover would take the names of
+    the others (``back`` for labels 1-3 named the seat "back"); negative values are unlabelled by
+    convention. Names given as a list
+    (``"back,seat"``) that leave values out raise ValueError naming them; names given value by value
+    (``"1=back"``) leave the others out on purpose, with a warning naming them. Empty names raise."""
+    unnamed: set = set()
+    if label_names is not None:
+        parse_label_names(label_names)  # empty or malformed: one line before any file is read
     sources = [(labels, label_names)] if labels else []
     archives = voxel_archives(sources)
     by_name = {r.name: r for r in results}
@@ -759,7 +786,7 @@ def labelled_shapes(segmentations, results, labels=None, label_names=None) -> La
         if isinstance(s, PointSegmentation):
             beside = Path(s.source).with_name(Path(s.source).stem + POINT_LABELS)
             try:
-                codes = read_point_truth(beside, len(s.points), label_names, names)
+                codes = read_point_truth(beside, len(s.points), label_names, names, unnamed)
             except ValueError as exc:
                 out.errors.append(str(exc).splitlines()[0])
                 continue
@@ -773,9 +800,21 @@ def labelled_shapes(segmentations, results, labels=None, label_names=None) -> La
             out.errors.append(f"{s.source}: no label file ({Path(s.source).stem}.seg) found")
             continue
         try:
-            truth = read_ground_truth(found[0], len(s.faces), found[1], names)
+            truth = read_ground_truth(found[0], len(s.faces), found[1], names,
+                                      unnamed if found[1] is label_names else None)
         except (ValueError, OSError) as exc:
             out.errors.append(str(exc).splitlines()[0])
             continue
         add(s, s.face_labels, truth.labels, s.face_areas)
+    if unnamed and label_names is not None:
+        values = ", ".join(map(str, sorted(unnamed)))
+        if all("=" in t for t in str(label_names).split(",") if t.strip()):
+            warnings.warn(f"label names {label_names!r} leave the label values {values} found in the shapes without "
+                          "a name: they count as unlabelled", UserWarning, stacklevel=2)
+        else:
+            raise ValueError(f"label names {label_names!r} name the values "
+                             f"{', '.join(map(str, sorted(parse_label_names(label_names))))}, but the shapes also hold "
+                             f"the label values {values}: they would count as unlabelled and the parts they cover "
+                             "take the others' names; name every value, or give VALUE=NAME pairs (1=back) to leave "
+                             "some out")
     return out

@@ -1663,7 +1663,7 @@ def write_labeller(model_path, output, labeller: Labeller, changes: dict | None 
     labeller it had) and ``changes`` merged into its metadata; ``model_path`` is never modified."""
     import torch
 
-    from ..model.modelfile import load_model_file, save_model
+    from ..model.modelfile import load_model_file, write_model
 
     from ..io import check_outputs
 
@@ -1674,7 +1674,7 @@ def write_labeller(model_path, output, labeller: Labeller, changes: dict | None 
     weights.update({k: torch.from_numpy(np.array(v)) for k, v in arrays.items()})
     metadata = {**metadata, **(changes or {}), LABELLER_KEY: description}
     metadata.pop("created", None)
-    return save_model(output, weights, metadata, overwrite=overwrite)
+    return write_model(output, weights, metadata, overwrite=overwrite)
 
 
 def has_labeller(model_path) -> bool:

@@ -191,7 +191,7 @@ class Segmenter:
             inputs, folder, shard=shard, skip_done=skip_done, semantic=semantic, ground_truth=ground_truth,
             ground_truth_names=ground_truth_names, picture=picture, overwrite=overwrite)
         if not plan.todo:
-            return SegmentationRun(segmentations=[], errors=[], plan=plan)
+            return SegmentationRun(segmentations=[], errors=plan.errors, plan=plan)
         ground_truth = evaluation.ground_truth_sources(ground_truth, ground_truth_names)
         plan.check(overwrite)
         folder = plan.folder
@@ -201,7 +201,7 @@ class Segmenter:
                                                   executor=pool)  # segment_files' two steps, keeping the results
             segs, errors = self.segment_results(results, workers=workers, progress=progress, errors=errors,
                                                 executor=pool)
-        run = SegmentationRun(segmentations=segs, errors=list(errors), plan=plan)
+        run = SegmentationRun(segmentations=segs, errors=list(errors), plan=plan)  # the plan's refusals with them
         for w in caught:  # the model-card warning kept for the caller (and the summary); the others as they came
             if issubclass(w.category, CardMismatchWarning):
                 run.mismatch = str(w.message)

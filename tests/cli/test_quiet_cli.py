@@ -46,7 +46,7 @@ def test_notes_unless_quiet_and_warnings_always(twins, tmp_path, capsys):
     blocked.write_text("a file where the cache folder should be")
     assert _prepare(twins, blocked, "--quiet") == 0
     err = capsys.readouterr().err.splitlines()
-    assert err == [f"primkit: cache: {blocked / 'v2'} cannot be written (Not a directory): shapes prepared in memory"]
+    assert err == [f"primkit: cache: {blocked / 'v3'} cannot be written (Not a directory): shapes prepared in memory"]
 
 
 def test_every_command_that_shows_progress_takes_quiet():
