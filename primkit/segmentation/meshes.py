@@ -145,19 +145,15 @@ class Segmentation:
     #: index into ``label_names`` (-1: none), and the labeller's names; None without one
     named: np.ndarray | None = None
     label_names: list | None = None
+    #: the number of faces of the source file when they were polygons that reading triangulated
+    #: (``faces``, ``face_labels`` and the ``.seg`` then hold one entry per triangle, more than the
+    #: file's faces), else None (:func:`primkit.io.declared_face_count`)
+    polygons: int | None = None
 
     @property
     def face_areas(self) -> np.ndarray:
         """(f,) float"""
         return io.Mesh(self.vertices, self.faces).face_areas()
-
-    @property
-    def polygons(self) -> int | None:
-        """The number of faces of the source file when they were polygons that reading
-        triangulated (``faces``, ``face_labels`` and the ``.seg`` then hold one entry per
-        triangle, more than the file's faces), else None (:func:`primkit.io.declared_face_count`)."""
-        declared = io.declared_face_count(self.source) if self.source else None
-        return declared if declared is not None and 0 < declared < len(self.faces) else None
 
     def part_areas(self) -> np.ndarray:
         """Surface area assigned to each index: ``(m,) float`` (zero for parts holding no face)."""
@@ -226,7 +222,10 @@ def segment_mesh(vertices, faces, cuboids: primitives.Cuboids, *, name: str = "s
     how = graphcut.as_labelling(labelling)
     labels = (surface_face_labels(vertices, faces, cuboids, smoothness=how.smoothness, graph=graph)
               if how.method_for("mesh") == "graphcut" else face_labels(vertices, faces, cuboids))
-    return Segmentation(name, source, vertices, faces, labels, vertex_labels(vertices, cuboids), cuboids, names)
+    declared = io.declared_face_count(source) if source else None
+    polygons = declared if declared is not None and 0 < declared < len(faces) else None
+    return Segmentation(name, source, vertices, faces, labels, vertex_labels(vertices, cuboids), cuboids, names,
+                        polygons=polygons)
 
 
 # ---------------------------------------------------------------------------------------------
