@@ -14,7 +14,8 @@ sample) and a parsimony of 4e-5 per part. Chosen on PartNet validation chairs
 (``scripts/partnet_chairs.py``): REINFORCE kept the same six parts on nearly every chair and never
 used one for arms; the local gradient lets parts come and go with the shape, and 4e-5 keeps about
 nine of the twenty on a chair (2e-5: about twelve; 8e-5: about seven, and arms are found less often:
-F1 0.68 against 0.85). About 85 minutes per category on a 2-core CPU.
+F1 0.68 against 0.85). About 49 minutes per category on two free CPU cores, 62 at one thread
+(``docs/benchmarks.md``); the bundled models were trained in 84-86 minutes by an earlier, slower trainer.
 There is no animal preset: the four-legged-animal model (480 procedural animals, a short
 REINFORCE schedule of 2k + 3k iterations) was never trained on this schedule and was dropped
 (issue 32; docs/results.md).
