@@ -28,13 +28,14 @@ pytestmark = [pytest.mark.integration,  # the whole chain on 12 shapes, then hea
               pytest.mark.skipif(CHROMIUM is None, reason="chromium not installed (scripts/setup.sh installs it)")]
 
 COSEG = ("coseg_chairs/chairs_101-120/shapes", "coseg_chairs/large_chairs/shapes")
+#: ../shared/data beside the checkout (tests/conftest.py's place; "from conftest import" finds whichever
+#: conftest module was imported first, tests/viewers/conftest.py in a whole run)
+SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
 WIDTH, HEIGHT = 1280, 900
 
 
 @pytest.fixture(scope="module")
 def report(tmp_path_factory):
-    from conftest import SHARED
-
     root = tmp_path_factory.mktemp("page")
     inputs = [str(SHARED / c) for c in COSEG if (SHARED / c).is_dir()]
     count = 12 - sum(len(list(Path(c).glob("*.off"))) for c in inputs)
