@@ -8,6 +8,7 @@ a voxel grid a part index per voxel (:func:`primkit.segmentation.label_voxels`).
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -17,7 +18,7 @@ from ..model.abstraction import Abstraction, abstract_shapes
 from ..segmentation import label_voxels, point_labels, resolve_labeller, segment_mesh, segment_points, voxel_centres
 from ..segmentation.meshlabels import face_graph
 
-__all__ = ["Labelled", "label_shapes", "label_shape", "resolve_labeller"]
+__all__ = ["Labelled", "label_shapes", "label_shape", "resolve_labeller", "model_key"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -131,3 +132,16 @@ def _named(a: Abstraction, labeller, graph=None):
 def label_shape(shape, model="chair", *, name: str = "shape", **options) -> Labelled:
     """:func:`label_shapes` of one shape."""
     return label_shapes([shape], model, names=[name], **options)[0]
+
+
+def model_key(model) -> tuple:
+    """What names a model's answers between calls: a loaded model by identity (compare the objects
+    too: an id can be reused), a file by its absolute path, size and modification time (a rewritten
+    file is another model), a bundled name by itself."""
+    if not isinstance(model, (str, os.PathLike)):
+        return ("loaded", id(model))
+    try:
+        st = os.stat(model)
+        return ("file", os.path.abspath(os.fspath(model)), st.st_size, st.st_mtime_ns)
+    except OSError:
+        return ("name", os.fspath(model))

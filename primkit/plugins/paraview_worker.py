@@ -69,16 +69,11 @@ def label_arrays(points: np.ndarray, faces: np.ndarray, options: dict, models: d
 def _loaded(name: str, models: dict):
     """The model called ``name`` (a bundled name or a file) and its labeller, loaded once per file
     version (a file rewritten since is loaded again)."""
-    import os
-
     from ..model.abstraction import load_model
     from ..segmentation import resolve_labeller
+    from .common import model_key
 
-    try:
-        st = os.stat(name)
-        key = (name, st.st_size, st.st_mtime_ns)
-    except OSError:
-        key = (name,)
+    key = model_key(name)
     if key not in models:
         models[key] = (load_model(name), resolve_labeller(name))
     return models[key]

@@ -51,7 +51,7 @@ from ..primitives import Cuboids
 from ..viz.backend import pyvista_module
 from ..viz.interop import from_pyvista, to_pyvista_blocks
 from ..viz.palette import part_colors
-from .common import Labelled, label_shapes
+from .common import Labelled, label_shapes, model_key
 from .pyvista_readers import voxels_from_pyvista
 
 __all__ = ["PrimkitAccessor", "PrimkitBlocksAccessor", "segmented_copy", "lookup_table", "ACCESSOR", "PARAMETERS"]
@@ -155,22 +155,6 @@ def _options(up, front, align, refine, existence_threshold, prune_threshold, pro
             "prune_threshold": prune_threshold, "progress_bar": progress_bar}
 
 
-def _is_loaded(model) -> bool:
-    return not isinstance(model, (str, os.PathLike))
-
-
-def _model_key(model):
-    """What names a model's answer: a loaded model by identity (checked with ``is``), a file by its
-    path, size and modification time, a bundled name by itself."""
-    if _is_loaded(model):
-        return ("loaded", id(model))
-    try:
-        st = os.stat(model)
-        return ("file", os.path.abspath(os.fspath(model)), st.st_size, st.st_mtime_ns)
-    except OSError:
-        return ("name", os.fspath(model))
-
-
 def _digest(shape) -> str:
     """A digest of what is abstracted: the arrays' bytes, shapes and dtypes (a few ms for a large mesh)."""
     import hashlib
@@ -226,8 +210,8 @@ class PrimkitAccessor:
         dataset's contents are the same (pyvista keeps one accessor per dataset, so ``segment``,
         ``abstract`` and ``cuboids`` on one dataset share one abstraction)."""
         shape = _as_input(self._dataset)
-        key = (_model_key(model), {k: v for k, v in options.items() if k != "progress_bar"}, _digest(shape))
-        if self._last is not None and self._last[0] == key and (not _is_loaded(model) or self._last[1] is model):
+        key = (model_key(model), {k: v for k, v in options.items() if k != "progress_bar"}, _digest(shape))
+        if self._last is not None and self._last[0] == key and (isinstance(model, (str, os.PathLike)) or self._last[1] is model):
             return self._last[2]
         labelled = label_shapes([shape], model, **options)[0]
         self._last = (key, model, labelled)
