@@ -317,7 +317,7 @@ def register(sub) -> None:
         examples=["primkit train chairs/ -o chair.safetensors", "primkit train SHAPENETVOX32/03001627 --preset chair -o chair.safetensors"])
     p.add_argument("inputs", nargs="+", help="folders or files of shapes")
     add_output(p, "model file to write (.safetensors)")
-    p.add_argument("--preset", default=None, help="a bundled model's recipe (chair, table, airplane): schedule, "
+    p.add_argument("--preset", default=None, help="a bundled model's recipe (chair, table, airplane, animal): schedule, "
                    "hold-out rule, data terms; other flags override it")
     p.add_argument("--parts", type=int, default=None, help="part slots M (default 20)")
     p.add_argument("--batch-size", type=int, default=None, help="default 32")
