@@ -22,6 +22,7 @@ from primkit import data, embedding, io, primitives, synthetic
 from primkit.model import parts
 from primkit.model.abstractor import Abstractor
 from primkit.geometry import voxel_boundary_mesh
+from primkit.viz import maps
 
 
 def main(out: Path) -> int:
@@ -45,7 +46,7 @@ def main(out: Path) -> int:
 
     arms = np.array([c.attributes["has_arms"] for c in chairs])
     tilt = np.array([c.attributes["back_tilt_deg"] for c in chairs])
-    thumbs = embedding.render_thumbnails([voxel_boundary_mesh(s.occupancy) for s in shapes], size=96)
+    thumbs = maps.render_thumbnails([voxel_boundary_mesh(s.occupancy) for s in shapes], size=96)
     p = arms.mean()
     print(f"{len(chairs)} chairs, {arms.sum()} with arms; chance agreement p^2 + (1-p)^2 = {p * p + (1 - p) ** 2:.2f}")
 
@@ -55,7 +56,7 @@ def main(out: Path) -> int:
         X = embedding.PartDescriptor(spec, what, part_names=names).fit_transform(results)
         nn = embedding.nearest_neighbors(X, 1)
         coords = embedding.tsne_map(X, perplexity=10, random_state=0)
-        embedding.draw_map(coords, thumbs, out / f"map_{label}.png", colors=colors.astype(float),
+        maps.draw_map(coords, thumbs, out / f"map_{label}.png", colors=colors.astype(float),
                            title=f"parts: {spec or 'all'}; {what if isinstance(what, str) else 'all properties'}")
         line = f"{label:10s} nearest neighbour agrees on has_arms: {embedding.neighbour_agreement(nn.indices, arms):.2f}"
         if label == "back_tilt":

@@ -58,8 +58,8 @@ def _thumb_meshes(results, grids, kind, selected, regions=None):
     """One mesh per shape for its thumbnail: the voxel boundary, or the cuboids coloured by part
     index with the unselected parts grey. With ``regions`` (the compared parts by label), each
     shape's voxels of those parts in their label colours and the rest grey and translucent, as
-    layers (:func:`primkit.embedding.region_layers`)."""
-    from ..embedding import region_layers
+    layers (:func:`primkit.viz.maps.region_layers`)."""
+    from ..viz.maps import region_layers
     from ..viz.palette import part_colors
     from ..geometry import voxel_boundary_mesh
 
@@ -194,6 +194,7 @@ def _picture_path(path):
 
 def _cmd_embed(args) -> int:
     from .. import embedding
+    from ..viz import maps
     from ..data import plan_run
     from ..io import check_suffix, write_array
 
@@ -239,14 +240,15 @@ def _cmd_embed(args) -> int:
     what = "voxel IoU" if X is None else f"{_chosen(args, desc)}, {','.join(desc.what_)}"
     if args.png or args.svg:
         meshes = _thumb_meshes(results, grids, args.thumbnails, _selected(desc), _regions(described, range(s)))
-        images = embedding.render_thumbnails(meshes, size=args.thumb_size, progress=progress_of(args))
-        embedding.draw_map(coords, images, args.png, svg=args.svg, title=f"t-SNE map of {s} shapes: {what}")
+        images = maps.render_thumbnails(meshes, size=args.thumb_size, progress=progress_of(args))
+        maps.draw_map(coords, images, args.png, svg=args.svg, title=f"t-SNE map of {s} shapes: {what}")
     print(f"{s} shapes embedded ({what}) -> {out}")
     return report_errors(errors)
 
 
 def _cmd_similar(args) -> int:
     from .. import embedding
+    from ..viz import maps
 
     out = Path(args.output)
     query_files = collect([args.query])
@@ -287,9 +289,9 @@ def _cmd_similar(args) -> int:
         shown = [len(results)] + list(order)  # the query's labelled grid comes after the collection's
         meshes = _thumb_meshes([query] + [results[j] for j in order], np.concatenate([qgrid, grids[order]]), args.thumbnails,
                                sel, _regions(described, shown))
-        images = embedding.render_thumbnails(meshes, size=160, progress=progress_of(args))
+        images = maps.render_thumbnails(meshes, size=160, progress=progress_of(args))
         what = "voxel IoU" if X is None else f"{_chosen(args, desc)}, {','.join(desc.what_)}"
-        embedding.draw_matches(images[0], images[1:], [results[j].name for j in order], dist, args.png,
+        maps.draw_matches(images[0], images[1:], [results[j].name for j in order], dist, args.png,
                                query_name=query.name, title=f"nearest to {query.name} by {what}")
     return report_errors(errors)
 
