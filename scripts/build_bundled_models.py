@@ -243,6 +243,38 @@ def held_out(abstractor, meta, limit: int, refine: int, pictures: Path | None, n
     return {"held_out_total": total, "evaluated": len(shapes), "network": plain, "refined": refined}
 
 
+#: The animal model's names for the procedural animals' eight parts (scripts/name_bundled_models.sh).
+ANIMAL_NAMES = "0=body,1=head,2=neck,3=legs,4=legs,5=legs,6=legs,7=tail"
+
+
+def procedural_named(model_path: Path, category: str, label_names: str, count: int = 20, seed: int = 9) -> dict:
+    """``primkit segment --semantic`` (default flags) on ``count`` procedural shapes of ``seed`` (never
+    used for naming, which used seed 7): the share of each shape's surface named right, area-weighted."""
+    from primkit import synthetic
+    from primkit.cli import main as cli
+    from primkit.segmentation.evaluation import read_ground_truth
+
+    with tempfile.TemporaryDirectory() as tmp:
+        files = synthetic.write_collection(Path(tmp) / "in", category, count, seed=seed)
+        out = Path(tmp) / "seg"
+        if cli(["segment", str(Path(tmp) / "in"), "--model", str(model_path), "-o", str(out), "--semantic", "-q"]) != 0:
+            raise RuntimeError("segment failed")
+        codes = dict(line.split(",") for line in (out / "labels.csv").read_text().splitlines()[1:])
+        right, names = [], []
+        for f in files:
+            mesh = io.read_mesh(f)
+            truth = read_ground_truth(f.with_suffix(".seg"), len(mesh.faces), label_names=label_names, names=names)
+            got = io.read_labels(out / f"{f.stem}.seg", len(mesh.faces))
+            got = np.array([truth.names.index(codes[str(c)]) if str(c) in codes and codes[str(c)] in truth.names else -1
+                            for c in got])
+            v = mesh.vertices[mesh.faces]
+            area = 0.5 * np.linalg.norm(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]), axis=1)
+            ok = truth.labels >= 0
+            right.append(float(area[ok & (got == truth.labels)].sum() / area[ok].sum()))
+    return {"shapes": count, "seed": seed, "area_right": round(float(np.mean(right)), 4),
+            "worst": round(float(np.min(right)), 4)}
+
+
 def card_text(name: str, card: dict) -> str:
     m = card["metrics"]
     lines = [f"# primkit bundled model: {name}", "", card["summary"], "",
@@ -281,6 +313,12 @@ def card_text(name: str, card: dict) -> str:
                          f"same index across chairs: {agree}")
         r = c["turned_align_auto"]
         lines.append(f"- each chair turned at random (axis-aligned): up recovered {r['up_recovered']}")
+    if "procedural_named" in m:
+        p = m["procedural_named"]
+        lines.append("")
+        lines.append(f"Procedural animals ({p['shapes']} of primkit.synthetic's, seed {p['seed']}, never named from), "
+                     f"segment --semantic with default flags: {p['area_right']:.1%} of the surface named right "
+                     f"(worst shape {p['worst']:.1%}).")
     if "coseg_deform" in m:
         d = m["coseg_deform"]
         lines.append(f"- primkit deform on {d['pairs']} ordered pairs: {d['closer']} end closer to the target than the "
@@ -300,7 +338,7 @@ def _naming(meta: dict) -> str:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", required=True, type=Path, help="folder with NAME.safetensors from primkit train --preset NAME")
-    ap.add_argument("--names", nargs="+", default=["chair", "table", "airplane"])
+    ap.add_argument("--names", nargs="+", default=["chair", "table", "airplane", "animal"])
     ap.add_argument("--limit", type=int, default=200, help="held-out shapes evaluated per model (evenly spaced)")
     ap.add_argument("--refine", type=int, default=200)
     ap.add_argument("--pictures", type=Path, default=None)
@@ -309,6 +347,8 @@ def main(argv=None) -> int:
     ap.add_argument("--partnet", nargs="*", default=["validation"], choices=["validation", "test"],
                     help="chair: the PartNet parts to evaluate (test: once, for the model that ships)")
     ap.add_argument("--deform-pairs", type=int, default=0, help="chair: COSEG pairs for primkit deform (0: all 90)")
+    ap.add_argument("--training-note", default=None,
+                    help="how the training ran, when not alone on the machine (e.g. '1 torch thread, beside a second run')")
     args = ap.parse_args(argv)
     if args.pictures:
         args.pictures.mkdir(parents=True, exist_ok=True)
@@ -327,6 +367,8 @@ def main(argv=None) -> int:
         if name == "chair" and (SHARED / "coseg_chairs").is_dir():
             metrics["coseg_chairs"] = coseg_chairs(abstractor, args.refine, args.pictures, args.cache)
             metrics["coseg_deform"] = coseg_deform(src, args.deform_pairs)
+        if name == "animal":
+            metrics["procedural_named"] = procedural_named(src, "animal", ANIMAL_NAMES)
         t = meta["training"]
         cfg = t["config"]
         card = {
@@ -340,7 +382,8 @@ def main(argv=None) -> int:
                         f"existence by {cfg.get('existence_gradient', 'reinforce')} gradient, "
                         f"parsimony {cfg['parsimony']}, seed {cfg['seed']}",
             "part_names": _naming(meta),
-            "training_time": f"{t['seconds'] / 60:.1f} min on {t['device']} ({os.cpu_count()} cores, {platform.processor() or platform.machine()}), torch {t['torch']}",
+            "training_time": f"{t['seconds'] / 60:.1f} min on {t['device']} ({os.cpu_count()} cores, {platform.processor() or platform.machine()}), torch {t['torch']}"
+                             + (f"; {args.training_note}" if args.training_note else ""),
             "metrics": metrics,
         }
         card["text"] = card_text(name, card)

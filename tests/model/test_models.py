@@ -12,8 +12,8 @@ from primkit.metrics import score
 from primkit.model.bundled import bundled_models, resolve_model
 from primkit.model.presets import PRESETS
 
-EXPECTED = {"chair", "table", "airplane"}  # the animal model was dropped (issue 32)
-RETRAINED = ("chair", "airplane")  # with the local existence gradient, the paper's schedule
+EXPECTED = {"chair", "table", "airplane", "animal"}
+RETRAINED = ("chair", "airplane", "animal")  # with the local existence gradient, the paper's schedule
 
 
 def _kind(path):
@@ -37,7 +37,7 @@ def test_every_preset_is_bundled_with_a_card():
         assert card["text"].startswith(f"# primkit bundled model: {name}")
         names = meta["part_names"]  # learned on procedural shapes (scripts/name_bundled_models.sh)
         assert len(names) == Abstractor.load(path).parts and meta["part_naming"]["shapes"] > 0
-    assert total < 4 * 2**20  # small enough for a wheel
+    assert total < 5 * 2**20  # small enough for a wheel (five models of 0.5-1.7 MB)
 
 
 def test_retrained_models_were_trained_with_their_preset():
