@@ -438,7 +438,9 @@ class Abstractor:
         candidates on every shape. ``"auto"`` scores every shape in all 24 orientations and keeps,
         for each, the best turn about the expected up axis unless an orientation with another up
         axis cuts the loss by the margin (:func:`primkit.model.orientation.choose_orientation`):
-        the shape is then clearly lying down. The expected up axis is +Y, or the collection's: up
+        the shape is then clearly lying down. An axis the shape is mirror symmetric across
+        (:func:`primkit.model.orientation.mirror_symmetry`) is never taken as up, the expected one
+        included: a pedestal stool is not laid on its side, and one that lies is stood up. The expected up axis is +Y, or the collection's: up
         to ``vote_shapes`` shapes (spread over the collection) each pick their own up axis from +Y
         by the margin, and when two thirds of them agree (and there is more than one shape) that
         axis is expected of every shape. So a symmetric stool among chairs keeps the collection's
@@ -470,19 +472,13 @@ class Abstractor:
         rotations = orientation.AXIS_ROTATIONS
         up_decided = ["given"] * len(shapes)
         if mode == "auto":
-            sample = np.unique(np.linspace(0, len(shapes) - 1, min(vote_shapes, len(shapes))).round().astype(int))
+            sample = orientation.vote_sample(len(shapes), vote_shapes)
             everything = np.arange(len(rotations))
             candidates = everything
             draws: dict = {}
             sample_losses, sample_raw = self._score_candidates([shapes[i] for i in sample], everything,
                                                                existence_threshold, chunk, keep_raw=answers,
                                                                draws=draws)
-            picks = [orientation.choose_orientation(row, everything, "auto", margin) for row in sample_losses]
-            ups = [tuple(rotations[k][1]) for k in picks]
-            common = max(set(ups), key=ups.count)
-            agree = ups.count(common)
-            voted = agree * 3 >= 2 * len(ups) and len(shapes) > 1
-            expected = np.asarray(common if voted else (0.0, 1.0, 0.0))
             losses = np.empty((len(shapes), len(everything)))
             losses[sample] = sample_losses
             rest = np.setdiff1d(np.arange(len(shapes)), sample)
@@ -494,16 +490,19 @@ class Abstractor:
                                                                 draws=draws)
                 order = np.concatenate([sample, rest])
                 raw.append(rest_raw)
-            choice = [orientation.choose_orientation(row, everything, "auto", margin, up=expected) for row in losses]
+            symmetry = np.array([orientation.mirror_symmetry(s.occupancy) for s in shapes])
+            vote = orientation.choose_auto(losses, margin, vote_shapes, symmetry=symmetry)
+            choice = list(vote.choice)
             loss = [float(losses[i, c]) for i, c in enumerate(choice)]
             as_given = [float(row[0]) for row in losses]
             for i, c in enumerate(choice):
-                if not voted:
+                if not vote.voted:
                     up_decided[i] = "shape"
-                elif np.allclose(rotations[c][1], expected):
-                    up_decided[i] = f"collection: {agree} of {len(ups)} sampled shapes"
+                elif np.allclose(rotations[c][1], vote.expected):
+                    up_decided[i] = f"collection: {vote.agree} of {vote.voters} sampled shapes"
                 else:
-                    up_decided[i] = f"shape: lying down against the collection's ({agree} of {len(ups)} sampled shapes)"
+                    up_decided[i] = (f"shape: lying down against the collection's ({vote.agree} of {vote.voters} "
+                                     "sampled shapes)")
         else:
             candidates = orientation.candidate_rotations(mode)
             losses, raw = self._score_candidates(shapes, candidates, existence_threshold, chunk, keep_raw=answers)
