@@ -38,7 +38,7 @@ ignores it. ``--draw PNG`` draws chairs of each kind, to check the rule by eye.
 
 Per group: chairs; mean per-chair IoU of back, seat and legs under the paper's protocol (1 when a
 label is absent from both) and their mean; arm detection (a chair *has* arms when an index mapped
-to arms holds a voxel): true and false positives, missed, F1; for chairs without a back label, the
+to arms holds a voxel): true and false positives, missed, F1 (none where no chair has arms); for chairs without a back label, the
 share with no back index either; cuboids per chair.
 
 **Procedural shapes** (:mod:`primkit.synthetic`, fixed seeds below, each group segmented as its own
@@ -206,7 +206,7 @@ def group_figures(assignments, truths, mapping, parts, labels) -> dict:
         "iou": iou,
         "mean_iou": round(float(np.mean([iou[k] for k in MEAN_OVER])), 4),
         "arms": {"with": int(has_t[:, arm].sum()), "true_positive": tp, "false_positive": fp, "missed": fn,
-                 "f1": round(2 * tp / (2 * tp + fp + fn), 3) if tp + fp + fn else None},
+                 "f1": round(2 * tp / (2 * tp + fp + fn), 3) if has_t[:, arm].any() else None},
         "back_absent_kept_absent": (round(float(np.mean(~has_p[no_back, back])), 3) if no_back.any() else None),
         "without_back": int(no_back.sum()),
         "parts_mean": round(float(np.mean(parts)), 2),

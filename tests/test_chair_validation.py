@@ -119,4 +119,6 @@ def test_group_figures_against_hand_counts(cv):
     assert f["mean_iou"] == pytest.approx((0.25 + 0.5 + 1.0) / 3, abs=1e-4)
     assert f["arms"] == {"with": 1, "true_positive": 0, "false_positive": 0, "missed": 1, "f1": 0.0}
     assert (f["without_back"], f["back_absent_kept_absent"], f["parts_mean"]) == (1, 0.0, 4.0)
+    armless = cv.group_figures(assignments[1:], truths[1:], mapping, np.array([3]), labels)
+    assert armless["arms"] == {"with": 0, "true_positive": 0, "false_positive": 0, "missed": 0, "f1": None}
     assert cv.group_figures([], [], mapping, np.array([], int), labels) == {"chairs": 0}
