@@ -23,6 +23,7 @@ import argparse
 import json
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -46,15 +47,36 @@ def split(chairs=CHAIRS, labels=PARTNET, hold_out_every: int = 10):
     return labelled[0::2], labelled[1::2], archive
 
 
-def evaluate(model, files, archive, *, refine: int = 0, workers=None, progress: bool = False, labelling=None) -> dict:
-    """Segment ``files`` with ``model`` (default flags) and score them against ``archive``."""
-    segmenter = Segmenter(model, refine=refine, labelling=labelling)
+@dataclass
+class ChairRun:
+    """One segmentation run over labelled chair files: the segmentations (input order, files that
+    failed left out), their ground truths, the errors, the seconds it took and the segmenter."""
+
+    segmentations: list
+    truths: list
+    errors: list
+    seconds: float
+    segmenter: Segmenter
+    refine: int = 0
+
+
+def segment_chairs(model, files, archive, *, refine: int = 0, workers=None, progress: bool = False, labelling=None,
+                   adapt=None) -> ChairRun:
+    """Segment ``files`` with ``model`` (default flags; ``adapt``: adapted to ``files`` first, without
+    labels, as ``primkit segment --adapt``) and look up their labels in ``archive``."""
+    segmenter = Segmenter(model, refine=refine, labelling=labelling, adapt=adapt)
     t0 = time.perf_counter()
     segs, errors = segmenter.segment_files(files, workers=workers, progress=progress)
     seconds = time.perf_counter() - t0
     truths = [archive.get(s.name, s.grid.occupancy.shape) for s in segs]
-    report = evaluate_voxels([s.labels for s in segs], truths, segmenter.abstractor.parts,
-                             part_names=segmenter.part_names, names=[s.name for s in segs],
+    return ChairRun(segs, truths, errors, seconds, segmenter, refine)
+
+
+def score(run: ChairRun) -> dict:
+    """The report of a :class:`ChairRun` (see the module notes)."""
+    segs = run.segmentations
+    report = evaluate_voxels([s.labels for s in segs], run.truths, run.segmenter.abstractor.parts,
+                             part_names=run.segmenter.part_names, names=[s.name for s in segs],
                              mean_over=MEAN_OVER).to_dict()  # extended below with the run's figures
     present = np.array([s.cuboids.existence for s in segs], bool)
     counts = present.sum(axis=1)
@@ -63,9 +85,9 @@ def evaluate(model, files, archive, *, refine: int = 0, workers=None, progress: 
         key = tuple(int(k) for k in np.flatnonzero(row))
         index_sets[key] = index_sets.get(key, 0) + 1
     report.update({
-        "errors": errors,
-        "seconds": round(seconds, 1),
-        "refine": refine,
+        "errors": run.errors,
+        "seconds": round(run.seconds, 1),
+        "refine": run.refine,
         "frames": "default flags: no axes declared (+Y up unless the collection lies on a side, front searched)",
         "parts_histogram": {str(n): int(c) for n, c in zip(*np.unique(counts, return_counts=True))},
         "parts_mean": float(counts.mean()),
@@ -74,6 +96,13 @@ def evaluate(model, files, archive, *, refine: int = 0, workers=None, progress: 
         "most_common_index_sets": [[list(k), v] for k, v in sorted(index_sets.items(), key=lambda kv: -kv[1])[:3]],
     })
     return report
+
+
+def evaluate(model, files, archive, *, refine: int = 0, workers=None, progress: bool = False, labelling=None,
+             adapt=None) -> dict:
+    """Segment ``files`` with ``model`` (default flags) and score them against ``archive``."""
+    return score(segment_chairs(model, files, archive, refine=refine, workers=workers, progress=progress,
+                                labelling=labelling, adapt=adapt))
 
 
 def summary_lines(report: dict) -> list[str]:
