@@ -23,10 +23,10 @@ A gradient-boosted tree ensemble (scikit-learn's ``HistGradientBoostingClassifie
 labels from a few labelled shapes; its class probabilities are blended with the index-naming
 prior (the shares of the labels on each cuboid index over the labelled shapes, ``prior_weight``),
 then averaged over each element's nearest neighbours (``smooth`` rounds), and each element takes
-the most probable label; a labeller that knows ``arms`` then asks the shape whether it has any
-(:mod:`primkit.segmentation.presence`: what rises beside the seat), and one that knows ``seat``
-and ``legs`` puts the boundary between them on a voxel grid at one horizontal cut
-(:mod:`primkit.segmentation.layers`: where the seat ends).
+the most probable label; then the post-steps its file names run in order
+(:mod:`primkit.segmentation.post`: a category's rules, e.g. a chair's arms read from what rises
+beside the seat, and where its seat ends), each with the labels it was told; none is chosen by
+how a label is spelled.
 
 Storage without code: the fitted trees are exported to plain arrays (:class:`TreeEnsemble`: per
 node the feature, threshold, children, leaf value and the side missing values go to) and saved as
@@ -54,8 +54,8 @@ import numpy as np
 
 from .. import primitives
 from ..model.modelfile import ModelFileError
-from .layers import LayerCut, apply_layer_cut, cut_levels, cut_reads, layer_levels
-from .presence import PresenceRule, apply_presence, side_region
+from .layers import layer_levels
+from .post import resolve_post, step_from_dict, step_to_dict
 from .profile import PROFILE_FEATURES, column_range, profile_features
 from .sides import SIDE_FEATURES, side_features
 
@@ -81,18 +81,14 @@ __all__ = [
 
 #: Value of the ``format`` key of a labeller's JSON description.
 LABELLER_FORMAT = "primkit-labeller"
-#: Version of the labeller's arrays and description; newer ones are refused on load. Version 2
-#: stores feature and child indices as int16 (version 1: int64) and may carry ``labeller.prior``;
-#: version 3 adds the ``profile`` setting (the shape-profile features; versions 1-2 read it false);
-#: version 4 the ``sides`` setting (the side features; versions 1-3 read it false) and may carry
-#: ``presence`` (:class:`primkit.segmentation.presence.PresenceRule`; versions 1-3: none); version
-#: 5 the rule's ``fill`` (version 4 rules read it off); version 6 may carry ``layer_cut``
-#: (:class:`primkit.segmentation.layers.LayerCut`; versions 1-5: none); version 7 the cut's
-#: ``floor`` (version 6 cuts read 0: the densest layer sought among all); version 8 the cut's
-#: ``restore`` (versions 6-7 read it false: a shape without the lower label left alone); version
-#: 9 the presence rule's ``grid_add`` (versions 5-8 read its ``add``); version 10 the rule's
-#: ``hint``, ``hint_add`` and ``grid_hint_add`` (versions 4-9 read the hint off).
-LABELLER_FORMAT_VERSION = 10
+#: Version of the labeller's arrays and description: the only one read (a file of another version
+#: is refused in one line that says how to learn it again). Every field is written, the post-steps
+#: as a list (``post``, :mod:`primkit.segmentation.post`); feature and child indices as int16.
+LABELLER_FORMAT_VERSION = 11
+#: Every key of a labeller's description.
+DESCRIPTION_KEYS = ("format", "format_version", "names", "parts", "features", "settings", "classifier", "info", "post")
+#: How a labeller file rebuilds: the message of a refused version ends with it.
+LABELLER_REBUILD = "learn it again with `primkit name-parts LABELLED --model MODEL -o FILE` (docs/labeller.md)"
 #: Prefix of a labeller's tensors in a model file (beside the network's weights).
 LABELLER_PREFIX = "labeller."
 #: Metadata key of a labeller's description in a model file.
@@ -102,28 +98,16 @@ LABELLER_KEY = "labeller"
 #: scikit-learn cannot bin a column that is missing on every training shape).
 ABSENT = 1.0e4
 
-#: How each format version stores the tree arrays whose type differs from the one in memory
-#: (:attr:`TreeEnsemble.ARRAYS`): version 2 keeps feature and child indices in int16 (a third of
-#: the bytes per node: the bundled chair model's labeller fits the wheel).
-STORED = {1: {}, 2: {"feature": np.int16, "left": np.int16, "right": np.int16}}
-STORED[3] = STORED[2]  # the same arrays; the description's settings gained ``profile``
-STORED[4] = STORED[2]  # the same arrays; the description's settings gained ``sides``
-STORED[5] = STORED[2]  # the same arrays; the presence rule gained ``fill``
-STORED[6] = STORED[2]  # the same arrays; the description gained ``layer_cut``
-STORED[7] = STORED[2]  # the same arrays; the layer cut gained ``floor``
-STORED[8] = STORED[2]  # the same arrays; the layer cut gained ``restore``
-STORED[9] = STORED[2]  # the same arrays; the presence rule gained ``grid_add``
-STORED[10] = STORED[2]  # the same arrays; the presence rule gained the hint
+#: How the file stores the tree arrays whose type differs from the one in memory
+#: (:attr:`TreeEnsemble.ARRAYS`): feature and child indices in int16 (a third of the bytes per
+#: node: the bundled chair model's labeller fits the wheel).
+STORED = {"feature": np.int16, "left": np.int16, "right": np.int16}
 
-#: ``Labeller.fit(presence="auto")`` keeps the presence rule when it contradicts at most this share
-#: of the labelled shapes' own labels (it would take their label away, or give it to a shape
-#: without it).
-PRESENCE_TOLERANCE = 0.2
-#: ``Labeller.fit(layer_cut="auto")`` keeps the layer cut when at most ``PRESENCE_TOLERANCE`` of the
-#: labelled voxel grids contradict it: the cut, run on a grid's own labels, would move more than
-#: this share of its ``upper`` and ``lower`` voxels (of the 218 PartNet validation chairs
-#: with a seat: 16, 7%).
-LAYER_TOLERANCE = 0.1
+#: ``Labeller.fit`` keeps a post-step it checks when it contradicts at most this share of the
+#: labelled shapes' own labels (the arms rule: it would take their label away, or give it to a
+#: shape without it, on 13 of the 219 PartNet validation chairs, 5.9%; the seat cut: it would move
+#: more than a tenth of a grid's seat and legs voxels on 16 of the 218 with a seat, 7%).
+POST_TOLERANCE = 0.2
 
 #: Bounds on what a stored labeller may ask for (a hostile file allocates nothing beyond them).
 MAX_NODES = 50_000_000
@@ -568,7 +552,7 @@ class LabellerSettings:
         odd; 8: the voxels whose three indices are even); every other
         voxel takes the mean probabilities of the classified voxels of its 3 x 3 x 3 neighbourhood
         (or is classified itself when it has none), before the smoothing. Labelling costs about
-        ``1 / grid_sample`` of the features and the tree walk; files without the key read 1.
+        ``1 / grid_sample`` of the features and the tree walk.
     prior_weight : float
         The classifier's probabilities are blended with the index-naming prior: ``(1 - w) p + w
         prior[k]``, ``prior[k]`` the shares of the labels among the labelled elements whose nearest
@@ -576,13 +560,13 @@ class LabellerSettings:
         labelled shapes the prior (what one name per index knows) steadies the trees. None (the
         default): chosen by :meth:`Labeller.fit` from the number ``s`` of labelled shapes,
         ``min(0.4, 4 / s)`` (0.4 up to 10 shapes, 0.1 from 40: the best on the PartNet
-        validation chairs from 3, 10 and 40); files without the key read 0.
+        validation chairs from 3, 10 and 40).
     profile : bool
         Whether the shape-profile features (:func:`primkit.segmentation.profile.profile_features`)
-        follow the frame's; files without the key (format versions 1-2) read false.
+        follow the frame's.
     sides : bool
         Whether the side features (:func:`primkit.segmentation.sides.side_features`) end the
-        feature vector (after the profile's); files without the key (format versions 1-3) read false.
+        feature vector (after the profile's).
     """
 
     neighbours: int = 16
@@ -597,8 +581,6 @@ class LabellerSettings:
 
     #: the values ``grid_sample`` may take
     GRID_SAMPLES = (1, 2, 4, 8)
-    #: what a key absent from a stored description reads (files written before it existed)
-    OLD_DEFAULTS = {"grid_sample": 1, "prior_weight": 0.0, "profile": False, "sides": False}
 
     def to_dict(self) -> dict:
         return {"neighbours": self.neighbours, "smooth_neighbours": self.smooth_neighbours, "smooth": self.smooth,
@@ -607,11 +589,12 @@ class LabellerSettings:
 
     @classmethod
     def from_dict(cls, d: dict) -> "LabellerSettings":
-        if not isinstance(d, dict):
-            raise ValueError("settings must be a JSON object")
+        keys = cls(prior_weight=0.0).to_dict()
+        if not isinstance(d, dict) or set(d) != set(keys):
+            raise ValueError(f"settings must be a JSON object with {', '.join(sorted(keys))}")
         out = {}
-        for key, default in cls(prior_weight=0.0).to_dict().items():
-            value = d.get(key, cls.OLD_DEFAULTS.get(key, default))  # written before the key existed
+        for key, default in keys.items():
+            value = d[key]
             if isinstance(default, bool):
                 if not isinstance(value, bool):
                     raise ValueError(f"settings {key} must be true or false")
@@ -1295,12 +1278,11 @@ class Labeller:
         How :meth:`classify` walks the trees (:meth:`TreeEnsemble.raw_predict`'s ``stop``; not
         stored: a way of labelling, not part of what was learned): :data:`EARLY_STOP`, or None
         for every tree (the exact ``predict_proba``).
-    presence : PresenceRule or None
-        Whether a shape has its label at all, read from the shape's side region after the
-        decision (:mod:`primkit.segmentation.presence`; voxels, points and, after the cut, a mesh's faces).
-    layer_cut : LayerCut or None
-        Where the seat ends: one horizontal cut between two labels, after the presence rule, on a
-        voxel grid's layers (:mod:`primkit.segmentation.layers`; faces and points are left alone).
+    post : tuple of post-steps
+        The rules run after the decision, in order (:mod:`primkit.segmentation.post`; e.g. a
+        chair's :class:`~primkit.segmentation.presence.PresenceRule` and
+        :class:`~primkit.segmentation.layers.LayerCut`): stored in the file by name with every
+        parameter, applied because the file names them.
     """
 
     names: list
@@ -1310,13 +1292,12 @@ class Labeller:
     info: dict = field(default_factory=dict)
     prior: np.ndarray | None = None
     early_stop: tuple | None = EARLY_STOP
-    presence: PresenceRule | None = None
-    layer_cut: LayerCut | None = None
+    post: tuple = ()
 
     @classmethod
     def fit(cls, shapes, names, parts: int, *, settings: LabellerSettings | None = None, per_shape: int = 1000,
             max_iter: int = 100, learning_rate: float = 0.1, max_leaf_nodes: int = 31, seed=0,
-            info: dict | None = None, presence="auto", layer_cut="auto", **options) -> "Labeller":
+            info: dict | None = None, post=None, post_check: bool = True, **options) -> "Labeller":
         """Learn a labeller from labelled shapes.
 
         Parameters
@@ -1333,49 +1314,35 @@ class Labeller:
             shape weighs the same whatever its element count.
         max_iter, learning_rate, max_leaf_nodes, options : the classifier's (``l2_regularization``, ...).
         seed : int, the subsets' and the classifier's random state.
-        presence : PresenceRule, None or "auto"
-            The presence rule kept with the labeller; "auto": :class:`PresenceRule`'s defaults
-            (chosen on PartNet validation chairs) when the learned labels include ``"arms"`` and the
-            rule agrees with the labelled shapes themselves: it would take the label from, or give it
-            to, at most :data:`PRESENCE_TOLERANCE` of them wrongly (on the 219 PartNet validation
-            chairs: 13, 5.9%; a category whose "arms" do not rise beside a seat has the rule off);
-            else none. ``info["presence_check"]`` says what was found.
-        layer_cut : LayerCut, None or "auto"
-            The layer cut kept with the labeller; "auto": :class:`LayerCut`'s defaults (chosen on
-            PartNet validation chairs) when the learned labels include its ``upper`` and ``lower``,
-            some labelled shapes are voxel grids (their positions lie on layers) and at most
-            :data:`PRESENCE_TOLERANCE` of those contradict it (:data:`LAYER_TOLERANCE`); else none
-            (a labeller learned from meshes or points alone has none). ``info["layer_cut_check"]``
-            says what was found.
+        post : None, str, dict, step or a list of them
+            The post-steps to keep with the labeller (:func:`primkit.segmentation.post.resolve_post`:
+            ``"chair"``, ``"chair.arms_from_side_region:label=armrest"``, a step object, ...);
+            None (the default): none. A step is kept when every label it reads was learned.
+        post_check : bool
+            Keep a step only when it agrees with the labelled shapes themselves: it contradicts
+            their own labels on at most :data:`POST_TOLERANCE` of the shapes it reads (a chair
+            whose arms do not rise beside its seat, a grid whose seat and legs it would move; the
+            seat cut also needs some voxel grids among them). ``info["post_check"]`` says what was
+            found, per step. False: every step given is kept.
         """
         from sklearn.ensemble import HistGradientBoostingClassifier
 
         settings = settings or LabellerSettings()
         rng = np.random.default_rng(seed)
         Xs, ys, ws, priors = [], [], [], []
-        rule = PresenceRule() if presence == "auto" and PresenceRule().label in list(names) else None
-        checked = contradicted = 0
-        cut = LayerCut() if layer_cut == "auto" else None
-        cut = cut if cut is not None and {cut.upper, cut.lower} <= set(names) else None
-        layered = against = 0
+        steps = [step for step in resolve_post(post) if set(step.labels()) <= set(names)]
+        checks = [[0, 0] for _ in steps]  # per step: shapes read, shapes contradicted
         for shape in shapes:
             X, y = np.asarray(shape[0], float), np.asarray(shape[1], np.int64)
             weight = float(shape[2]) if len(shape) > 2 else 1.0
             keep = np.flatnonzero((y >= 0) & (y < len(names)))
-            # the first columns: canonical positions; on layers: a voxel grid's
-            level = layer_levels(X[keep, 1]) if len(keep) and (rule is not None or cut is not None) else None
-            if rule is not None and len(keep):  # would the rule contradict this shape's own labels?
-                has = np.mean(y[keep] == list(names).index(rule.label)) >= settings.min_share
-                share = float(np.mean(side_region(X[:, :3])))
-                checked += 1
-                # the rule's hint rests on the labeller's probabilities, which do not exist yet
-                added = share >= (rule.add if level is None else rule.grid_add)
-                contradicted += int(share < rule.veto if has else added)
-            if cut is not None and level is not None:  # would the cut move many of this grid's own seat and legs?
-                moved = _layer_cut_moves(level, y[keep], list(names), cut)
-                if moved is not None:
-                    layered += 1
-                    against += int(moved > LAYER_TOLERANCE)
+            if post_check and steps and len(keep):  # would a step contradict this shape's own labels?
+                level = layer_levels(X[keep, 1])  # the first columns: canonical positions; on layers: a grid's
+                for step, check in zip(steps, checks):
+                    against = step.contradicts(X, y[keep], list(names), settings.min_share, level)
+                    if against is not None:
+                        check[0] += 1
+                        check[1] += int(against)
             if len(keep) and X.shape[1] == feature_count(parts, settings):  # every labelled element
                 counts = np.zeros((parts, len(names)))
                 np.add.at(counts, (nearest_index(X[keep], parts), y[keep]), weight / len(keep))
@@ -1403,18 +1370,17 @@ class Labeller:
         model.fit(X, np.searchsorted(present, y), sample_weight=w * len(Xs))
         kept = [str(names[k]) for k in present]
         info = {**(info or {}), "shapes": len(Xs), "elements": int(len(y))}
-        if presence == "auto":
-            presence = None
-            if rule is not None and rule.label in kept:
-                info["presence_check"] = {"shapes": checked, "contradicted": contradicted}
-                presence = rule if contradicted <= PRESENCE_TOLERANCE * checked else None
-        if layer_cut == "auto":
-            layer_cut = None
-            if cut is not None and {cut.upper, cut.lower} <= set(kept) and layered:
-                info["layer_cut_check"] = {"shapes": layered, "contradicted": against}
-                layer_cut = cut if against <= PRESENCE_TOLERANCE * layered else None
+        kept_steps = []
+        for step, (read, against) in zip(steps, checks):
+            if not set(step.labels()) <= set(kept):
+                continue  # a label the labelled shapes never carry
+            if post_check:
+                info.setdefault("post_check", []).append({"step": step.STEP, "shapes": read, "contradicted": against})
+                if not step.kept(read, against, POST_TOLERANCE):
+                    continue
+            kept_steps.append(step)
         return cls(kept, int(parts), TreeEnsemble.from_sklearn(model), settings, info,
-                   index_prior(priors, present, parts), presence=presence, layer_cut=layer_cut)
+                   index_prior(priors, present, parts), post=tuple(kept_steps))
 
     def features(self, points, cuboids, normals=None, context=None, *, local_shape=None) -> np.ndarray:
         """:func:`frame_features` with this labeller's settings (canonical frame)."""
@@ -1493,33 +1459,17 @@ class Labeller:
 
     def labels_from(self, proba, points, context=None, grid_index=None) -> np.ndarray:
         """``(n,) int``: each element's label from its smoothed probabilities (:meth:`predict_proba`):
-        the most probable one that stays (``settings.min_share``), then :attr:`presence`
-        (:meth:`present`) and :attr:`layer_cut` (:meth:`cut_layers`), in that order."""
-        labels = self.present(decide(proba, self.settings.min_share), proba, points, context,
-                              grid=grid_index is not None)
-        return self.cut_layers(labels, proba, points, grid_index)
+        the most probable one that stays (``settings.min_share``), then the post-steps
+        (:meth:`after`)."""
+        return self.after(decide(proba, self.settings.min_share), proba, points, context, grid_index)
 
-    def present(self, labels, proba, points, context=None, weights=None, grid: bool = False) -> np.ndarray:
-        """``labels`` after :attr:`presence` (unchanged without one or when the labeller does
-        not know its label; ``points``, ``context`` canonical, as :func:`side_region` reads them;
-        ``weights``: each element's weight in the region's share, e.g. a mesh's face areas;
-        ``grid``: the elements are a voxel grid's voxels, the rule's ``grid_add`` and
-        ``grid_hint_add`` apply)."""
-        if self.presence is None or self.presence.label not in self.names or len(labels) == 0:
-            return labels
-        return apply_presence(labels, proba, side_region(points, context), self.names.index(self.presence.label),
-                              self.presence, weights, grid)
-
-    def cut_layers(self, labels, proba, points, grid_index=None) -> np.ndarray:
-        """``labels`` after :attr:`layer_cut` (unchanged without one, or without ``grid_index``:
-        the ``(n, 3) int`` voxel indices of a grid's elements, whose layers the cut reads;
-        ``points`` canonical)."""
-        cut = self.layer_cut
-        if cut is None or grid_index is None or len(labels) == 0 or not {cut.upper, cut.lower} <= set(self.names):
-            return labels
-        most = int(np.max(column_range(np.asarray(grid_index, np.int64))[1])) + 1  # a grid's largest side
-        return apply_layer_cut(labels, proba, np.asarray(points, float)[:, 1], self.names.index(cut.upper),
-                               self.names.index(cut.lower), cut, most)
+    def after(self, labels, proba, points, context=None, grid_index=None, weights=None) -> np.ndarray:
+        """``labels`` after :attr:`post`, in order (``points``, ``context`` canonical; ``grid_index``:
+        the ``(n, 3) int`` voxel indices of a grid's elements, None for faces and points;
+        ``weights``: each element's weight where a step counts shares, e.g. a mesh's face areas)."""
+        for step in self.post:
+            labels = step.apply(self.names, labels, proba, points, context, grid_index, weights)
+        return labels
 
     # -- storage ------------------------------------------------------------------------------
 
@@ -1530,7 +1480,7 @@ class Labeller:
         indices inside its tree, the trees of a few dozen nodes), the rest as in memory."""
         arrays = {}
         for k, v in self.ensemble.arrays().items():
-            dtype = STORED[LABELLER_FORMAT_VERSION].get(k, v.dtype)
+            dtype = STORED.get(k, v.dtype)
             if np.dtype(dtype) != v.dtype and len(v) and (v.min() < np.iinfo(dtype).min or v.max() > np.iinfo(dtype).max):
                 raise ValueError(f"labeller {k} holds values past {np.dtype(dtype).name}: too many features or "
                                  "too large trees to store")
@@ -1541,11 +1491,7 @@ class Labeller:
                        "parts": self.parts, "features": self.ensemble.features,
                        "settings": {**self.settings.to_dict(), "prior_weight": self.settings.prior_weight or 0.0},
                        "classifier": "scikit-learn HistGradientBoostingClassifier, trees exported to arrays",
-                       "info": self.info}
-        if self.presence is not None:
-            description["presence"] = self.presence.to_dict()
-        if self.layer_cut is not None:
-            description["layer_cut"] = self.layer_cut.to_dict()
+                       "info": self.info, "post": [step_to_dict(step) for step in self.post]}
         return arrays, description
 
     @classmethod
@@ -1559,6 +1505,14 @@ class Labeller:
         if version > LABELLER_FORMAT_VERSION:
             raise ValueError(f"{where}: labeller format version {version} is newer than this primkit supports "
                              f"({LABELLER_FORMAT_VERSION}); upgrade primkit")
+        if version != LABELLER_FORMAT_VERSION:
+            raise ValueError(f"{where}: labeller format version {version} is no longer read (this primkit reads "
+                             f"{LABELLER_FORMAT_VERSION}); {LABELLER_REBUILD}")
+        unknown = sorted(set(description) - set(DESCRIPTION_KEYS))
+        missing = sorted(set(DESCRIPTION_KEYS) - set(description))
+        if unknown or missing:
+            raise ValueError(f"{where}: the labeller description " + (f"lacks {', '.join(missing)}" if missing else "")
+                             + ("; " if missing and unknown else "") + (f"has unknown {', '.join(unknown)}" if unknown else ""))
         names, parts = description.get("names"), description.get("parts")
         if not (isinstance(names, list) and 2 <= len(names) <= MAX_CLASSES and all(isinstance(n, str) for n in names)):
             raise ValueError(f"{where}: names must be a list of 2 to {MAX_CLASSES} strings")
@@ -1572,12 +1526,11 @@ class Labeller:
         missing = [k for k in TreeEnsemble.ARRAYS if LABELLER_PREFIX + k not in arrays]
         if missing:
             raise ValueError(f"{where}: lacks the labeller arrays {', '.join(missing)}")
-        stored = STORED[version]
         for k in TreeEnsemble.ARRAYS:
             got = np.asarray(arrays[LABELLER_PREFIX + k])
-            if got.dtype != np.dtype(stored.get(k, TreeEnsemble.ARRAYS[k])):
+            if got.dtype != np.dtype(STORED.get(k, TreeEnsemble.ARRAYS[k])):
                 raise ValueError(f"{where}: {k} is {got.dtype.name}, format version {version} stores "
-                                 f"{np.dtype(stored.get(k, TreeEnsemble.ARRAYS[k])).name}")
+                                 f"{np.dtype(STORED.get(k, TreeEnsemble.ARRAYS[k])).name}")
         ensemble = TreeEnsemble(**{k: np.asarray(arrays[LABELLER_PREFIX + k]).astype(t, copy=False)
                                    for k, t in TreeEnsemble.ARRAYS.items()}, features=features)
         ensemble.check(where)
@@ -1591,38 +1544,23 @@ class Labeller:
                 raise ValueError(f"{where}: prior must be ({parts}, {len(names)}) finite float64 shares")
         elif settings.prior_weight > 0:
             raise ValueError(f"{where}: prior_weight {settings.prior_weight} but no prior")
-        info = description.get("info", {})
-        presence = description.get("presence")
-        if presence is not None:
+        info = description["info"]
+        if not isinstance(info, dict):
+            raise ValueError(f"{where}: info must be a JSON object")
+        post = description["post"]
+        if not isinstance(post, list):
+            raise ValueError(f"{where}: post must be a list of post-steps")
+        steps = []
+        for d in post:
             try:
-                presence = PresenceRule.from_dict(presence, fill=version >= 5, grid_add=version >= 9, hint=version >= 10)
+                step = step_from_dict(d)
             except ValueError as exc:
                 raise ValueError(f"{where}: {exc}") from None
-            if presence.label not in names:
-                raise ValueError(f"{where}: the presence rule's label {presence.label!r} is not among the names")
-        cut = description.get("layer_cut") if version >= 6 else None
-        if cut is not None:
-            try:
-                cut = LayerCut.from_dict(cut, floor=version >= 7, restore=version >= 8)
-            except ValueError as exc:
-                raise ValueError(f"{where}: {exc}") from None
-            if not {cut.upper, cut.lower} <= set(names):
-                raise ValueError(f"{where}: the layer cut's labels {cut.upper!r}, {cut.lower!r} are not among "
-                                 "the names")
-        return cls(list(names), parts, ensemble, settings, info if isinstance(info, dict) else {}, prior,
-                   presence=presence, layer_cut=cut)
-
-
-def _layer_cut_moves(level, labels, names, cut: LayerCut):
-    """The share of a labelled grid's ``cut.upper`` and ``cut.lower`` elements that ``cut`` would
-    move, run on the grid's own labels (``Labeller.fit``'s check; ``level``: each element's layer,
-    :func:`layer_levels`); None when it lacks ``cut.upper``, or ``cut.lower`` and the cut does not
-    restore it."""
-    upper, lower = names.index(cut.upper), names.index(cut.lower)
-    if not cut_reads(labels, upper, lower, cut):
-        return None
-    moved = cut_levels(labels, level, (labels == upper).astype(float), upper, lower, cut) != labels
-    return float(np.count_nonzero(moved) / np.count_nonzero((labels == upper) | (labels == lower)))
+            if not set(step.labels()) <= set(names):
+                raise ValueError(f"{where}: the post-step {step.STEP} reads labels "
+                                 f"{', '.join(map(repr, step.labels()))} that are not all among the names")
+            steps.append(step)
+        return cls(list(names), parts, ensemble, settings, info, prior, post=tuple(steps))
 
 
 def decide(proba, min_share: float = 0.0) -> np.ndarray:
@@ -1702,13 +1640,12 @@ def read_labeller(model_path) -> Labeller | None:
     if not isinstance(description, dict):
         raise ModelFileError(model_path, "the labeller description is not a JSON object")
     version = description.get("format_version")
-    if not isinstance(version, int) or isinstance(version, bool) or version not in STORED:
-        try:  # an invalid or newer version: the description's own one-line message
+    if version != LABELLER_FORMAT_VERSION or isinstance(version, bool):
+        try:  # an invalid, older or newer version: the description's own one-line message
             Labeller.from_tensors({}, description, where="labeller")
         except ValueError as exc:
             raise ModelFileError(model_path, str(exc)) from None
-    stored = STORED[version]
-    names = {LABELLER_PREFIX + k: np.dtype(stored.get(k, t)) for k, t in TreeEnsemble.ARRAYS.items()}
+    names = {LABELLER_PREFIX + k: np.dtype(STORED.get(k, t)) for k, t in TreeEnsemble.ARRAYS.items()}
     kinds = {np.dtype(np.int64): "I64", np.dtype(np.float64): "F64", np.dtype(np.uint8): "U8", np.dtype(np.int16): "I16"}
     for name, dtype in names.items():
         if name not in tensors:

@@ -29,7 +29,9 @@ A :class:`LayerCut`, after the labeller's decision:
   below that bottom and keeps its labels. A shape without ``upper`` is left alone.
 
 ``share``, ``window``, ``floor`` and ``restore`` were chosen on PartNet validation chairs, both
-halves in turn (``docs/labeller.md``, "Where the seat ends"). Written here with NumPy counts and
+halves in turn (``docs/labeller.md``). The cut is the labeller post-step ``chair.seat_layer_cut``
+(:mod:`primkit.segmentation.post`): a labeller applies it because its file names it, with the
+labels it is told (``upper``: "seat", "Seat", ...; ``lower``: "legs", ...). Written here with NumPy counts and
 cumulative sums: the best cut is a one-dimensional search over a few layers, which no graph cut or
 segmentation library needs to be asked for (``graphcut.py``'s max-flow was tried for the whole
 labelling and not kept).
@@ -40,6 +42,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
+from .profile import column_range
 
 __all__ = ["LayerCut", "layer_levels", "cut_reads", "apply_layer_cut", "cut_levels", "MAX_LAYERS"]
 
@@ -64,7 +68,7 @@ class LayerCut:
         The densest layer is sought above this share of the layers, counted from the lowest.
     restore : bool
         A shape labelled ``upper`` but not ``lower`` is cut too, at the seat's bottom (the
-        module notes); False: such a shape is left alone (cuts stored before labeller format 8).
+        module notes); False: such a shape is left alone.
     """
 
     upper: str = "seat"
@@ -73,6 +77,9 @@ class LayerCut:
     window: int = 2
     floor: float = 0.2
     restore: bool = True
+
+    #: the post-step's name in a labeller file
+    STEP = "chair.seat_layer_cut"
 
     def __post_init__(self):
         for key in ("upper", "lower"):
@@ -94,17 +101,53 @@ class LayerCut:
                 "floor": float(self.floor), "restore": self.restore}
 
     @classmethod
-    def from_dict(cls, d, *, floor: bool = True, restore: bool = True) -> "LayerCut":
-        """The inverse of :meth:`to_dict`; ValueError (one line) on anything else. ``floor=False``:
-        the object of a file written before ``floor`` existed (labeller format 6: the densest layer
-        sought among all the layers, floor 0); ``restore=False``: before ``restore`` existed
-        (formats 6 and 7: a shape without ``lower`` left alone)."""
-        keys = {"upper", "lower", "share", "window"} | ({"floor"} if floor else set())
-        keys |= {"restore"} if restore else set()
+    def from_dict(cls, d) -> "LayerCut":
+        """The inverse of :meth:`to_dict` (every key); ValueError (one line) on anything else."""
+        keys = set(cls().to_dict())
         if not isinstance(d, dict) or set(d) != keys:
-            raise ValueError(f"layer_cut must be a JSON object with {', '.join(sorted(keys))}")
-        return cls(d["upper"], d["lower"], d["share"], d["window"], d["floor"] if floor else 0.0,
-                   d["restore"] if restore else False)
+            raise ValueError(f"{cls.STEP} must be a JSON object with {', '.join(sorted(keys))}")
+        return cls(**d)
+
+    # -- as a labeller post-step (primkit.segmentation.post) ---------------------------------
+
+    def labels(self) -> tuple:
+        """The labels the step reads (all must be the labeller's)."""
+        return (self.upper, self.lower)
+
+    def describe(self) -> str:
+        return f"{self.upper}/{self.lower} cut at one height on voxel grids" \
+            + (f" ({self.lower} under a {self.upper} that has none)" if self.restore else "")
+
+    def apply(self, names, labels, proba, points, context=None, grid_index=None, weights=None) -> np.ndarray:
+        """``labels`` after the cut (unchanged without ``grid_index``, the ``(n, 3) int`` voxel
+        indices of a grid's elements whose layers the cut reads, or when ``names`` lacks its
+        labels; ``points`` canonical)."""
+        if grid_index is None or len(labels) == 0 or not {self.upper, self.lower} <= set(names):
+            return labels
+        names = list(names)
+        most = int(np.max(column_range(np.asarray(grid_index, np.int64))[1])) + 1  # a grid's largest side
+        return apply_layer_cut(labels, proba, np.asarray(points, float)[:, 1], names.index(self.upper),
+                               names.index(self.lower), self, most)
+
+    def contradicts(self, X, y, names, min_share: float, level, tolerance: float = 0.1) -> bool | None:
+        """Whether the cut, run on one labelled grid's own labels ``y`` (``level``: their layers,
+        :func:`layer_levels`; None: not a grid, not read), would move more than ``tolerance`` of
+        its ``upper`` and ``lower`` elements; None when it does not read the grid."""
+        if level is None:
+            return None
+        names = list(names)
+        upper, lower = names.index(self.upper), names.index(self.lower)
+        if not cut_reads(y, upper, lower, self):
+            return None
+        moved = cut_levels(y, level, (y == upper).astype(float), upper, lower, self) != y
+        return bool(np.count_nonzero(moved) / np.count_nonzero((y == upper) | (y == lower)) > tolerance)
+
+    @staticmethod
+    def kept(shapes: int, contradicted: int, tolerance: float) -> bool:
+        """Whether a fit keeps the cut after its check: some labelled grids read, at most
+        ``tolerance`` of them contradicting it (a labeller learned from meshes or points alone has
+        none)."""
+        return shapes > 0 and contradicted <= tolerance * shapes
 
 
 def layer_levels(heights, most: int = MAX_LAYERS):

@@ -22,8 +22,12 @@ canonical frame: +Y up, +X front); a :class:`PresenceRule` then, after the label
 
 The region's bounds and the two shares were chosen on PartNet validation chairs, then ``fill``,
 ``grid_add`` and the hint on both halves of them in turn, ``grid_add`` on the voxel grids and
-checked on their marching-cubes meshes, where ``add`` stays (``docs/labeller.md``, "Arms from
-shape context"). A stored rule keeps the shares it was stored with.
+checked on their marching-cubes meshes, where ``add`` stays (``docs/labeller.md``). A stored rule
+keeps the shares it was stored with.
+
+The rule is the labeller post-step ``chair.arms_from_side_region`` (:mod:`primkit.segmentation.post`):
+a labeller applies it because its file names it, with the label it is told (``label``: "arms",
+"armrest", ...), never because a label is spelled a certain way.
 """
 
 from __future__ import annotations
@@ -57,24 +61,24 @@ def side_region(points, context=None) -> np.ndarray:
 
 @dataclass(frozen=True)
 class PresenceRule:
-    """When a label is taken from a shape or given to it (the module notes).
+    """When a label is taken from a shape or given to it (the module notes): the post-step
+    ``chair.arms_from_side_region``.
 
     label : str
-        The label the rule decides (e.g. ``"arms"``).
+        The label the rule decides (a chair's arms: ``"arms"``, ``"armrest"``, ...).
     veto : float
         The label is taken away when the side region holds under this share of the elements.
     add : float
         The label goes to the side region's elements when the shape has none of it and the region
         holds at least this share (above 1: never): a mesh's faces, a cloud's points.
     grid_add : float
-        The same for a voxel grid's voxels (rules stored before labeller format 9 read ``add``).
+        The same for a voxel grid's voxels.
     fill : float
         On a shape that keeps the label, the side region's elements whose probability of it is at
-        least this take it (above 1: never; rules stored before format version 5 read 2).
+        least this take it (above 1: never).
     hint : float
         A smaller region gives the label too (``hint_add``, ``grid_hint_add``) when the labeller's
-        mean probability of it over the region is at least this (above 1: never; rules stored
-        before labeller format 10 read 2).
+        mean probability of it over the region is at least this (above 1: never).
     hint_add : float
         That smaller share for a mesh's faces and a cloud's points (above 1: never, the default:
         on meshes it cost arms, ``docs/labeller.md``).
@@ -91,6 +95,9 @@ class PresenceRule:
     hint_add: float = 2.0
     grid_hint_add: float = 0.025
 
+    #: the post-step's name in a labeller file
+    STEP = "chair.arms_from_side_region"
+
     def __post_init__(self):
         if not isinstance(self.label, str) or not self.label:
             raise ValueError("presence label must be a non-empty string")
@@ -105,17 +112,48 @@ class PresenceRule:
                 "hint_add": float(self.hint_add), "grid_hint_add": float(self.grid_hint_add)}
 
     @classmethod
-    def from_dict(cls, d, *, fill: bool = True, grid_add: bool = True, hint: bool = True) -> "PresenceRule":
-        """The inverse of :meth:`to_dict`; ValueError (one line) on anything else. ``fill=False``:
-        the object of a file written before ``fill`` existed (label, veto and add; fill off);
-        ``grid_add=False``: before ``grid_add`` existed (grids read ``add``); ``hint=False``: before
-        the hint existed (hint off)."""
-        keys = {"label", "veto", "add"} | ({"fill"} if fill else set()) | ({"grid_add"} if grid_add else set()) \
-            | ({"hint", "hint_add", "grid_hint_add"} if hint else set())
+    def from_dict(cls, d) -> "PresenceRule":
+        """The inverse of :meth:`to_dict` (every key); ValueError (one line) on anything else."""
+        keys = set(cls().to_dict())
         if not isinstance(d, dict) or set(d) != keys:
-            raise ValueError(f"presence must be a JSON object with {', '.join(sorted(keys))}")
-        return cls(d["label"], d["veto"], d["add"], d["fill"] if fill else 2.0, d["grid_add"] if grid_add else d["add"],
-                   *((d["hint"], d["hint_add"], d["grid_hint_add"]) if hint else (2.0, 2.0, 2.0)))
+            raise ValueError(f"{cls.STEP} must be a JSON object with {', '.join(sorted(keys))}")
+        return cls(**d)
+
+    # -- as a labeller post-step (primkit.segmentation.post) ---------------------------------
+
+    def labels(self) -> tuple:
+        """The labels the step reads (all must be the labeller's)."""
+        return (self.label,)
+
+    def describe(self) -> str:
+        return f"{self.label} only where something rises beside the seat"
+
+    def apply(self, names, labels, proba, points, context=None, grid_index=None, weights=None) -> np.ndarray:
+        """``labels`` after the rule (unchanged when ``names`` lacks its label; ``points``,
+        ``context`` canonical, as :func:`side_region` reads them; ``grid_index`` not None: the
+        elements are a voxel grid's voxels, ``grid_add`` and ``grid_hint_add`` apply; ``weights``:
+        each element's weight in the region's share, e.g. a mesh's face areas)."""
+        if self.label not in names or len(labels) == 0:
+            return labels
+        return apply_presence(labels, proba, side_region(points, context), list(names).index(self.label), self,
+                              weights, grid_index is not None)
+
+    def contradicts(self, X, y, names, min_share: float, level) -> bool | None:
+        """Whether the rule would contradict one labelled shape's own labels (take its label away
+        or give it to a shape without it): ``X`` its features (canonical positions first), ``y``
+        its labelled elements' labels, ``level`` their layers
+        (:func:`primkit.segmentation.layers.layer_levels`; None: not a grid). The hint is left out:
+        it rests on probabilities."""
+        if len(y) == 0:
+            return None
+        has = np.mean(y == list(names).index(self.label)) >= min_share
+        share = float(np.mean(side_region(X[:, :3])))
+        return bool(share < self.veto if has else share >= (self.add if level is None else self.grid_add))
+
+    @staticmethod
+    def kept(shapes: int, contradicted: int, tolerance: float) -> bool:
+        """Whether a fit keeps the rule after its check over the labelled shapes."""
+        return contradicted <= tolerance * shapes
 
 
 def apply_presence(labels, proba, region, label: int, rule: PresenceRule, weights=None,

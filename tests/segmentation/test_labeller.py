@@ -356,11 +356,13 @@ def test_smoothing_is_the_mean_over_the_neighbours_repeated():
 
 
 def test_grid_sample_is_read_back_and_checked():
-    assert LabellerSettings.from_dict({}).grid_sample == 1  # files written before it: every voxel
-    assert LabellerSettings.from_dict({"grid_sample": 2}).grid_sample == 2
-    assert LabellerSettings.from_dict({"grid_sample": 4}).grid_sample == 4
+    every = LabellerSettings(prior_weight=0.0).to_dict()
+    with pytest.raises(ValueError, match="grid_sample"):  # every setting is written: none is assumed
+        LabellerSettings.from_dict({k: v for k, v in every.items() if k != "grid_sample"})
+    assert LabellerSettings.from_dict({**every, "grid_sample": 2}).grid_sample == 2
+    assert LabellerSettings.from_dict({**every, "grid_sample": 4}).grid_sample == 4
     with pytest.raises(ValueError, match="grid_sample"):
-        LabellerSettings.from_dict({"grid_sample": 3})
+        LabellerSettings.from_dict({**every, "grid_sample": 3})
 
 
 def test_decide_drops_labels_below_their_share():
@@ -579,22 +581,27 @@ def test_the_prior_is_each_index_share_of_the_labels_and_is_blended_in(tmp_path)
     np.testing.assert_array_equal(back.classify(X), labeller.classify(X))
 
 
-def test_a_version_1_labeller_still_loads(labelled, tmp_path):
-    """Version 1 stored indices as int64 and had no prior (prior_weight reads 0)."""
-    def widen(a):
-        for k in ("feature", "left", "right"):
-            a["labeller." + k] = a["labeller." + k].astype(np.int64)
-        del a["labeller.prior"]
+@pytest.mark.parametrize("version", [1, 3, 10])
+def test_an_older_labeller_is_refused_in_one_line_that_says_how_to_rebuild_it(labelled, tmp_path, version):
+    """One labeller format is read: an older file is refused in one line naming the file and the
+    command that learns it again (the bundled ones were converted by ``scripts/build_labellers.py
+    --upgrade``)."""
+    old = _rewrite(labelled, tmp_path / f"v{version}.safetensors", None,
+                   lambda d: d.update(format_version=version))
+    with pytest.raises(ModelFileError) as info:
+        lab.read_labeller(old)
+    message = str(info.value)
+    assert len(message.splitlines()) == 1 and str(old) in message and f"version {version}" in message
+    assert "primkit name-parts" in message
 
-    def old(d):
-        d["format_version"] = 1
-        del d["settings"]["prior_weight"]
 
-    got = lab.read_labeller(_rewrite(labelled, tmp_path / "v1.safetensors", widen, old))
-    now = lab.read_labeller(labelled)
-    assert got.settings.prior_weight == 0 and got.prior is None
-    np.testing.assert_array_equal(got.ensemble.feature, now.ensemble.feature)
-    assert got.ensemble.feature.dtype == np.int64
+@pytest.mark.parametrize("key", lab.DESCRIPTION_KEYS[2:])
+def test_every_description_field_is_written_and_required(labelled, tmp_path, key):
+    assert key in lab.read_labeller(labelled).to_tensors()[1]
+    bad = _rewrite(labelled, tmp_path / "bad.safetensors", None, lambda d: d.pop(key))
+    with pytest.raises(ModelFileError) as info:
+        lab.read_labeller(bad)
+    assert key in str(info.value) and len(str(info.value).splitlines()) == 1
 
 
 @pytest.mark.shared
