@@ -855,18 +855,53 @@ def test_the_closed_form_axes_are_eighs():
     np.testing.assert_allclose(np.linalg.norm(got[:, 3:6], axis=1), 1, atol=1e-12)
 
 
-@pytest.mark.shared
-@pytest.mark.integration
-def test_the_shipped_chair_labeller_meets_its_stated_bars_on_the_test_chairs(shared_data):
-    """The chair model as ``primkit segment --semantic`` runs it (``Segmenter``, default flags) on
-    the 218 PartNet test chairs of scripts/partnet_chairs.py's split, scored as
-    ``scripts/labeller_curve.py model`` scores it: the README and docs/labeller.md state mean
-    back/seat/legs IoU 0.810, arm IoU 0.771, arm F1 0.906, and so issue 33's bars for the shipped
-    model (0.78, 0.65, 0.9). The labeller learned from validation chairs only (the test above)."""
-    from scripts.labeller_curve import model_figures
+#: the regression pin below: the bundled chair labeller on the first 30 PartNet validation chairs
+#: (mean back/seat/legs IoU, arm IoU, arm detection F1), measured with this test's own loop
+VALIDATION_30 = {"mean": 0.8816, "arm_iou": 0.8511, "arm_f1": 0.8571}
 
-    got = model_figures("chair", "test")
-    assert got["chairs"] == 218
-    assert got["mean"] >= 0.78 and got["arm_iou"] >= 0.65 and got["arm_f1"] >= 0.9
-    # each figure a chair or two from the stated one (an armed chair of about 90 moves F1 by 0.006)
-    assert abs(got["mean"] - 0.810) < 0.005 and abs(got["arm_iou"] - 0.771) < 0.01 and abs(got["arm_f1"] - 0.906) < 0.012
+
+@pytest.mark.shared
+@pytest.mark.integration  # 30 PartNet chairs segmented as `segment --semantic` runs (about a minute)
+def test_the_bundled_chair_labeller_keeps_its_figures_on_validation_chairs(shared_data):
+    """A regression pin on the validation part (the labeller learned from these chairs, so this says
+    nothing of how it generalises; the test part's figures are reported in docs/labeller.md and
+    pinned nowhere): the first 30 validation chairs of the split (held-out files with PartNet
+    labels, sorted by id, even positions), labelled by ``Segmenter("chair")`` with default flags.
+    Per chair each label's IoU over its occupied voxels (1 when absent from both), averaged over
+    chairs, by a plain loop, and checked against ``evaluate_voxels``' model-names protocol; arm
+    detection F1: a chair has arms at 2% of its voxels, is predicted to at 1%."""
+    from primkit import data
+    from primkit.segmentation import Segmenter, VoxelGroundTruth, VoxelLabelArchive, evaluate_voxels
+
+    _, held = data.split_files(data.find_shape_files(shared_data / "shapenetvox32" / "03001627"), 10)
+    archive = VoxelLabelArchive(shared_data / "partnet_chair_boxes")
+    files = sorted((p for p in held if data.shape_name(p) in archive), key=data.shape_name)[0::2][:30]
+    segmenter = Segmenter("chair")
+    segs, errors = segmenter.segment_files(files, workers=1, progress=False)
+    assert not errors and len(segs) == 30 and segmenter.labeller.names == ["back", "seat", "legs", "arms"]
+    ious, has_t, has_p, assigned, truths = [], [], [], [], []
+    for s in segs:
+        occupied = tuple(np.argwhere(s.grid.occupancy).T)
+        truth = archive.get(s.name, s.grid.occupancy.shape).labels[occupied]
+        named = s.named[occupied]
+        row = []
+        for k in range(4):
+            union = np.count_nonzero((truth == k) | (named == k))
+            row.append(np.count_nonzero((truth == k) & (named == k)) / union if union else 1.0)
+        ious.append(row)
+        has_t.append(np.count_nonzero(truth == 3) >= 0.02 * len(truth))
+        has_p.append(np.count_nonzero(named == 3) >= 0.01 * len(named))
+        grid_p, grid_t = np.full(s.grid.occupancy.shape, -1), np.full(s.grid.occupancy.shape, -1)
+        grid_p[occupied], grid_t[occupied] = named, truth
+        assigned.append(grid_p)
+        truths.append(VoxelGroundTruth(grid_t, ["back", "seat", "legs", "arms"]))
+    ious = np.mean(ious, axis=0)
+    has_t, has_p = np.array(has_t), np.array(has_p)
+    f1 = 2 * np.sum(has_t & has_p) / (2 * np.sum(has_t & has_p) + np.sum(has_t != has_p))
+    got = {"mean": float(np.mean(ious[:3])), "arm_iou": float(ious[3]), "arm_f1": float(f1)}
+    report = evaluate_voxels(assigned, truths, 4, part_names=["back", "seat", "legs", "arms"],
+                             mean_over=["back", "seat", "legs"]).to_dict()["protocols"]["model-names"]
+    assert report["mean_iou"] == pytest.approx(got["mean"], abs=1e-9)
+    assert report["iou"]["arms"] == pytest.approx(got["arm_iou"], abs=1e-9)
+    for key, value in VALIDATION_30.items():  # within 0.005, as a change of the bundled model may move them
+        assert got[key] == pytest.approx(value, abs=0.005), key
