@@ -15,7 +15,7 @@ Usage (from the repository root)::
 ``--exact`` times one more variant in every round: the labeller walking every tree (no early
 stop, ``Labeller.early_stop`` None; the labels ``predict_proba`` gives). ``--before`` times one more variant in every round: the labeller as it labelled before the faster
 paths (a k-d tree for the local shape, the plain tree walk), the same trees. ``--no-cut`` times the
-labeller without its seat/legs layer cut (:mod:`primkit.segmentation.layers`). Each pass prints its
+labeller without its seat/legs layer cut (:mod:`primkit.labelling.layers`). Each pass prints its
 wall time and, with ``--workers 1`` (every file labelled in this process), its CPU time, which
 other jobs on a shared machine disturb less.
 """

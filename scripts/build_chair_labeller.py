@@ -4,7 +4,7 @@ The labeller (:mod:`primkit.segmentation.labeller`) is learned from the PartNet 
 chairs of ``scripts/partnet_chairs.py``'s split (all 219 by default, ``--chairs N``: the first N;
 never the test part), abstracted and segmented as ``primkit segment`` does with default flags,
 exactly as ``primkit name-parts CHAIRS --model chair --labels ../shared/data/partnet_chair_boxes
---mirror --post chair`` learns one (the chair's arms rule and seat cut, :mod:`primkit.segmentation.post`) (each chair's left-right mirror learned from too: better arms on the
+--mirror --post chair`` learns one (the chair's arms rule and seat cut, :mod:`primkit.labelling.post`) (each chair's left-right mirror learned from too: better arms on the
 validation chairs, docs/labeller.md; ``--no-mirror`` leaves them out). Only the labeller and the card change: the
 network's weights, the part names and every other metadata key are copied unchanged (checked). Run again on a
 bundled file that has a labeller, it replaces it (and the card's part about it).
@@ -34,7 +34,7 @@ from scripts.build_labellers import check_unchanged
 from scripts.partnet_chairs import split
 
 NAMES = ["back", "seat", "legs", "arms"]  # PartNet's values 0-3 (partnet_chair_boxes README)
-#: the chair's post-steps (primkit.segmentation.post), as ``name-parts --post chair`` asks for them
+#: the chair's post-steps (primkit.labelling.post), as ``name-parts --post chair`` asks for them
 POST = "chair"
 
 TERMS = ("the labeller was learned from PartNet's part annotations (Mo et al., CVPR 2019) of ShapeNet chairs, "

@@ -53,9 +53,9 @@ from primkit.segmentation import Segmenter
 from primkit.segmentation.evaluation import label_iou, read_ground_truth
 from primkit.segmentation.labeller import (LABELLER_FORMAT_VERSION, LABELLER_KEY, LABELLER_PREFIX, read_labeller,
                                            write_labeller)
-from primkit.segmentation.layers import LayerCut
-from primkit.segmentation.post import step_to_dict
-from primkit.segmentation.presence import PresenceRule
+from primkit.labelling.layers import LayerCut
+from primkit.labelling.post import step_to_dict
+from primkit.labelling.presence import PresenceRule
 from primkit.segmentation.segmenter import apply_labeller, fit_labeller
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -21,8 +21,8 @@ when a label is absent from both, averaged over chairs; the mean over back, seat
 arm detection F1 (a chair *has* arms when at least 2% of its voxels are arm, is *predicted* to when
 at least 1% are). Beside the labeller: today's naming (the bundled model's one name per index) and a
 position-only labeller (the same classifier on the canonical position alone). The labeller's arms
-post-step (:mod:`primkit.segmentation.presence`, asked for here, kept as ``Labeller.fit`` checks it) is left out
-with ``--no-presence``, its seat/legs layer cut (:mod:`primkit.segmentation.layers`) with
+post-step (:mod:`primkit.labelling.presence`, asked for here, kept as ``Labeller.fit`` checks it) is left out
+with ``--no-presence``, its seat/legs layer cut (:mod:`primkit.labelling.layers`) with
 ``--no-layer-cut``; the side features (``LabellerSettings.sides``) are read with ``--sides``.
 """
 
@@ -40,10 +40,10 @@ from primkit import io, primitives
 from primkit.segmentation import VoxelGroundTruth, evaluate_voxels
 from primkit.segmentation.labeller import (Labeller, LabellerSettings, frame_features, grid_elements, grid_local_shape,
                                            mesh_elements)
-from primkit.segmentation.layers import LayerCut
-from primkit.segmentation.presence import PresenceRule
-from primkit.segmentation.profile import PROFILE_FEATURES, profile_features
-from primkit.segmentation.sides import side_features
+from primkit.labelling.layers import LayerCut
+from primkit.labelling.presence import PresenceRule
+from primkit.labelling.profile import PROFILE_FEATURES, profile_features
+from primkit.labelling.sides import side_features
 
 from scripts.partnet_chairs import MEAN_OVER, split
 
@@ -339,7 +339,7 @@ MODELS = {
 #: smooth, min_share)
 AFTER = [(9, 0, 0.0), (9, 2, 0.0), (27, 2, 0.0), (27, 4, 0.0), (9, 2, 0.01), (27, 2, 0.01), (27, 2, 0.02),
          (27, 4, 0.01), (27, 4, 0.02)]
-#: ``--fill``, ``--hint``: the presence rule's fill and hint (:class:`primkit.segmentation.presence.PresenceRule`)
+#: ``--fill``, ``--hint``: the presence rule's fill and hint (:class:`primkit.labelling.presence.PresenceRule`)
 #: instead of those ``Labeller.fit`` keeps (above 1: none)
 FILL = {"fill": None, "hint": None}
 #: ``--swap``: the validation protocol with the halves swapped (learn from validation chairs 100-218
@@ -347,7 +347,7 @@ FILL = {"fill": None, "hint": None}
 SWAP = {"on": False}
 #: the classifier options of every model unless it says otherwise
 FIT = {"per_shape": 1000, "max_iter": 100, "post": ["chair.arms_from_side_region", "chair.seat_layer_cut"]}
-# Labeller.fit's defaults, said here, and the chair's post-steps (primkit.segmentation.post)
+# Labeller.fit's defaults, said here, and the chair's post-steps (primkit.labelling.post)
 
 
 def line(label, s):
@@ -547,7 +547,7 @@ def main(argv=None) -> int:
     ap.add_argument("--profile", action=argparse.BooleanOptionalAction, default=LabellerSettings().profile,
                     help="curve, coseg: the shape-profile features (LabellerSettings.profile)")
     ap.add_argument("--presence", action=argparse.BooleanOptionalAction, default=True,
-                    help="curve: the arms post-step (primkit.segmentation.presence; on by default here)")
+                    help="curve: the arms post-step (primkit.labelling.presence; on by default here)")
     ap.add_argument("--sides", action=argparse.BooleanOptionalAction, default=LabellerSettings().sides,
                     help="curve, coseg: the side features (LabellerSettings.sides)")
     ap.add_argument("--mirror", action="store_true",
@@ -560,7 +560,7 @@ def main(argv=None) -> int:
     ap.add_argument("--hint", type=float, default=None,
                     help="curve: the presence rule's hint (default: PresenceRule's; above 1: none)")
     ap.add_argument("--layer-cut", action=argparse.BooleanOptionalAction, default=True,
-                    help="curve: the seat/legs layer cut post-step (primkit.segmentation.layers; on by default here)")
+                    help="curve: the seat/legs layer cut post-step (primkit.labelling.layers; on by default here)")
     ap.add_argument("--swap", action="store_true",
                     help="curve --part validation: learn from validation chairs 100-218, score chairs 0-99")
     args = ap.parse_args(argv)

@@ -41,7 +41,7 @@ import numpy as np
 from primkit import io
 from primkit.segmentation import Segmenter, read_ground_truth
 from primkit.segmentation.labeller import Labeller, decide, element_features, mesh_elements
-from primkit.segmentation.presence import PresenceRule
+from primkit.labelling.presence import PresenceRule
 from primkit.segmentation.meshlabels import (DEFAULT_MESH_LABELLING, cut_faces, face_graph, surface_smooth,
                                              surface_weights)
 

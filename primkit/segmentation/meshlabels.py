@@ -23,7 +23,7 @@ are instead
 3. the labeller's rare-label rule (``settings.min_share``, as
    :func:`~primkit.segmentation.labeller.decide`): a label the cut gives to fewer than that share
    of the faces is dropped and the cut run again without it;
-4. the labeller's post-steps (:mod:`primkit.segmentation.post`, those its file names), as
+4. the labeller's post-steps (:mod:`primkit.labelling.post`, those its file names), as
    :meth:`~primkit.segmentation.labeller.Labeller.predict` applies them to points (a chair's arms
    rule: the side region's share counted in faces, chosen on the meshes below over the share by
    area; the seat cut reads a voxel grid's layers and leaves faces alone).

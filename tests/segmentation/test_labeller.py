@@ -14,6 +14,7 @@ import pytest
 from primkit import primitives
 from primkit.model.bundled import resolve_model
 from primkit.model.modelfile import ModelFileError
+from primkit.labelling import features, trees
 from primkit.segmentation import labeller as lab
 from primkit.segmentation.labeller import Labeller, LabellerSettings, TreeEnsemble, frame_features
 
@@ -105,8 +106,8 @@ def test_local_shape_tells_a_line_from_a_plane():
     rng = np.random.default_rng(2)
     line = np.c_[np.linspace(0, 1, 200), np.zeros(200), np.zeros(200)] + rng.normal(0, 1e-4, (200, 3))
     plane = np.c_[rng.uniform(0, 1, (400, 2)), np.zeros(400)]
-    shape_line = lab._local_shape(line, 16)
-    shape_plane = lab._local_shape(plane, 16)
+    shape_line = features._local_shape(line, 16)
+    shape_plane = features._local_shape(plane, 16)
     assert np.all(shape_line[:, 2] > 0.95)  # one eigenvalue holds the spread
     np.testing.assert_allclose(shape_line[:, 3], 1, atol=1e-2)  # along x
     assert np.all(shape_plane[:, 0] < 1e-6)  # no spread off the plane
@@ -647,7 +648,7 @@ def test_packed_kernel_gives_the_plain_kernels_sums_exactly():
     Z[50:60, ensemble.feature[split][:10]] = ensemble.threshold[split][:10]  # exactly on a threshold: left
     plain = np.empty((len(Z), len(ensemble.baseline)))
     plain[:] = ensemble.baseline
-    lab._kernel()(Z, ensemble.feature, ensemble.threshold, ensemble.missing_left, ensemble.left, ensemble.right,
+    trees._kernel()(Z, ensemble.feature, ensemble.threshold, ensemble.missing_left, ensemble.left, ensemble.right,
                   ensemble.is_leaf, ensemble.value, ensemble.tree_start, ensemble.tree_class, plain)
     np.testing.assert_array_equal(ensemble.raw_predict(Z), plain)  # the same walk, the same float64 sums
     np.testing.assert_allclose(plain[:20], [_walk_one(ensemble, z) for z in Z[:20]], atol=1e-12)
@@ -699,7 +700,7 @@ def test_grid_knn_says_when_the_ball_holds_too_few_and_the_local_shape_asks_a_tr
     assert not found.any() and np.all(near[:, -1] == -1)
     points = index * 0.1
     got = lab.grid_local_shape(points, index, np.arange(len(index)), 16, occupancy.shape)
-    np.testing.assert_allclose(got, lab._local_shape(points, 16), atol=1e-9)  # the k-d tree's, all rows
+    np.testing.assert_allclose(got, features._local_shape(points, 16), atol=1e-9)  # the k-d tree's, all rows
 
 
 def test_grid_local_shape_is_the_covariance_of_the_nearest_voxels_in_any_similar_frame():
@@ -725,7 +726,7 @@ def test_grid_local_shape_is_the_covariance_of_the_nearest_voxels_in_any_similar
         d = np.sort(d_all[:, q])
         if d[15] < d[16] - 1e-9 and values[2] - values[1] > 1e-6 and values[1] - values[0] > 1e-6:
             unique += 1  # no tie at the 16th: the k-d tree's set, the same columns
-            np.testing.assert_allclose(got[q], lab._local_shape(points, 16)[i], atol=1e-6)
+            np.testing.assert_allclose(got[q], features._local_shape(points, 16)[i], atol=1e-6)
     assert unique > 5
 
 
@@ -761,7 +762,7 @@ def test_a_labeller_learns_a_grids_local_shape_as_it_reads_it():
 
 
 def _stopped_walk(ensemble, x, rounds, margin, taper):
-    """A plain Python walk with the early stop (the reference for :func:`lab._packed_kernel` with a stop): the
+    """A plain Python walk with the early stop (the reference for :func:`trees._packed_kernel` with a stop): the
     trees in rounds of ``k``, the scores after each round from ``rounds`` on checked."""
     k = len(ensemble.baseline)
     total = len(ensemble.tree_class) // k
@@ -816,7 +817,7 @@ def test_the_frame_columns_are_numpys_cuboid_frames():
 
 
 def test_the_profile_loop_gives_numpys_sums_exactly():
-    from primkit.segmentation.profile import _profile_reference, profile_features
+    from primkit.labelling.profile import _profile_reference, profile_features
 
     rng = np.random.default_rng(22)
     context = rng.normal(size=(3000, 3)) * [0.3, 0.5, 0.2]
@@ -845,8 +846,8 @@ def test_the_closed_form_axes_are_eighs():
     cov = np.einsum("nki,nkj->nij", A, A) / 16
     cov[:3] = [np.diag([0.3, 0.1, 0.2]), np.diag([0.2, 0.2, 0.5]), np.zeros((3, 3))]  # diagonal, a tie, nothing
     got = np.empty((len(cov), 9))
-    lab._eigen_kernel()(cov, got)
-    want = lab._shape_columns(cov)
+    features._eigen_kernel()(cov, got)
+    want = features._shape_columns(cov)
     np.testing.assert_allclose(got[:, :3], want[:, :3], atol=1e-12)  # the shares, ties included
     np.testing.assert_allclose(got[3:], want[3:], atol=1e-9)  # the axes where the eigenvalues are apart
     np.testing.assert_allclose(got[0], [1 / 6, 1 / 3, 1 / 2, 1, 0, 0, 0, 1, 0], atol=1e-15)

@@ -15,7 +15,7 @@ from primkit import primitives
 from primkit.model.bundled import resolve_model
 from primkit.segmentation import labeller as lab
 from primkit.segmentation.labeller import Labeller, LabellerSettings, decide, frame_features
-from primkit.segmentation.layers import LayerCut, apply_layer_cut, layer_levels
+from primkit.labelling.layers import LayerCut, apply_layer_cut, layer_levels
 
 from small_labellers import rewrite_description
 

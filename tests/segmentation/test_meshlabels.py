@@ -178,7 +178,7 @@ def test_a_mesh_gets_the_labellers_presence_rule(abstracted_chairs):
     from dataclasses import replace
 
     from primkit.segmentation.meshlabels import label_faces
-    from primkit.segmentation.presence import PresenceRule, side_region
+    from primkit.labelling.presence import PresenceRule, side_region
 
     shapes, results, truth, names = abstracted_chairs
     elements = [lab.mesh_elements(s.vertices, s.faces, r.frame) for s, r in zip(shapes, results)]

@@ -13,9 +13,9 @@ from primkit import primitives
 from primkit.model.bundled import resolve_model
 from primkit.segmentation import labeller as lab
 from primkit.segmentation.labeller import Labeller, LabellerSettings, decide, frame_features
-from primkit.segmentation.layers import LayerCut
-from primkit.segmentation.post import parse_post, resolve_post, step_from_dict, step_to_dict
-from primkit.segmentation.presence import PresenceRule
+from primkit.labelling.layers import LayerCut
+from primkit.labelling.post import parse_post, resolve_post, step_from_dict, step_to_dict
+from primkit.labelling.presence import PresenceRule
 
 from test_presence import _chair
 

@@ -13,7 +13,7 @@ from primkit import primitives
 from primkit.model.bundled import resolve_model
 from primkit.segmentation import labeller as lab
 from primkit.segmentation.labeller import Labeller, LabellerSettings, decide, frame_features
-from primkit.segmentation.presence import PresenceRule, apply_presence, side_region
+from primkit.labelling.presence import PresenceRule, apply_presence, side_region
 
 from small_labellers import rewrite_description
 

@@ -10,7 +10,7 @@ from primkit import primitives
 from primkit.model.bundled import resolve_model
 from primkit.segmentation import labeller as lab
 from primkit.segmentation.labeller import LabellerSettings, frame_features
-from primkit.segmentation.profile import PROFILE_BINS, PROFILE_FEATURES, box_cells, profile_features
+from primkit.labelling.profile import PROFILE_BINS, PROFILE_FEATURES, box_cells, profile_features
 
 from small_labellers import small_labeller, without_setting
 

@@ -11,8 +11,8 @@ from primkit import primitives
 from primkit.model.bundled import resolve_model
 from primkit.segmentation import labeller as lab
 from primkit.segmentation.labeller import LabellerSettings, frame_features
-from primkit.segmentation.profile import profile_features
-from primkit.segmentation.sides import SIDE_FEATURES, side_features
+from primkit.labelling.profile import profile_features
+from primkit.labelling.sides import SIDE_FEATURES, side_features
 
 from small_labellers import small_labeller, without_setting
 
@@ -128,7 +128,7 @@ def test_the_last_side_column_is_the_profiles_height():
     rng = np.random.default_rng(5)
     context = rng.normal(size=(500, 3)) * [0.3, 0.5, 0.2]
     points = np.vstack([context[:40], rng.normal(size=(30, 3)) * 0.4])
-    from primkit.segmentation.sides import side_columns
+    from primkit.labelling.sides import side_columns
 
     got = side_columns(points, context)
     np.testing.assert_array_equal(got[:, :SIDE_FEATURES], side_features(points, context))
