@@ -15,7 +15,7 @@ Usage (from the repository root)::
 ``--exact`` times one more variant in every round: the labeller walking every tree (no early
 stop, ``Labeller.early_stop`` None; the labels ``predict_proba`` gives). ``--before`` times one more variant in every round: the labeller as it labelled before the faster
 paths (a k-d tree for the local shape, the plain tree walk), the same trees. ``--no-cut`` times the
-labeller without its seat/legs layer cut (:mod:`primkit.segmentation.layers`). Each pass prints its
+labeller without its seat/legs layer cut (:mod:`primkit.labelling.layers`). Each pass prints its
 wall time and, with ``--workers 1`` (every file labelled in this process), its CPU time, which
 other jobs on a shared machine disturb less.
 """
@@ -70,7 +70,7 @@ def main(argv=None) -> int:
     ap.add_argument("--before", action="store_true",
                     help="also time the labeller's paths before the faster ones (k-d tree, plain walk)")
     ap.add_argument("--no-cut", action="store_true",
-                    help="also time the labeller without its layer cut (Labeller.layer_cut None)")
+                    help="also time the labeller without its layer cut (the chair.seat_layer_cut post-step left out)")
     args = ap.parse_args(argv)
     labeller = read_labeller(resolve_model(args.model))  # a file or a bundled model's name
     if labeller is None:
@@ -86,7 +86,8 @@ def main(argv=None) -> int:
     if args.before:
         variants.append(("before (k-d tree, plain walk)", Segmenter(args.model, labeller=_before(labeller))))
     if args.no_cut:
-        variants.append(("without the layer cut", Segmenter(args.model, labeller=replace(labeller, layer_cut=None))))
+        variants.append(("without the layer cut", Segmenter(args.model, labeller=replace(
+            labeller, post=tuple(s for s in labeller.post if s.STEP != "chair.seat_layer_cut")))))
     with tempfile.TemporaryDirectory(prefix="bench-labeller-") as temporary:
         cache = str(args.cache) if args.cache else temporary
         plain.abstract_files(files, cache_dir=cache, workers=args.workers, progress=False)  # warm the cache

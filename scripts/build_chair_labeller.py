@@ -4,7 +4,7 @@ The labeller (:mod:`primkit.segmentation.labeller`) is learned from the PartNet 
 chairs of ``scripts/partnet_chairs.py``'s split (all 219 by default, ``--chairs N``: the first N;
 never the test part), abstracted and segmented as ``primkit segment`` does with default flags,
 exactly as ``primkit name-parts CHAIRS --model chair --labels ../shared/data/partnet_chair_boxes
---mirror`` learns one (each chair's left-right mirror learned from too: better arms on the
+--mirror --post chair`` learns one (the chair's arms rule and seat cut, :mod:`primkit.labelling.post`) (each chair's left-right mirror learned from too: better arms on the
 validation chairs, docs/labeller.md; ``--no-mirror`` leaves them out). Only the labeller and the card change: the
 network's weights, the part names and every other metadata key are copied unchanged (checked). Run again on a
 bundled file that has a labeller, it replaces it (and the card's part about it).
@@ -34,6 +34,8 @@ from scripts.build_labellers import check_unchanged
 from scripts.partnet_chairs import split
 
 NAMES = ["back", "seat", "legs", "arms"]  # PartNet's values 0-3 (partnet_chair_boxes README)
+#: the chair's post-steps (primkit.labelling.post), as ``name-parts --post chair`` asks for them
+POST = "chair"
 
 TERMS = ("the labeller was learned from PartNet's part annotations (Mo et al., CVPR 2019) of ShapeNet chairs, "
          "as voxel labels in ../shared/data/partnet_chair_boxes: non-commercial research and educational use "
@@ -68,9 +70,9 @@ def build(output: Path, chairs: int | None = None, cache=None, *, mirror: bool =
             "shape_ids": [s.name for s in segs]}
     if mirror:  # each chair's left-right mirror too, abstracted again (docs/labeller.md)
         labeller = learn_labeller(learned, NAMES, segmenter.abstractor.parts, mirror=True, segmenter=segmenter,
-                                  info=info)
+                                  info=info, post=POST)
     else:
-        labeller = fit_labeller(learned, NAMES, segmenter.abstractor.parts, info=info)
+        labeller = fit_labeller(learned, NAMES, segmenter.abstractor.parts, info=info, post=POST)
     card = dict(meta["card"])
     card["labeller"] = {"shapes": chairs, "labels": NAMES, "data": "partnet_chair_boxes voxel labels, validation part",
                         "terms": TERMS, "mirrored": int(labeller.info.get("mirrored", 0)),
@@ -85,9 +87,8 @@ def build(output: Path, chairs: int | None = None, cache=None, *, mirror: bool =
     check_unchanged(source, out, meta)  # the network and every other key unchanged
     back = read_labeller(out)
     print(f"wrote {out}: {out.stat().st_size} bytes (the file it started from: {source.stat().st_size}), "
-          f"{len(back.ensemble.feature)} tree nodes, prior weight {back.settings.prior_weight}; presence rule "
-          f"{back.presence}, layer cut {back.layer_cut} (checks: {back.info.get('presence_check')}, "
-          f"{back.info.get('layer_cut_check')})")
+          f"{len(back.ensemble.feature)} tree nodes, prior weight {back.settings.prior_weight}; post-steps "
+          f"{back.post} (checks: {back.info.get('post_check')})")
     return out
 
 

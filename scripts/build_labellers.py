@@ -23,6 +23,13 @@ Usage (from the repository root; 10-15 minutes on two loaded cores)::
     python -m scripts.build_labellers --install           # rebuild both bundled labellers in place
     python -m scripts.build_labellers -o DIR [--categories table] [--pictures docs/images]
     python -m scripts.build_labellers --install --refigure  # the same trees, the card's figures measured again
+    python -m scripts.build_labellers --upgrade            # the bundled labellers (chair too) in today's format
+
+``--upgrade`` rewrites the labeller description of each bundled model that carries one (chair,
+table, airplane) in this primkit's labeller format, without learning anything again: the trees,
+the prior and every other tensor are copied bit for bit, the settings a file written before a key
+existed read as it read them then, and the chair's arms rule and seat cut (stored as ``presence``
+and ``layer_cut`` before post-steps existed) become its ``post`` list, in the order they ran.
 
 ``--pictures`` also draws 12 held-out ShapeNetVox32 shapes (real, unlabelled) named by the new
 labeller, to look at (``labeller-real-CATEGORY.png``; red, blue, green, orange: the labels in order).
@@ -44,7 +51,11 @@ from primkit.model.bundled import bundled_models
 from primkit.model.modelfile import load_model_file, read_metadata
 from primkit.segmentation import Segmenter
 from primkit.segmentation.evaluation import label_iou, read_ground_truth
-from primkit.segmentation.labeller import LABELLER_KEY, LABELLER_PREFIX, read_labeller, write_labeller
+from primkit.segmentation.labeller import (LABELLER_FORMAT_VERSION, LABELLER_KEY, LABELLER_PREFIX, read_labeller,
+                                           write_labeller)
+from primkit.labelling.layers import LayerCut
+from primkit.labelling.post import step_to_dict
+from primkit.labelling.presence import PresenceRule
 from primkit.segmentation.segmenter import apply_labeller, fit_labeller
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -256,6 +267,65 @@ def check_unchanged(source, out, meta) -> None:
     assert read_labeller(out) is not None
 
 
+#: What a settings key absent from an older labeller description read (the format it was added in:
+#: grid_sample and prior_weight 2-3, profile 3, sides 4).
+OLD_SETTINGS = {"grid_sample": 1, "prior_weight": 0.0, "profile": False, "sides": False}
+
+
+def upgraded_description(d: dict) -> dict:
+    """An older labeller description (format 2-10) as this primkit's format writes it, meaning
+    what it meant: the settings it lacked as they were read then; the arms rule (``presence``)
+    and the seat cut (``layer_cut``) as the post-steps ``chair.arms_from_side_region`` and
+    ``chair.seat_layer_cut``, in that order (the order they ran), with the values older files
+    read for the parameters they lacked (no fill before format 5, ``grid_add`` = ``add`` before 9,
+    no hint before 10; the cut's floor 0 before 7, no restore before 8)."""
+    version = d["format_version"]
+    if version == LABELLER_FORMAT_VERSION:
+        return d
+    if not 2 <= version < LABELLER_FORMAT_VERSION:
+        raise ValueError(f"labeller format version {version}: nothing to upgrade from it")
+    post = []
+    if d.get("presence") is not None:
+        rule = dict(d["presence"])
+        if version < 5:
+            rule["fill"] = 2.0
+        if version < 9:
+            rule["grid_add"] = rule["add"]
+        if version < 10:
+            rule.update(hint=2.0, hint_add=2.0, grid_hint_add=2.0)
+        post.append(step_to_dict(PresenceRule.from_dict(rule)))
+    if version >= 6 and d.get("layer_cut") is not None:
+        cut = dict(d["layer_cut"])
+        if version < 7:
+            cut["floor"] = 0.0
+        if version < 8:
+            cut["restore"] = False
+        post.append(step_to_dict(LayerCut.from_dict(cut)))
+    out = {k: v for k, v in d.items() if k not in ("presence", "layer_cut")}
+    out.update(format_version=LABELLER_FORMAT_VERSION, settings={**OLD_SETTINGS, **d["settings"]},
+               info=d.get("info", {}), post=post)
+    return out
+
+
+def upgrade(path: Path, output: Path) -> Path:
+    """Write the model file ``path`` to ``output`` with its labeller description upgraded
+    (:func:`upgraded_description`); every tensor and every other metadata key copied unchanged."""
+    from safetensors import safe_open
+    from safetensors.torch import load_file, save_file
+
+    with safe_open(str(path), framework="pt") as f:
+        meta = json.loads(f.metadata()["primkit"])
+    tensors = load_file(str(path))
+    meta[LABELLER_KEY] = upgraded_description(meta[LABELLER_KEY])
+    with io.atomic_output(output, overwrite=True) as tmp:
+        save_file(tensors, str(tmp), metadata={"primkit": json.dumps(meta, allow_nan=False, sort_keys=True)})
+    after = load_file(str(output))
+    assert after.keys() == tensors.keys() and all(after[k].dtype == v.dtype and after[k].equal(v)
+                                                  for k, v in tensors.items())
+    assert read_labeller(output) is not None
+    return output
+
+
 #: label colours of the pictures (uint8 RGB): red, blue, green, orange
 COLOURS = np.array([[215, 50, 50], [50, 100, 215], [60, 165, 60], [235, 160, 30]], np.uint8)
 COLOUR_NAMES = ["red", "blue", "green", "orange"]
@@ -293,6 +363,9 @@ def main(argv=None) -> int:
     where = ap.add_mutually_exclusive_group(required=True)
     where.add_argument("-o", "--output", type=Path, help="a folder for CATEGORY.safetensors")
     where.add_argument("--install", action="store_true", help="replace primkit/model/bundled/CATEGORY.safetensors")
+    where.add_argument("--upgrade", action="store_true",
+                       help="rewrite the bundled chair, table and airplane labellers in this primkit's labeller "
+                            "format, in place, learning nothing again (the module notes)")
     ap.add_argument("--categories", nargs="+", default=list(CATEGORIES), choices=CATEGORIES)
     ap.add_argument("--work", type=Path, default=None, help="a folder for the procedural shapes and the cache")
     ap.add_argument("--pictures", type=Path, default=None, help="draw held-out ShapeNetVox32 shapes named here")
@@ -300,6 +373,12 @@ def main(argv=None) -> int:
                     help="keep the bundled labellers' trees; measure them again and write only their cards' figures")
     ap.add_argument("--force", action="store_true")
     args = ap.parse_args(argv)
+    if args.upgrade:
+        for category in ("chair", *CATEGORIES):
+            target = bundled_models()[category]
+            upgrade(target, target)
+            print(f"upgraded {target}: {read_labeller(target).post}")
+        return 0
     make = refigure if args.refigure else build
     with tempfile.TemporaryDirectory() as tmp:
         work = args.work or Path(tmp)

@@ -21,8 +21,8 @@ when a label is absent from both, averaged over chairs; the mean over back, seat
 arm detection F1 (a chair *has* arms when at least 2% of its voxels are arm, is *predicted* to when
 at least 1% are). Beside the labeller: today's naming (the bundled model's one name per index) and a
 position-only labeller (the same classifier on the canonical position alone). The labeller's arms
-presence rule (:mod:`primkit.segmentation.presence`, on as ``Labeller.fit`` keeps it) is left out
-with ``--no-presence``, its seat/legs layer cut (:mod:`primkit.segmentation.layers`) with
+post-step (:mod:`primkit.labelling.presence`, asked for here, kept as ``Labeller.fit`` checks it) is left out
+with ``--no-presence``, its seat/legs layer cut (:mod:`primkit.labelling.layers`) with
 ``--no-layer-cut``; the side features (``LabellerSettings.sides``) are read with ``--sides``.
 """
 
@@ -40,8 +40,10 @@ from primkit import io, primitives
 from primkit.segmentation import VoxelGroundTruth, evaluate_voxels
 from primkit.segmentation.labeller import (Labeller, LabellerSettings, frame_features, grid_elements, grid_local_shape,
                                            mesh_elements)
-from primkit.segmentation.profile import PROFILE_FEATURES, profile_features
-from primkit.segmentation.sides import side_features
+from primkit.labelling.layers import LayerCut
+from primkit.labelling.presence import PresenceRule
+from primkit.labelling.profile import PROFILE_FEATURES, profile_features
+from primkit.labelling.sides import side_features
 
 from scripts.partnet_chairs import MEAN_OVER, split
 
@@ -296,8 +298,9 @@ def _fit(data, parts, settings, position_only, **fit):
     if not position_only:
         labeller = Labeller.fit(data, NAMES, parts, settings=settings, **fit)
         given = {k: v for k, v in FILL.items() if v is not None}  # --fill, --hint: the rule kept, these changed
-        if given and labeller.presence is not None:
-            labeller = replace(labeller, presence=replace(labeller.presence, **given))
+        if given:
+            labeller = replace(labeller, post=tuple(replace(s, **given) if isinstance(s, PresenceRule) else s
+                                                    for s in labeller.post))
         return labeller
     # the position-only baseline: the same classifier on three columns (not a storable labeller)
     from sklearn.ensemble import HistGradientBoostingClassifier
@@ -336,14 +339,15 @@ MODELS = {
 #: smooth, min_share)
 AFTER = [(9, 0, 0.0), (9, 2, 0.0), (27, 2, 0.0), (27, 4, 0.0), (9, 2, 0.01), (27, 2, 0.01), (27, 2, 0.02),
          (27, 4, 0.01), (27, 4, 0.02)]
-#: ``--fill``, ``--hint``: the presence rule's fill and hint (:class:`primkit.segmentation.presence.PresenceRule`)
+#: ``--fill``, ``--hint``: the presence rule's fill and hint (:class:`primkit.labelling.presence.PresenceRule`)
 #: instead of those ``Labeller.fit`` keeps (above 1: none)
 FILL = {"fill": None, "hint": None}
 #: ``--swap``: the validation protocol with the halves swapped (learn from validation chairs 100-218
 #: of the seed-0 order, score chairs 0-99)
 SWAP = {"on": False}
 #: the classifier options of every model unless it says otherwise
-FIT = {"per_shape": 1000, "max_iter": 100}  # Labeller.fit's defaults, said here
+FIT = {"per_shape": 1000, "max_iter": 100, "post": ["chair.arms_from_side_region", "chair.seat_layer_cut"]}
+# Labeller.fit's defaults, said here, and the chair's post-steps (primkit.labelling.post)
 
 
 def line(label, s):
@@ -543,7 +547,7 @@ def main(argv=None) -> int:
     ap.add_argument("--profile", action=argparse.BooleanOptionalAction, default=LabellerSettings().profile,
                     help="curve, coseg: the shape-profile features (LabellerSettings.profile)")
     ap.add_argument("--presence", action=argparse.BooleanOptionalAction, default=True,
-                    help="curve: the arms presence rule (primkit.segmentation.presence; Labeller.fit's default)")
+                    help="curve: the arms post-step (primkit.labelling.presence; on by default here)")
     ap.add_argument("--sides", action=argparse.BooleanOptionalAction, default=LabellerSettings().sides,
                     help="curve, coseg: the side features (LabellerSettings.sides)")
     ap.add_argument("--mirror", action="store_true",
@@ -556,16 +560,16 @@ def main(argv=None) -> int:
     ap.add_argument("--hint", type=float, default=None,
                     help="curve: the presence rule's hint (default: PresenceRule's; above 1: none)")
     ap.add_argument("--layer-cut", action=argparse.BooleanOptionalAction, default=True,
-                    help="curve: the seat/legs layer cut (primkit.segmentation.layers; Labeller.fit's default)")
+                    help="curve: the seat/legs layer cut post-step (primkit.labelling.layers; on by default here)")
     ap.add_argument("--swap", action="store_true",
                     help="curve --part validation: learn from validation chairs 100-218, score chairs 0-99")
     args = ap.parse_args(argv)
     KNN["how"] = args.knn
     FILL["fill"], FILL["hint"], SWAP["on"] = args.fill, args.hint, args.swap
     if not args.presence:
-        FIT["presence"] = None
+        FIT["post"] = [s for s in FIT["post"] if s != PresenceRule.STEP]
     if not args.layer_cut:
-        FIT["layer_cut"] = None
+        FIT["post"] = [s for s in FIT["post"] if s != LayerCut.STEP]
     if args.mirror:
         MIRROR["chairs"] = Chairs(args.scratch / "mirror")
     if args.self_train:

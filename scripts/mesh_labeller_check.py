@@ -41,6 +41,7 @@ import numpy as np
 from primkit import io
 from primkit.segmentation import Segmenter, read_ground_truth
 from primkit.segmentation.labeller import Labeller, decide, element_features, mesh_elements
+from primkit.labelling.presence import PresenceRule
 from primkit.segmentation.meshlabels import (DEFAULT_MESH_LABELLING, cut_faces, face_graph, surface_smooth,
                                              surface_weights)
 
@@ -190,11 +191,12 @@ def label_faces_from(labeller, shape, proba, presence=None):
     labels = cut_faces(smoothed, shape["graph"], how.smoothness, floor=how.floor, min_share=labeller.settings.min_share)
     if presence is None:
         return labels
-    if presence == "nofill" and labeller.presence is not None:
-        labeller = replace(labeller, presence=replace(labeller.presence, fill=2.0))
+    if presence == "nofill":
+        labeller = replace(labeller, post=tuple(replace(s, fill=2.0) if isinstance(s, PresenceRule) else s
+                                                for s in labeller.post))
     e = shape["elements"]
-    return labeller.present(labels, smoothed, e.points, e.context,
-                            weights=None if presence == "count" else shape["graph"].mass)
+    return labeller.after(labels, smoothed, e.points, e.context,
+                          weights=None if presence == "count" else shape["graph"].mass)
 
 
 def timing(scratch: Path, sets, repeats: int = 3) -> dict:

@@ -90,7 +90,8 @@ DOCUMENTS = {
     "primkit.viz.web.scene_figure": "a plotly figure (plotly's JSON layout)",
     "primkit.report.page_scene_figure": "a plotly figure (plotly's JSON layout)",
     "primkit.segmentation.evaluation.parse_label_names": "label value -> name, keyed by the data",
-    "primkit.segmentation.labeller.TreeEnsemble.arrays": "the arrays of the model file, by tensor name",
+    "primkit.labelling.trees.TreeEnsemble.arrays": "the arrays of the model file, by tensor name",
+    "primkit.labelling.post.step_to_dict": "a post-step as a labeller file stores it (JSON)",
     "primkit.data.cache.CacheSegment.row_arrays": "the arrays of a cache file, by array name",
     "primkit.data.cache.encode_row": "the arrays of a cache file, by array name",
 }

@@ -2,9 +2,7 @@
 RegionDescriptor), the retrieval scores (retrieval_gain, distance_spearman) against brute force, and
 ``similar --parts back``'s picture with the parts highlighted."""
 
-import importlib.util
 import itertools
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,7 +10,6 @@ import pytest
 from primkit import embedding
 from primkit.embedding import REGION_WEIGHTS, RegionDescriptor, RegionTable, region_properties
 
-ROOT = Path(__file__).resolve().parents[1]
 BACK, SEAT, LEGS, ARMS = range(4)
 NAMES = ["back", "seat", "legs", "arms"]
 
@@ -156,17 +153,6 @@ def test_retrieval_gain_and_spearman_against_brute_force():
     assert embedding.distance_spearman(noisy, T) == pytest.approx(np.corrcoef(*ranks)[0, 1], abs=1e-12)
     with pytest.raises(ValueError, match="k must be"):
         embedding.retrieval_gain(T, T, 40)
-
-
-def test_benchmark_truth_description():
-    spec = importlib.util.spec_from_file_location("similarity_partnet", ROOT / "scripts" / "similarity_partnet.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    _, labels = chair(arms=True)  # the archive's order is the canonical grid's: x depth, y up, z side
-    height = 10 + 2 + 16
-    np.testing.assert_allclose(module.truth_description(labels, 0)[:3], np.array([16, 16, 2]) / height)
-    np.testing.assert_allclose(module.truth_description(labels, 3)[3], 24 / (labels >= 0).sum())
-    assert np.all(module.truth_description(chair()[1], 3) == 0)
 
 
 @pytest.mark.integration  # abstracts and renders a few procedural chairs: several seconds

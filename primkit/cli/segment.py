@@ -135,11 +135,17 @@ def _name_parts_claimed(args) -> int:
     from ..segmentation import Segmenter
     from ..segmentation.evaluation import POINT_LABELS, labelled_shapes, parse_label_names
     from ..segmentation.labeller import write_labeller
+    from ..segmentation.post import resolve_post
     from ..segmentation.segmenter import fit_labeller
 
     out = Path(args.output)
     if args.names is not None:
         parse_label_names(args.names)  # empty or malformed: one line before any work
+    try:
+        post = resolve_post(args.post)  # an unknown step or parameter: one line before any work
+    except ValueError as exc:
+        err(f"--post: {exc}")
+        return 2
     segmenter = Segmenter(args.model, up=args.up, front=args.front, align=args.align, refine=args.refine,
                           adapt=getattr(args, "adapt", None), labeller=None)
     files = [f for f in collect(args.inputs) if not f.name.endswith(POINT_LABELS)]  # a cloud's labels, not a cloud
@@ -182,21 +188,22 @@ def _name_parts_claimed(args) -> int:
             by_name = {r.name: r for r in found}
             labeller = learn_labeller(shapes.learned, shapes.names, segmenter.abstractor.parts,
                                       unlabelled=[(s, by_name[s.name]) for s in pool], mirror=args.mirror,
-                                      segmenter=segmenter, seed=args.seed, progress=progress_of(args))
+                                      segmenter=segmenter, seed=args.seed, progress=progress_of(args), post=post)
         else:
-            labeller = fit_labeller(shapes.learned, shapes.names, segmenter.abstractor.parts, seed=args.seed)
+            labeller = fit_labeller(shapes.learned, shapes.names, segmenter.abstractor.parts, seed=args.seed,
+                                    post=post)
     except ValueError as exc:
         err(f"cannot learn a labeller: {exc}")
         return 2
     write_labeller(_model_path(args.model), out, labeller, changes, overwrite=args.force)
     print(f"labeller: {', '.join(labeller.names)} learned from {labeller.info['shapes']} shapes "
           f"({labeller.info['elements']} elements); {len(labeller.ensemble.feature)} tree nodes")
-    rules = ([f"{labeller.presence.label} only where something rises beside the seat"] if labeller.presence else []) \
-        + ([f"{labeller.layer_cut.upper}/{labeller.layer_cut.lower} cut at one height on voxel grids"
-            + (f" ({labeller.layer_cut.lower} under a {labeller.layer_cut.upper} that has none)"
-               if labeller.layer_cut.restore else "")] if labeller.layer_cut else [])
-    if rules:
-        print(f"after the decision: {'; '.join(rules)} (docs/labeller.md)")
+    if labeller.post:
+        print(f"after the decision: {'; '.join(step.describe() for step in labeller.post)} (docs/labeller.md)")
+    dropped = [step.STEP for step in post if step not in labeller.post]
+    if dropped:
+        print(f"post-steps not kept: {', '.join(dropped)} (a label they read was not learned, or the labelled "
+              "shapes contradict them)")
     print(f"wrote {out} with part names and a labeller")
     return report_errors(failed)
 
@@ -290,5 +297,12 @@ def register(sub) -> None:
                    "from the elements it is sure of (self-training, docs/labeller.md); their labels are never read")
     p.add_argument("--mirror", action="store_true",
                    help="learn from each labelled shape's left-right mirror too (abstracted again; docs/labeller.md)")
+    p.add_argument("--post", action="append", default=None, metavar="STEP",
+                   help="a rule to run after the labeller's decision, stored in the model file (repeatable; "
+                   "default: none): 'chair' (a chair's arms read from what rises beside the seat, and its seat/legs "
+                   "cut at one height on voxel grids), or one step with the labels it reads, e.g. "
+                   "'chair.arms_from_side_region:label=armrest' or 'chair.seat_layer_cut:upper=Seat,lower=legs'; "
+                   "a step is kept when its labels were learned and the labelled shapes agree with it "
+                   "(docs/labeller.md)")
     add_force(p)
     p.set_defaults(func=_cmd_name_parts)

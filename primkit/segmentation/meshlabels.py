@@ -23,9 +23,10 @@ are instead
 3. the labeller's rare-label rule (``settings.min_share``, as
    :func:`~primkit.segmentation.labeller.decide`): a label the cut gives to fewer than that share
    of the faces is dropped and the cut run again without it;
-4. the labeller's presence rule (:mod:`primkit.segmentation.presence`, when it has one), as
-   :meth:`~primkit.segmentation.labeller.Labeller.predict` applies it to voxels and points, the
-   side region's share counted in faces (chosen on the meshes below over the share by area).
+4. the labeller's post-steps (:mod:`primkit.labelling.post`, those its file names), as
+   :meth:`~primkit.segmentation.labeller.Labeller.predict` applies them to points (a chair's arms
+   rule: the side region's share counted in faces, chosen on the meshes below over the share by
+   area; the seat cut reads a voxel grid's layers and leaves faces alone).
 
 The radius and the smoothness (:class:`MeshLabelling`) were chosen on meshes of PartNet
 validation chairs and on procedural chairs, never on COSEG (``scripts/mesh_labeller_check.py``,
@@ -180,7 +181,6 @@ def label_faces(labeller, elements, canonical, how: MeshLabelling | None = None,
         graph = face_graph(elements.vertices, elements.faces) if how.smoothness > 0 and elements.faces is not None \
             else FaceGraph(np.zeros((0, 2), np.int64), np.zeros(0), np.full(len(proba), 1.0 / max(len(proba), 1)))
     labels = cut_faces(proba, graph, how.smoothness, floor=how.floor, min_share=labeller.settings.min_share)
-    # the labeller's presence rule (an arms decision from what rises beside the seat), the side
-    # region's share counted in faces: by face area it vetoed the thin arms of procedural chairs
-    # (scripts/mesh_labeller_check.py, docs/labeller.md)
-    return labeller.present(labels, proba, elements.points, elements.context)
+    # the labeller's post-steps (those that read faces: a chair's arms rule, its side region's share
+    # counted in faces; by face area it vetoed the thin arms of procedural chairs, docs/labeller.md)
+    return labeller.after(labels, proba, elements.points, elements.context)

@@ -1,5 +1,5 @@
 """Helpers of the labeller-format tests: a small labeller learned from random shapes, a labeller
-file with its description changed, and one rewritten as an older format version wrote it."""
+file with its description changed, and one without a setting."""
 
 from __future__ import annotations
 
@@ -39,12 +39,6 @@ def rewrite_description(path, out, change):
     return out
 
 
-def as_version(path, out, version: int, setting: str):
-    """The labeller file ``path`` as format ``version`` wrote it: without the ``setting`` key in
-    its settings (the one that version did not know), written to ``out``."""
-
-    def older(d):
-        d["format_version"] = version
-        del d["settings"][setting]
-
-    return rewrite_description(path, out, older)
+def without_setting(path, out, setting: str):
+    """The labeller file ``path`` without the ``setting`` key in its settings, written to ``out``."""
+    return rewrite_description(path, out, lambda d: d["settings"].pop(setting))

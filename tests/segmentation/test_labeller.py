@@ -14,6 +14,7 @@ import pytest
 from primkit import primitives
 from primkit.model.bundled import resolve_model
 from primkit.model.modelfile import ModelFileError
+from primkit.labelling import features, trees
 from primkit.segmentation import labeller as lab
 from primkit.segmentation.labeller import Labeller, LabellerSettings, TreeEnsemble, frame_features
 
@@ -105,8 +106,8 @@ def test_local_shape_tells_a_line_from_a_plane():
     rng = np.random.default_rng(2)
     line = np.c_[np.linspace(0, 1, 200), np.zeros(200), np.zeros(200)] + rng.normal(0, 1e-4, (200, 3))
     plane = np.c_[rng.uniform(0, 1, (400, 2)), np.zeros(400)]
-    shape_line = lab._local_shape(line, 16)
-    shape_plane = lab._local_shape(plane, 16)
+    shape_line = features._local_shape(line, 16)
+    shape_plane = features._local_shape(plane, 16)
     assert np.all(shape_line[:, 2] > 0.95)  # one eigenvalue holds the spread
     np.testing.assert_allclose(shape_line[:, 3], 1, atol=1e-2)  # along x
     assert np.all(shape_plane[:, 0] < 1e-6)  # no spread off the plane
@@ -356,11 +357,13 @@ def test_smoothing_is_the_mean_over_the_neighbours_repeated():
 
 
 def test_grid_sample_is_read_back_and_checked():
-    assert LabellerSettings.from_dict({}).grid_sample == 1  # files written before it: every voxel
-    assert LabellerSettings.from_dict({"grid_sample": 2}).grid_sample == 2
-    assert LabellerSettings.from_dict({"grid_sample": 4}).grid_sample == 4
+    every = LabellerSettings(prior_weight=0.0).to_dict()
+    with pytest.raises(ValueError, match="grid_sample"):  # every setting is written: none is assumed
+        LabellerSettings.from_dict({k: v for k, v in every.items() if k != "grid_sample"})
+    assert LabellerSettings.from_dict({**every, "grid_sample": 2}).grid_sample == 2
+    assert LabellerSettings.from_dict({**every, "grid_sample": 4}).grid_sample == 4
     with pytest.raises(ValueError, match="grid_sample"):
-        LabellerSettings.from_dict({"grid_sample": 3})
+        LabellerSettings.from_dict({**every, "grid_sample": 3})
 
 
 def test_decide_drops_labels_below_their_share():
@@ -579,22 +582,27 @@ def test_the_prior_is_each_index_share_of_the_labels_and_is_blended_in(tmp_path)
     np.testing.assert_array_equal(back.classify(X), labeller.classify(X))
 
 
-def test_a_version_1_labeller_still_loads(labelled, tmp_path):
-    """Version 1 stored indices as int64 and had no prior (prior_weight reads 0)."""
-    def widen(a):
-        for k in ("feature", "left", "right"):
-            a["labeller." + k] = a["labeller." + k].astype(np.int64)
-        del a["labeller.prior"]
+@pytest.mark.parametrize("version", [1, 3, 10])
+def test_an_older_labeller_is_refused_in_one_line_that_says_how_to_rebuild_it(labelled, tmp_path, version):
+    """One labeller format is read: an older file is refused in one line naming the file and the
+    command that learns it again (the bundled ones were converted by ``scripts/build_labellers.py
+    --upgrade``)."""
+    old = _rewrite(labelled, tmp_path / f"v{version}.safetensors", None,
+                   lambda d: d.update(format_version=version))
+    with pytest.raises(ModelFileError) as info:
+        lab.read_labeller(old)
+    message = str(info.value)
+    assert len(message.splitlines()) == 1 and str(old) in message and f"version {version}" in message
+    assert "primkit name-parts" in message
 
-    def old(d):
-        d["format_version"] = 1
-        del d["settings"]["prior_weight"]
 
-    got = lab.read_labeller(_rewrite(labelled, tmp_path / "v1.safetensors", widen, old))
-    now = lab.read_labeller(labelled)
-    assert got.settings.prior_weight == 0 and got.prior is None
-    np.testing.assert_array_equal(got.ensemble.feature, now.ensemble.feature)
-    assert got.ensemble.feature.dtype == np.int64
+@pytest.mark.parametrize("key", lab.DESCRIPTION_KEYS[2:])
+def test_every_description_field_is_written_and_required(labelled, tmp_path, key):
+    assert key in lab.read_labeller(labelled).to_tensors()[1]
+    bad = _rewrite(labelled, tmp_path / "bad.safetensors", None, lambda d: d.pop(key))
+    with pytest.raises(ModelFileError) as info:
+        lab.read_labeller(bad)
+    assert key in str(info.value) and len(str(info.value).splitlines()) == 1
 
 
 @pytest.mark.shared
@@ -640,7 +648,7 @@ def test_packed_kernel_gives_the_plain_kernels_sums_exactly():
     Z[50:60, ensemble.feature[split][:10]] = ensemble.threshold[split][:10]  # exactly on a threshold: left
     plain = np.empty((len(Z), len(ensemble.baseline)))
     plain[:] = ensemble.baseline
-    lab._kernel()(Z, ensemble.feature, ensemble.threshold, ensemble.missing_left, ensemble.left, ensemble.right,
+    trees._kernel()(Z, ensemble.feature, ensemble.threshold, ensemble.missing_left, ensemble.left, ensemble.right,
                   ensemble.is_leaf, ensemble.value, ensemble.tree_start, ensemble.tree_class, plain)
     np.testing.assert_array_equal(ensemble.raw_predict(Z), plain)  # the same walk, the same float64 sums
     np.testing.assert_allclose(plain[:20], [_walk_one(ensemble, z) for z in Z[:20]], atol=1e-12)
@@ -692,7 +700,7 @@ def test_grid_knn_says_when_the_ball_holds_too_few_and_the_local_shape_asks_a_tr
     assert not found.any() and np.all(near[:, -1] == -1)
     points = index * 0.1
     got = lab.grid_local_shape(points, index, np.arange(len(index)), 16, occupancy.shape)
-    np.testing.assert_allclose(got, lab._local_shape(points, 16), atol=1e-9)  # the k-d tree's, all rows
+    np.testing.assert_allclose(got, features._local_shape(points, 16), atol=1e-9)  # the k-d tree's, all rows
 
 
 def test_grid_local_shape_is_the_covariance_of_the_nearest_voxels_in_any_similar_frame():
@@ -718,7 +726,7 @@ def test_grid_local_shape_is_the_covariance_of_the_nearest_voxels_in_any_similar
         d = np.sort(d_all[:, q])
         if d[15] < d[16] - 1e-9 and values[2] - values[1] > 1e-6 and values[1] - values[0] > 1e-6:
             unique += 1  # no tie at the 16th: the k-d tree's set, the same columns
-            np.testing.assert_allclose(got[q], lab._local_shape(points, 16)[i], atol=1e-6)
+            np.testing.assert_allclose(got[q], features._local_shape(points, 16)[i], atol=1e-6)
     assert unique > 5
 
 
@@ -754,7 +762,7 @@ def test_a_labeller_learns_a_grids_local_shape_as_it_reads_it():
 
 
 def _stopped_walk(ensemble, x, rounds, margin, taper):
-    """A plain Python walk with the early stop (the reference for :func:`lab._packed_kernel` with a stop): the
+    """A plain Python walk with the early stop (the reference for :func:`trees._packed_kernel` with a stop): the
     trees in rounds of ``k``, the scores after each round from ``rounds`` on checked."""
     k = len(ensemble.baseline)
     total = len(ensemble.tree_class) // k
@@ -809,7 +817,7 @@ def test_the_frame_columns_are_numpys_cuboid_frames():
 
 
 def test_the_profile_loop_gives_numpys_sums_exactly():
-    from primkit.segmentation.profile import _profile_reference, profile_features
+    from primkit.labelling.profile import _profile_reference, profile_features
 
     rng = np.random.default_rng(22)
     context = rng.normal(size=(3000, 3)) * [0.3, 0.5, 0.2]
@@ -838,8 +846,8 @@ def test_the_closed_form_axes_are_eighs():
     cov = np.einsum("nki,nkj->nij", A, A) / 16
     cov[:3] = [np.diag([0.3, 0.1, 0.2]), np.diag([0.2, 0.2, 0.5]), np.zeros((3, 3))]  # diagonal, a tie, nothing
     got = np.empty((len(cov), 9))
-    lab._eigen_kernel()(cov, got)
-    want = lab._shape_columns(cov)
+    features._eigen_kernel()(cov, got)
+    want = features._shape_columns(cov)
     np.testing.assert_allclose(got[:, :3], want[:, :3], atol=1e-12)  # the shares, ties included
     np.testing.assert_allclose(got[3:], want[3:], atol=1e-9)  # the axes where the eigenvalues are apart
     np.testing.assert_allclose(got[0], [1 / 6, 1 / 3, 1 / 2, 1, 0, 0, 0, 1, 0], atol=1e-15)
@@ -848,18 +856,53 @@ def test_the_closed_form_axes_are_eighs():
     np.testing.assert_allclose(np.linalg.norm(got[:, 3:6], axis=1), 1, atol=1e-12)
 
 
-@pytest.mark.shared
-@pytest.mark.integration
-def test_the_shipped_chair_labeller_meets_its_stated_bars_on_the_test_chairs(shared_data):
-    """The chair model as ``primkit segment --semantic`` runs it (``Segmenter``, default flags) on
-    the 218 PartNet test chairs of scripts/partnet_chairs.py's split, scored as
-    ``scripts/labeller_curve.py model`` scores it: the README and docs/labeller.md state mean
-    back/seat/legs IoU 0.810, arm IoU 0.771, arm F1 0.906, and so issue 33's bars for the shipped
-    model (0.78, 0.65, 0.9). The labeller learned from validation chairs only (the test above)."""
-    from scripts.labeller_curve import model_figures
+#: the regression pin below: the bundled chair labeller on the first 30 PartNet validation chairs
+#: (mean back/seat/legs IoU, arm IoU, arm detection F1), measured with this test's own loop
+VALIDATION_30 = {"mean": 0.8816, "arm_iou": 0.8511, "arm_f1": 0.8571}
 
-    got = model_figures("chair", "test")
-    assert got["chairs"] == 218
-    assert got["mean"] >= 0.78 and got["arm_iou"] >= 0.65 and got["arm_f1"] >= 0.9
-    # each figure a chair or two from the stated one (an armed chair of about 90 moves F1 by 0.006)
-    assert abs(got["mean"] - 0.810) < 0.005 and abs(got["arm_iou"] - 0.771) < 0.01 and abs(got["arm_f1"] - 0.906) < 0.012
+
+@pytest.mark.shared
+@pytest.mark.integration  # 30 PartNet chairs segmented as `segment --semantic` runs (about a minute)
+def test_the_bundled_chair_labeller_keeps_its_figures_on_validation_chairs(shared_data):
+    """A regression pin on the validation part (the labeller learned from these chairs, so this says
+    nothing of how it generalises; the test part's figures are reported in docs/labeller.md and
+    pinned nowhere): the first 30 validation chairs of the split (held-out files with PartNet
+    labels, sorted by id, even positions), labelled by ``Segmenter("chair")`` with default flags.
+    Per chair each label's IoU over its occupied voxels (1 when absent from both), averaged over
+    chairs, by a plain loop, and checked against ``evaluate_voxels``' model-names protocol; arm
+    detection F1: a chair has arms at 2% of its voxels, is predicted to at 1%."""
+    from primkit import data
+    from primkit.segmentation import Segmenter, VoxelGroundTruth, VoxelLabelArchive, evaluate_voxels
+
+    _, held = data.split_files(data.find_shape_files(shared_data / "shapenetvox32" / "03001627"), 10)
+    archive = VoxelLabelArchive(shared_data / "partnet_chair_boxes")
+    files = sorted((p for p in held if data.shape_name(p) in archive), key=data.shape_name)[0::2][:30]
+    segmenter = Segmenter("chair")
+    segs, errors = segmenter.segment_files(files, workers=1, progress=False)
+    assert not errors and len(segs) == 30 and segmenter.labeller.names == ["back", "seat", "legs", "arms"]
+    ious, has_t, has_p, assigned, truths = [], [], [], [], []
+    for s in segs:
+        occupied = tuple(np.argwhere(s.grid.occupancy).T)
+        truth = archive.get(s.name, s.grid.occupancy.shape).labels[occupied]
+        named = s.named[occupied]
+        row = []
+        for k in range(4):
+            union = np.count_nonzero((truth == k) | (named == k))
+            row.append(np.count_nonzero((truth == k) & (named == k)) / union if union else 1.0)
+        ious.append(row)
+        has_t.append(np.count_nonzero(truth == 3) >= 0.02 * len(truth))
+        has_p.append(np.count_nonzero(named == 3) >= 0.01 * len(named))
+        grid_p, grid_t = np.full(s.grid.occupancy.shape, -1), np.full(s.grid.occupancy.shape, -1)
+        grid_p[occupied], grid_t[occupied] = named, truth
+        assigned.append(grid_p)
+        truths.append(VoxelGroundTruth(grid_t, ["back", "seat", "legs", "arms"]))
+    ious = np.mean(ious, axis=0)
+    has_t, has_p = np.array(has_t), np.array(has_p)
+    f1 = 2 * np.sum(has_t & has_p) / (2 * np.sum(has_t & has_p) + np.sum(has_t != has_p))
+    got = {"mean": float(np.mean(ious[:3])), "arm_iou": float(ious[3]), "arm_f1": float(f1)}
+    report = evaluate_voxels(assigned, truths, 4, part_names=["back", "seat", "legs", "arms"],
+                             mean_over=["back", "seat", "legs"]).to_dict()["protocols"]["model-names"]
+    assert report["mean_iou"] == pytest.approx(got["mean"], abs=1e-9)
+    assert report["iou"]["arms"] == pytest.approx(got["arm_iou"], abs=1e-9)
+    for key, value in VALIDATION_30.items():  # within 0.005, as a change of the bundled model may move them
+        assert got[key] == pytest.approx(value, abs=0.005), key

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from primkit import primitives
+from primkit.labelling import smoothing
 from primkit.segmentation import labeller as lab
 from primkit.segmentation.labeller import Labeller, LabellerSettings, TreeEnsemble, frame_features
 
@@ -45,7 +46,7 @@ def test_the_grid_gaussian_is_scipys_bit_for_bit(shape, fill):
     from scipy import ndimage
 
     occupancy = np.random.default_rng(1).random(shape) < fill
-    got = lab._grid_gaussian(occupancy)
+    got = smoothing._grid_gaussian(occupancy)
     np.testing.assert_array_equal(got, ndimage.gaussian_filter(occupancy.astype(float), 1.0))
     assert got.any()
 
@@ -108,7 +109,7 @@ def test_the_sampled_and_classified_voxels_are_the_lattice_and_the_unreached(ste
     rng = np.random.default_rng(5)
     occupancy, index, _ = _random_grid(rng, (9, 8, 7), 0.25)
     near = lab.grid_neighbours(index, occupancy.shape)
-    classify, sampled = lab._grid_sample(index, near, step)
+    classify, sampled = lab.sample_grid(index, near, step)
     odd = index % 2
     want = {1: np.ones(len(index), bool), 2: odd.sum(1) % 2 == 0, 4: (odd == odd[:, :1]).all(1),
             8: (odd == 0).all(1)}[step]
@@ -151,7 +152,7 @@ def test_the_probabilities_are_scipys_softmax():
 
 
 def test_the_column_range_is_numpys_min_and_max():
-    from primkit.segmentation.profile import column_range
+    from primkit.labelling.profile import column_range
 
     rng = np.random.default_rng(8)
     for a in (rng.integers(-50, 50, (1, 3)), rng.integers(-5, 900, (4000, 27)), rng.integers(0, 32, (300, 3)),
@@ -163,7 +164,7 @@ def test_the_column_range_is_numpys_min_and_max():
 
 
 def test_the_profile_refuses_points_that_are_not_finite():
-    from primkit.segmentation.profile import profile_features
+    from primkit.labelling.profile import profile_features
 
     points = np.random.default_rng(9).normal(size=(50, 3))
     context = points.copy()

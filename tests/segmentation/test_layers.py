@@ -15,7 +15,7 @@ from primkit import primitives
 from primkit.model.bundled import resolve_model
 from primkit.segmentation import labeller as lab
 from primkit.segmentation.labeller import Labeller, LabellerSettings, decide, frame_features
-from primkit.segmentation.layers import LayerCut, apply_layer_cut, layer_levels
+from primkit.labelling.layers import LayerCut, apply_layer_cut, layer_levels
 
 from small_labellers import rewrite_description
 
@@ -178,14 +178,21 @@ def _learned(names, layer_cut, raise_legs=0):
             y[(truth == SEAT) & (index[:, 1] <= 10)] = LEGS  # all of the seat's layers called legs but the top...
             y[(truth == SEAT) & (index[:, 1] == 10) & (index[:, 0] < 12)] = SEAT  # ...but half the top layer
         shapes.append((frame_features(points, c, None, settings), y))
-    return Labeller.fit(shapes, list(names), 5, settings=settings, max_iter=10, layer_cut=layer_cut), c
+    # "auto": the cut step with its defaults, checked on the labelled grids; a cut: kept unchecked
+    post = {"post": LayerCut.STEP} if layer_cut == "auto" else {} if layer_cut is None \
+        else {"post": layer_cut, "post_check": False}
+    return Labeller.fit(shapes, list(names), 5, settings=settings, max_iter=10, **post), c
+
+
+def _check(shapes, contradicted):
+    return [{"step": LayerCut.STEP, "shapes": shapes, "contradicted": contradicted}]
 
 
 def test_fit_keeps_the_cut_when_it_learns_seat_and_legs():
     got = _learned(("back", "seat", "legs"), "auto")[0]
-    assert got.layer_cut == LayerCut() and got.info["layer_cut_check"] == {"shapes": 3, "contradicted": 0}
-    assert _learned(("back", "seat", "arms"), "auto")[0].layer_cut is None  # no legs
-    assert _learned(("back", "seat", "legs"), None)[0].layer_cut is None
+    assert got.post == (LayerCut(),) and got.info["post_check"] == _check(3, 0)
+    assert _learned(("back", "seat", "arms"), "auto")[0].post == ()  # no legs
+    assert _learned(("back", "seat", "legs"), None)[0].post == ()
 
 
 def test_fit_keeps_no_cut_without_a_labelled_grid():
@@ -197,67 +204,34 @@ def test_fit_keeps_no_cut_without_a_labelled_grid():
                            rng.uniform(-0.4, 0.4, (5, 3)), np.ones(5, bool))
     shapes = [(frame_features(points + rng.uniform(-0.01, 0.01, points.shape), c, None, settings), truth)
               for _ in range(3)]
-    got = Labeller.fit(shapes, ["back", "seat", "legs"], 5, settings=settings, max_iter=10)
-    assert got.layer_cut is None and "layer_cut_check" not in got.info
+    got = Labeller.fit(shapes, ["back", "seat", "legs"], 5, settings=settings, max_iter=10, post="chair.seat_layer_cut")
+    assert got.post == () and got.info["post_check"] == _check(0, 0)
 
 
 def test_fit_leaves_the_cut_out_when_the_labelled_grids_contradict_it():
     got = _learned(("back", "seat", "legs"), "auto", raise_legs=1)[0]  # one in three: over 20%
-    assert got.layer_cut is None and got.info["layer_cut_check"] == {"shapes": 3, "contradicted": 1}
+    assert got.post == () and got.info["post_check"] == _check(3, 1)
 
 
 def test_predict_applies_the_cut_on_grids_only():
     labeller, c = _learned(("back", "seat", "legs"), LayerCut(window=3))
     index, points, _ = _chair()
     proba = labeller.predict_proba(points, c)
-    plain = labeller.present(decide(proba, labeller.settings.min_share), proba, points)
+    plain = decide(proba, labeller.settings.min_share)
     want = apply_layer_cut(plain, proba, points[:, 1], SEAT, LEGS, LayerCut(window=3), 24)
     np.testing.assert_array_equal(labeller.predict(points, c, grid_index=index), want)
     np.testing.assert_array_equal(labeller.predict(points, c), plain)  # points: no grid, no cut
-    np.testing.assert_array_equal(replace(labeller, layer_cut=None).predict(points, c, grid_index=index), plain)
+    np.testing.assert_array_equal(replace(labeller, post=()).predict(points, c, grid_index=index), plain)
 
 
 def test_the_cut_is_stored_and_read_back(tmp_path):
     labeller, c = _learned(("back", "seat", "legs"), LayerCut("seat", "legs", 0.4, 3, 0.1))
     path = lab.write_labeller(resolve_model("chair"), tmp_path / "l.safetensors", labeller)
     got = lab.read_labeller(path)
-    assert got.layer_cut == LayerCut("seat", "legs", 0.4, 3, 0.1)
+    assert got.post == (LayerCut("seat", "legs", 0.4, 3, 0.1),)
     index, points, _ = _chair()
     np.testing.assert_array_equal(got.predict(points, c, grid_index=index),
                                   labeller.predict(points, c, grid_index=index))
-
-    def as_version_7(d):
-        d["format_version"] = 7
-        del d["layer_cut"]["restore"]
-
-    v7 = lab.read_labeller(rewrite_description(path, tmp_path / "v7.safetensors", as_version_7))
-    assert v7.layer_cut == LayerCut("seat", "legs", 0.4, 3, 0.1, restore=False)  # before restore: none
-
-    def as_version_6(d):
-        as_version_7(d)
-        d["format_version"] = 6
-        del d["layer_cut"]["floor"]
-
-    v6 = lab.read_labeller(rewrite_description(path, tmp_path / "v6.safetensors", as_version_6))
-    assert v6.layer_cut == LayerCut("seat", "legs", 0.4, 3, 0.0, restore=False)  # before the floor: none
-
-    def as_version_5(d):
-        d["format_version"] = 5
-        del d["layer_cut"]
-
-    assert lab.read_labeller(rewrite_description(path, tmp_path / "v5.safetensors", as_version_5)).layer_cut is None
-    # a version 5 file knows no layer cut: a stray key in one is not read
-    stray = rewrite_description(path, tmp_path / "stray.safetensors", lambda d: d.update(format_version=5))
-    assert lab.read_labeller(stray).layer_cut is None
-    # a version 8 cut must say its floor and restore; a version 7 one must not say restore
-    for key in ("floor", "restore"):
-        with pytest.raises(lab.ModelFileError, match=key):
-            lab.read_labeller(rewrite_description(path, tmp_path / f"no-{key}.safetensors",
-                                                  lambda d: d["layer_cut"].pop(key)))
-    for version in (6, 7):
-        with pytest.raises(lab.ModelFileError, match="layer_cut"):
-            lab.read_labeller(rewrite_description(path, tmp_path / f"v{version}b.safetensors",
-                                                  lambda d: d.update(format_version=version)))
 
 
 #: a valid stored cut, spoilt one key at a time below
@@ -273,10 +247,8 @@ _CUT = {"upper": "seat", "lower": "legs", "share": 0.6, "window": 2, "floor": 0.
 def test_a_hostile_cut_is_refused_in_one_line(tmp_path, cut):
     labeller, _ = _learned(("back", "seat", "legs"), "auto")
     path = lab.write_labeller(resolve_model("chair"), tmp_path / "l.safetensors", labeller)
-    bad = rewrite_description(path, tmp_path / "bad.safetensors", lambda d: d.update(layer_cut=cut))
-    if cut is None:  # a null cut is no cut
-        assert lab.read_labeller(bad).layer_cut is None
-        return
+    step = {"step": LayerCut.STEP, **cut} if isinstance(cut, dict) else cut
+    bad = rewrite_description(path, tmp_path / "bad.safetensors", lambda d: d.update(post=[step]))
     with pytest.raises(lab.ModelFileError) as err:
         lab.read_labeller(bad)
     assert "layer cut" in str(err.value).replace("_", " ") and len(str(err.value).splitlines()) == 1

@@ -172,13 +172,13 @@ def test_no_radius_and_no_cut_is_the_labellers_own_decision(abstracted_chairs):
 
 
 def test_a_mesh_gets_the_labellers_presence_rule(abstracted_chairs):
-    """``label_faces`` applies the labeller's presence rule after the cut: with a rule that gives
+    """``label_faces`` applies the labeller's arms step after the cut: with a rule that gives
     every face of the side region the arms (veto 0, add 0, fill 0), the labels are those without
     the rule, the region's faces turned arms."""
     from dataclasses import replace
 
     from primkit.segmentation.meshlabels import label_faces
-    from primkit.segmentation.presence import PresenceRule, side_region
+    from primkit.labelling.presence import PresenceRule, side_region
 
     shapes, results, truth, names = abstracted_chairs
     elements = [lab.mesh_elements(s.vertices, s.faces, r.frame) for s, r in zip(shapes, results)]
@@ -187,7 +187,7 @@ def test_a_mesh_gets_the_labellers_presence_rule(abstracted_chairs):
     labeller = lab.Labeller.fit([(lab.element_features(elements[i], results[i].canonical, lab.LabellerSettings()),
                                   truth[i]) for i in pick], names, 20, max_iter=10)
     arms = labeller.names.index("arms")
-    always, never = replace(labeller, presence=PresenceRule("arms", 0.0, 0.0, 0.0)), replace(labeller, presence=None)
+    always, never = replace(labeller, post=(PresenceRule("arms", 0.0, 0.0, 0.0),)), replace(labeller, post=())
     turned = 0
     for i in armed[1:3] + [i for i in range(len(truth)) if i not in armed and i not in pick][:2]:
         e, r = elements[i], results[i]

@@ -13,7 +13,7 @@ from primkit import primitives
 from primkit.model.bundled import resolve_model
 from primkit.segmentation import labeller as lab
 from primkit.segmentation.labeller import Labeller, LabellerSettings, decide, frame_features
-from primkit.segmentation.presence import PresenceRule, apply_presence, side_region
+from primkit.labelling.presence import PresenceRule, apply_presence, side_region
 
 from small_labellers import rewrite_description
 
@@ -116,7 +116,9 @@ def test_the_rule_is_a_per_element_loop(seed, fill, hint):
 
 
 def _fit(names, presence="auto", kinds=("rests", "sofa", "none"), third="arms"):
-    """A labeller learned from the hand-built chairs ``kinds``: label 0 above the seat's middle
+    """A labeller learned from the hand-built chairs ``kinds`` (``presence``: "auto" asks for the
+    arms step with its defaults, checked on the labelled shapes; None no step; a rule: that rule,
+    kept unchecked): label 0 above the seat's middle
     height, 1 below, 2 on the ``third`` elements ("arms": the chair's arms; "legs": what lies
     under the seat plate; one for all or one per chair); the last chair's cuboids and points.
     The same arguments give the same (shared, not to be changed) objects."""
@@ -136,27 +138,33 @@ def _learned(names, presence, kinds, thirds):
         y = (points[:, 1] > 0).astype(int)
         y[arm if third == "arms" else points[:, 1] < 10.5 / 24 - 0.5] = 2
         shapes.append((frame_features(points, c, None, settings), y))
-    return Labeller.fit(shapes, list(names), 5, settings=settings, max_iter=10, presence=presence), c, points
+    post = {"post": PresenceRule.STEP} if presence == "auto" else {} if presence is None \
+        else {"post": presence, "post_check": False}
+    return Labeller.fit(shapes, list(names), 5, settings=settings, max_iter=10, **post), c, points
+
+
+def _check(shapes, contradicted):
+    return [{"step": PresenceRule.STEP, "shapes": shapes, "contradicted": contradicted}]
 
 
 def test_fit_keeps_the_rule_when_it_learns_arms():
     got = _fit(["back", "seat", "arms"])[0]
-    assert got.presence == PresenceRule() and got.info["presence_check"] == {"shapes": 3, "contradicted": 0}
-    assert _fit(["back", "seat", "legs"])[0].presence is None
-    assert _fit(["back", "seat", "arms"], presence=None)[0].presence is None
+    assert got.post == (PresenceRule(),) and got.info["post_check"] == _check(3, 0)
+    assert _fit(["back", "seat", "legs"])[0].post == ()  # the step's label "arms" is not learned
+    assert _fit(["back", "seat", "arms"], presence=None)[0].post == ()
 
 
 def test_fit_leaves_the_rule_out_when_the_labelled_shapes_contradict_it():
     """"arms" that do not rise beside a seat (here: what lies under it, on chairs without side
-    arms): the rule would take them from every labelled shape, so "auto" keeps none."""
+    arms): the rule would take them from every labelled shape, so the fit keeps none."""
     got = _fit(["back", "seat", "arms"], kinds=("none", "none", "none"), third="legs")[0]
-    assert got.presence is None and got.info["presence_check"] == {"shapes": 3, "contradicted": 3}
-    # one contradicting shape in five is within lab.PRESENCE_TOLERANCE (0.2): kept; two in five are not
+    assert got.post == () and got.info["post_check"] == _check(3, 3)
+    # one contradicting shape in five is within lab.POST_TOLERANCE (0.2): kept; two in five are not
     kinds = ("rests", "sofa", "rests", "none", "none")
     one = _fit(["back", "seat", "arms"], kinds=kinds, third=["arms"] * 4 + ["legs"])[0]
-    assert one.presence == PresenceRule() and one.info["presence_check"]["contradicted"] == 1
+    assert one.post == (PresenceRule(),) and one.info["post_check"] == _check(5, 1)
     two = _fit(["back", "seat", "arms"], kinds=kinds, third=["arms"] * 3 + ["legs"] * 2)[0]
-    assert two.presence is None and two.info["presence_check"]["contradicted"] == 2
+    assert two.post == () and two.info["post_check"] == _check(5, 2)
 
 
 def test_predict_applies_the_rule_after_the_decision():
@@ -164,11 +172,11 @@ def test_predict_applies_the_rule_after_the_decision():
     points, _ = _chair("rests")
     proba = labeller.predict_proba(points, c)
     plain = decide(proba, labeller.settings.min_share)
-    want = apply_presence(plain, proba, side_region(points), 2, labeller.presence)
+    want = apply_presence(plain, proba, side_region(points), 2, labeller.post[0])
     np.testing.assert_array_equal(labeller.predict(points, c), want)
     from dataclasses import replace
 
-    np.testing.assert_array_equal(replace(labeller, presence=None).predict(points, c), plain)
+    np.testing.assert_array_equal(replace(labeller, post=()).predict(points, c), plain)
 
 
 def test_predict_adds_by_grid_add_on_a_grid_only():
@@ -228,40 +236,8 @@ def test_the_rule_is_stored_and_read_back(tmp_path):
     labeller, c, points = _fit(["back", "seat", "arms"], presence=PresenceRule("arms", 0.02, 0.3, 0.25))
     path = lab.write_labeller(resolve_model("chair"), tmp_path / "l.safetensors", labeller)
     got = lab.read_labeller(path)
-    assert got.presence == PresenceRule("arms", 0.02, 0.3, 0.25)
+    assert got.post == (PresenceRule("arms", 0.02, 0.3, 0.25),)
     np.testing.assert_array_equal(got.predict(points, c), labeller.predict(points, c))
-
-    def as_version_9(d):
-        d["format_version"] = 9
-        for key in ("hint", "hint_add", "grid_hint_add"):
-            del d["presence"][key]
-
-    v9 = lab.read_labeller(rewrite_description(path, tmp_path / "v9.safetensors", as_version_9))
-    assert v9.presence == PresenceRule("arms", 0.02, 0.3, 0.25, hint=2.0, grid_hint_add=2.0)  # before the hint: none
-
-    def as_version_8(d):
-        as_version_9(d)
-        d["format_version"] = 8
-        del d["presence"]["grid_add"]
-
-    v8 = lab.read_labeller(rewrite_description(path, tmp_path / "v8.safetensors", as_version_8))
-    assert v8.presence == PresenceRule("arms", 0.02, 0.3, 0.25, grid_add=0.3, hint=2.0, grid_hint_add=2.0)  # before grid_add: add on grids
-
-    def as_version_4(d):
-        as_version_8(d)
-        d["format_version"] = 4
-        del d["presence"]["fill"]
-
-    v4 = lab.read_labeller(rewrite_description(path, tmp_path / "v4.safetensors", as_version_4))
-    assert v4.presence == PresenceRule("arms", 0.02, 0.3, 2.0, 0.3, 2.0, 2.0, 2.0)  # written before the fill: none
-
-    def as_version_3(d):
-        d["format_version"] = 3
-        del d["settings"]["sides"]
-        del d["presence"]
-
-    old = lab.read_labeller(rewrite_description(path, tmp_path / "v3.safetensors", as_version_3))
-    assert old.presence is None
 
 
 #: a valid stored rule, spoilt one key at a time below
@@ -276,14 +252,12 @@ _RULE = {"label": "arms", "veto": 0.01, "add": 0.1, "fill": 0.1, "grid_add": 0.0
                                       {**_RULE, "hint_add": 3.0}, {**_RULE, "grid_hint_add": [0.5]},
                                       {k: v for k, v in _RULE.items() if k != "add"},
                                       {k: v for k, v in _RULE.items() if k != "hint"},
-                                      {k: v for k, v in _RULE.items() if k not in ("hint", "hint_add", "grid_hint_add")},  # as version 9
-                                      {k: v for k, v in _RULE.items() if k not in ("grid_add", "hint", "hint_add", "grid_hint_add")},
-                                      {k: v for k, v in _RULE.items() if k not in ("fill", "grid_add", "hint", "hint_add", "grid_hint_add")},
-                                      [1, 2]])
+                                      {**_RULE, "extra": 1}, [1, 2]])
 def test_a_hostile_rule_is_refused_in_one_line(tmp_path, presence):
     labeller, _, _ = _fit(["back", "seat", "arms"])
     path = lab.write_labeller(resolve_model("chair"), tmp_path / "l.safetensors", labeller)
-    bad = rewrite_description(path, tmp_path / "bad.safetensors", lambda d: d.update(presence=presence))
+    step = {"step": PresenceRule.STEP, **presence} if isinstance(presence, dict) else presence
+    bad = rewrite_description(path, tmp_path / "bad.safetensors", lambda d: d.update(post=[step]))
     with pytest.raises(lab.ModelFileError) as err:
         lab.read_labeller(bad)
-    assert "presence" in str(err.value) and len(str(err.value).splitlines()) == 1
+    assert PresenceRule.STEP in str(err.value) and len(str(err.value).splitlines()) == 1

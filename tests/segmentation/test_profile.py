@@ -10,9 +10,9 @@ from primkit import primitives
 from primkit.model.bundled import resolve_model
 from primkit.segmentation import labeller as lab
 from primkit.segmentation.labeller import LabellerSettings, frame_features
-from primkit.segmentation.profile import PROFILE_BINS, PROFILE_FEATURES, box_cells, profile_features
+from primkit.labelling.profile import PROFILE_BINS, PROFILE_FEATURES, box_cells, profile_features
 
-from small_labellers import as_version, small_labeller
+from small_labellers import small_labeller, without_setting
 
 
 def _brute(points, context, bins):
@@ -77,22 +77,22 @@ def test_the_profile_ends_the_frame_features():
     np.testing.assert_array_equal(a[:, b.shape[1]:], profile_features(points, context))
 
 
-def test_a_version_2_labeller_loads_without_the_profile(tmp_path):
-    labeller, c, points = small_labeller(LabellerSettings(neighbours=8, smooth=0, profile=False, sides=False))
-    path = lab.write_labeller(resolve_model("chair"), tmp_path / "v3.safetensors", labeller)
-    got = lab.read_labeller(as_version(path, tmp_path / "v2.safetensors", 2, "profile"))
-    assert got.settings.profile is False
-    np.testing.assert_array_equal(got.predict(points, c), labeller.predict(points, c))
+def test_the_profile_setting_is_stored_and_read_back(tmp_path):
+    for settings in (LabellerSettings(neighbours=8, smooth=0, profile=False, sides=False), LabellerSettings(neighbours=8, smooth=0, profile=True, sides=False)):
+        labeller, c, points = small_labeller(settings)
+        path = lab.write_labeller(resolve_model("chair"), tmp_path / "l.safetensors", labeller, overwrite=True)
+        got = lab.read_labeller(path)
+        assert got.settings == labeller.settings
+        np.testing.assert_array_equal(got.predict(points, c), labeller.predict(points, c))
 
 
-def test_a_profile_labeller_passed_off_as_version_2_is_refused(tmp_path):
-    """Read as version 2 its settings lack the profile, so its trees read 10 features too many."""
+def test_a_labeller_without_the_profile_setting_is_refused(tmp_path):
+    """Every setting is written: a description without ``profile`` is refused in one line."""
     labeller, _, _ = small_labeller(LabellerSettings(neighbours=8, smooth=0, profile=True, sides=False))
-    path = lab.write_labeller(resolve_model("chair"), tmp_path / "v3.safetensors", labeller)
-    assert lab.read_labeller(path).settings.profile is True
+    path = lab.write_labeller(resolve_model("chair"), tmp_path / "l.safetensors", labeller)
     with pytest.raises(lab.ModelFileError) as err:
-        lab.read_labeller(as_version(path, tmp_path / "v2.safetensors", 2, "profile"))
-    assert "features" in str(err.value) and len(str(err.value).splitlines()) == 1
+        lab.read_labeller(without_setting(path, tmp_path / "bad.safetensors", "profile"))
+    assert "settings" in str(err.value) and len(str(err.value).splitlines()) == 1
 
 
 @pytest.mark.parametrize("seed", range(4))

@@ -11,10 +11,10 @@ from primkit import primitives
 from primkit.model.bundled import resolve_model
 from primkit.segmentation import labeller as lab
 from primkit.segmentation.labeller import LabellerSettings, frame_features
-from primkit.segmentation.profile import profile_features
-from primkit.segmentation.sides import SIDE_FEATURES, side_features
+from primkit.labelling.profile import profile_features
+from primkit.labelling.sides import SIDE_FEATURES, side_features
 
-from small_labellers import as_version, small_labeller
+from small_labellers import small_labeller, without_setting
 
 
 def _brute(points, context, bins):
@@ -96,22 +96,22 @@ def test_the_side_features_end_the_frame_features():
     np.testing.assert_array_equal(a[:, b.shape[1]:], side_features(points, context))
 
 
-def test_a_version_3_labeller_loads_without_the_sides(tmp_path):
-    labeller, c, points = small_labeller(LabellerSettings(neighbours=8, smooth=0, sides=False))
-    path = lab.write_labeller(resolve_model("chair"), tmp_path / "v4.safetensors", labeller)
-    got = lab.read_labeller(as_version(path, tmp_path / "v3.safetensors", 3, "sides"))
-    assert got.settings.sides is False
-    np.testing.assert_array_equal(got.predict(points, c), labeller.predict(points, c))
+def test_the_sides_setting_is_stored_and_read_back(tmp_path):
+    for settings in (LabellerSettings(neighbours=8, smooth=0, sides=False), LabellerSettings(neighbours=8, smooth=0, sides=True)):
+        labeller, c, points = small_labeller(settings)
+        path = lab.write_labeller(resolve_model("chair"), tmp_path / "l.safetensors", labeller, overwrite=True)
+        got = lab.read_labeller(path)
+        assert got.settings == labeller.settings
+        np.testing.assert_array_equal(got.predict(points, c), labeller.predict(points, c))
 
 
-def test_a_sides_labeller_passed_off_as_version_3_is_refused(tmp_path):
-    """Read as version 3 its settings lack the sides, so its trees read 5 features too many."""
+def test_a_labeller_without_the_sides_setting_is_refused(tmp_path):
+    """Every setting is written: a description without ``sides`` is refused in one line."""
     labeller, _, _ = small_labeller(LabellerSettings(neighbours=8, smooth=0, sides=True))
-    path = lab.write_labeller(resolve_model("chair"), tmp_path / "v4.safetensors", labeller)
-    assert lab.read_labeller(path).settings.sides is True
+    path = lab.write_labeller(resolve_model("chair"), tmp_path / "l.safetensors", labeller)
     with pytest.raises(lab.ModelFileError) as err:
-        lab.read_labeller(as_version(path, tmp_path / "v3.safetensors", 3, "sides"))
-    assert "features" in str(err.value) and len(str(err.value).splitlines()) == 1
+        lab.read_labeller(without_setting(path, tmp_path / "bad.safetensors", "sides"))
+    assert "settings" in str(err.value) and len(str(err.value).splitlines()) == 1
 
 
 def test_bad_inputs_are_refused_in_one_line():
@@ -128,7 +128,7 @@ def test_the_last_side_column_is_the_profiles_height():
     rng = np.random.default_rng(5)
     context = rng.normal(size=(500, 3)) * [0.3, 0.5, 0.2]
     points = np.vstack([context[:40], rng.normal(size=(30, 3)) * 0.4])
-    from primkit.segmentation.sides import side_columns
+    from primkit.labelling.sides import side_columns
 
     got = side_columns(points, context)
     np.testing.assert_array_equal(got[:, :SIDE_FEATURES], side_features(points, context))

@@ -181,8 +181,12 @@ def test_name_parts_learns_names_from_voxel_labels(tmp_path):
     _voxel_chairs(tmp_path)
     named = tmp_path / "named.safetensors"
     assert main(["name-parts", str(tmp_path / "grids"), "--model", "chair", "--labels", str(tmp_path / "voxlabels.npz"),
-                 "-o", str(named), "--workers", "1"]) == 0
+                 "-o", str(named), "--workers", "1", "--post", "chair"]) == 0
     meta = read_metadata(named)
+    names = meta["labeller"]["names"]  # the chair steps asked for: checked where their labels were learned
+    asked = ["chair.arms_from_side_region"] * ("arms" in names) + ["chair.seat_layer_cut"] * ({"seat", "legs"} <= set(names))
+    assert [check["step"] for check in meta["labeller"]["info"]["post_check"]] == asked
+    assert {step["step"] for step in meta["labeller"]["post"]} <= set(asked)
     used = [n for n in meta["part_names"] if not n.startswith("part")]
     assert used and set(used) <= {"back", "seat", "legs", "arms"}
     assert "seat" in used and "back" in used
