@@ -86,12 +86,10 @@ WHY_PROCEDURAL = ("no real table or airplane with part names exists in ../shared
 #: of each drawn in a scratch run).
 REAL_SHAPES = {
     "table": ("looked at, not measured (no real table here has part names). Of the 12 held-out ShapeNetVox32 "
-              "tables in docs/images/labeller-real-table.png, 6 come out about right (top, legs); the others "
-              "misname what the generator never makes: the top of a C-shaped side table mostly `legs`, splayed, "
-              "crossed or trestle legs partly or wholly `base`, desk panels split between `top` and `legs`. Over "
-              "the 28 distinct real tables looked at, drawers, cabinets, shelves and stretchers come out `legs` and "
-              "the rim of some round or raised tops `legs`. Trust it for the top / legs / base of simple "
-              "four-legged and pedestal tables only."),
+              "tables in docs/images/labeller-real-table.png, 9 come out about right (top, legs; crossed and trestle "
+              "legs and a stretcher included); the others misname what the generator never makes: the body of an "
+              "L-shaped desk `top`, the legs of a C-shaped side table and half of one four-legged table's legs "
+              "`base`. Trust it for the top / legs / base of simple four-legged and pedestal tables only."),
     "airplane": ("looked at, not measured (no real airplane here has part names). Of the 12 held-out ShapeNetVox32 "
                  "airplanes in docs/images/labeller-real-airplane.png, the 8 airliners and the light plane come out "
                  "mostly right (fuselage, wings, tail; engines under the wings in 5 of them, others missed); the 2 "
