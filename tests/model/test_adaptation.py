@@ -1,5 +1,7 @@
 """Adapting a model to a collection without labels: deterministic, indices kept, recorded, saved."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import torch
@@ -103,11 +105,16 @@ def test_parent_answers_computed_once_equal_the_per_step_pass(parent, shapes):
         torch.testing.assert_close(answers.half_extents[i], ref.half_extents[0], rtol=0, atol=1e-5)
         torch.testing.assert_close(answers.existence[i], ref.existence[0], rtol=0, atol=1e-5)
     # and training with them moves the weights as the per-step pass does, up to float noise that
-    # Adam's normalised steps lift to at most a fraction of one step (lr 1e-4; 3 steps move ~3e-4)
-    once = adapt(parent, shapes, AdaptConfig(steps=3, batch_size=4, seed=5, parent_pass="once"))
-    every = adapt(parent, shapes, AdaptConfig(steps=3, batch_size=4, seed=5, parent_pass="every-step"))
+    # Adam's normalised steps lift to at most one step of the weight's own rate (3 steps move three):
+    # learning_rate (1e-4) for the network, existence_learning_rate (5e-2) for the existence head,
+    # whose sampled existence turns float noise into larger gradient differences (1.2e-3 seen on one
+    # machine, 1e-5 on another)
+    config = AdaptConfig(steps=3, batch_size=4, seed=5, parent_pass="once")
+    once = adapt(parent, shapes, config)
+    every = adapt(parent, shapes, replace(config, parent_pass="every-step"))
     for (k, a), b in zip(once.network.state_dict().items(), every.network.state_dict().values()):
-        torch.testing.assert_close(a, b, rtol=0, atol=1e-4, msg=k)
+        step = config.existence_learning_rate if k.startswith("existence_head.") else config.learning_rate
+        torch.testing.assert_close(a, b, rtol=0, atol=step, msg=k)
 
 
 def test_a_turned_batch_equals_the_turned_shapes(shapes):
