@@ -23,6 +23,15 @@ def shared_data():
 
 
 @pytest.fixture(scope="session")
+def wheel_env(tmp_path_factory):
+    """A fresh virtual environment holding the wheel of this checkout (:mod:`wheel_env`), built once
+    for every test that uses primkit as a user installs it; its folder (``env/bin/python``)."""
+    from wheel_env import fresh_environment
+
+    return fresh_environment(tmp_path_factory.mktemp("wheel"))
+
+
+@pytest.fixture(scope="session")
 def chairs():
     from primkit import synthetic
 

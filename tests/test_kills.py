@@ -248,7 +248,7 @@ def many_chairs(tmp_path_factory):
     return root
 
 
-@pytest.mark.parametrize("how", [signal.SIGTERM, signal.SIGINT, signal.SIGKILL])
+@pytest.mark.parametrize("how", [signal.SIGTERM, pytest.param(signal.SIGINT, marks=pytest.mark.slow), signal.SIGKILL])
 def test_prepare_workers_end_with_their_parent(many_chairs, tmp_path, how):
     """SIGTERM, SIGINT or SIGKILL to ``prepare --workers 2``'s main process alone: its pool workers
     end too (they were left running, about 380 MB each, after SIGTERM and SIGKILL)."""

@@ -12,15 +12,15 @@ import json
 from pathlib import Path
 
 import pytest
-from wheel_env import ROOT, fresh_environment
+from wheel_env import ROOT
 from wheel_env import run as _run
 
 pytestmark = pytest.mark.integration  # a wheel built and installed into a fresh virtual environment
 
 @pytest.fixture(scope="module")
-def fresh_env(tmp_path_factory):
-    root = tmp_path_factory.mktemp("wheel")
-    return fresh_environment(root), root
+def fresh_env(wheel_env, tmp_path_factory):
+    """The session's wheel environment (``tests/conftest.py``) and a folder for this module's work."""
+    return wheel_env, tmp_path_factory.mktemp("wheel-work")
 
 
 def test_the_wheel_carries_the_viewers_and_the_library(fresh_env):

@@ -40,7 +40,7 @@ def read_both(reader, path):
 # ------------------------------------------------------------------------------ shared data
 
 
-@pytest.mark.integration  # every shared mesh read twice
+@pytest.mark.slow  # a sweep: every shared mesh read twice
 @pytest.mark.shared
 def test_readers_give_the_old_arrays_on_every_shared_mesh(shared_data):
     files = sorted(p for p in shared_data.rglob("*") if p.suffix.lower() in io.MESH_SUFFIXES + (".xyz", ".npy"))

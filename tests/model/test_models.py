@@ -149,7 +149,7 @@ def test_align_auto_finds_up_on_turned_chairs(chair_model, procedural_chairs):
 
 
 @pytest.mark.shared
-@pytest.mark.integration  # 60 chairs scored with 10k + 10k samples each: a minute quiet, ten loaded
+@pytest.mark.slow  # re-measures the card (60 chairs scored with 10k + 10k samples each): a minute quiet, ten loaded
 def test_chair_model_reproduces_its_card_on_its_held_out_chairs(chair_model, shared_data):
     """The card's held-out figures, measured again the way scripts/build_bundled_models.py measured
     them (the preset's held-out files, 60 evenly spaced, default flags). Measured here with scoring

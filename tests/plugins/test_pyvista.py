@@ -11,7 +11,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from wheel_env import fresh_environment
 from wheel_env import run as _run
 
 from primkit import io, synthetic
@@ -25,10 +24,9 @@ VOXELS = "standalone_meshes/chair.binvox"
 
 
 @pytest.fixture(scope="module")
-def wheel_python(tmp_path_factory):
-    """A fresh environment holding the wheel of this checkout (:mod:`wheel_env`)."""
-    env = fresh_environment(tmp_path_factory.mktemp("wheel"))
-    return env / "bin" / "python", env
+def wheel_python(wheel_env):
+    """The session's fresh environment holding the wheel of this checkout (``tests/conftest.py``)."""
+    return wheel_env / "bin" / "python", wheel_env
 
 
 @pytest.mark.shared

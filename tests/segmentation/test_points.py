@@ -58,7 +58,7 @@ def test_segment_writes_a_label_per_point_by_the_rule(clouds, tmp_path, capsys):
 
 
 @pytest.mark.shared
-@pytest.mark.integration
+@pytest.mark.slow  # re-measures the script's figure: 100,000 points over ten COSEG chairs
 def test_clouds_sampled_from_coseg_chairs_get_their_faces_labels(shared_data):
     """scripts/coseg_point_clouds.py run as a user runs it (not imported: scripts/ is no library)."""
     import re

@@ -194,7 +194,7 @@ def test_name_parts_learns_names_from_voxel_labels(tmp_path):
 
 
 @pytest.mark.shared
-@pytest.mark.integration  # 24 ShapeNetVox32 chairs prepared, abstracted and segmented (about 20 s)
+@pytest.mark.slow  # re-measures a figure: 24 ShapeNetVox32 chairs prepared, abstracted and segmented (about 20 s)
 def test_partnet_validation_chairs_get_their_parts(shared_data):
     """A small PartNet figure, as ``scripts/partnet_chairs.py chair --part validation --limit 24``
     computes it: the first 24 chairs of the validation part (the chair preset's held-out files that
