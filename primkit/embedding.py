@@ -72,7 +72,7 @@ labeller learned from all of them, so it would flatter)::
 (label boxes: each labelled region's oriented box through :class:`PartDescriptor`, the previous
 meaning of ``--parts`` by label.) What holds back and arms down is the labeller on chairs it has not
 seen: where the back ends above the seat, and the arms' height and depth. The test chairs' figures
-are in docs/results.md.
+are in docs/results-applications.md.
 
 scikit-learn
 ------------
@@ -589,7 +589,7 @@ REGION_PROPERTIES = ("extent", "share", "place", "thickness", "fill", "signature
 #: The weight of each region property in the distance (each property standardised over the
 #: collection first). Chosen on PartNet validation chairs the labeller did not learn from
 #: (``scripts/similarity_partnet.py --choose-weights --model CHAIR-VAL100 --start 100``: a labeller
-#: learned from validation chairs 0-99 names chairs 100-218; docs/results.md, "Similarity by
+#: learned from validation chairs 0-99 names chairs 100-218; docs/results-applications.md, "Similarity by
 #: parts"): the best mean of Spearman and top-5 gain over back, seat, legs and arms among 324
 #: weight sets, ties (within 0.001) going to the set that uses more properties. The best 20 sets
 #: score within 0.007 of each other (the worst 0.063 below the best): near the choice, weights

@@ -1,5 +1,5 @@
 """Similarity by chosen parts on procedural chairs whose attributes are known (the figures of
-``primkit.embedding``'s notes and docs/results.md, "Similarity by parts").
+``primkit.embedding``'s notes and docs/results-applications.md, "Similarity by parts").
 
     python scripts/similarity_by_parts.py [--count 400] [--model chair] [--refine 0 100]
 

@@ -1,5 +1,5 @@
 """Similarity by parts against PartNet's labelled parts: does ``similar --parts P`` find chairs whose
-part P is like the query's? (docs/results.md, "Similarity by parts").
+part P is like the query's? (docs/results-applications.md, "Similarity by parts").
 
 Usage::
 

@@ -311,7 +311,7 @@ def _common_options(p) -> None:
     p.add_argument("--scale", dest="units", action=DeprecatedAlias, new="--units")  # the old name: edit --scale scales parts
     p.add_argument("--weights", default=None, metavar="NAME=VALUE,...",
                    help="parts by label: each property's weight after standardising it over the collection; defaults "
-                        f"{_WEIGHTS_HELP} (chosen on the PartNet validation chairs; docs/results.md)")
+                        f"{_WEIGHTS_HELP} (chosen on the PartNet validation chairs; docs/results-applications.md)")
     p.add_argument("--metric", choices=["descriptor", "voxel-iou"], default="descriptor",
                    help="descriptor (the parts' labelled voxels, or their cuboids) or voxel-iou (1 - IoU of the occupancy grids, "
                         "the whole-shape baseline)")
