@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from primkit import io
+from primkit import geometry, io
 
 ANIMALS = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "fourleg_animals"
 
@@ -59,31 +59,12 @@ LEFT_OUT = {
     "tosca_sumner_misc/tosca_cat2.off",
 }
 
-_AXES = {"+x": (0, 1), "-x": (0, -1), "+y": (1, 1), "-y": (1, -1), "+z": (2, 1), "-z": (2, -1)}
-
-
-def _basis(up: str, head: str) -> np.ndarray:
-    """The rotation taking source axis ``up`` to +Y and ``head`` to +X (rows: new X, Y, Z)."""
-    e = np.eye(3)
-    y = e[_AXES[up][0]] * _AXES[up][1]
-    x = e[_AXES[head][0]] * _AXES[head][1]
-    return np.stack([x, y, np.cross(x, y)])
-
-
 def _signed(axis: int, sign: int) -> str:
     return ("+" if sign > 0 else "-") + "xyz"[axis]
 
 
 def _samples(mesh: io.Mesh, n: int = 20000, seed: int = 0) -> np.ndarray:
-    v, f = mesh.vertices, mesh.faces
-    tri = v[f]
-    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
-    rng = np.random.default_rng(seed)
-    pick = rng.choice(len(f), size=n, p=area / area.sum())
-    r1, r2 = rng.random((2, n))
-    s = np.sqrt(r1)
-    w = np.stack([1 - s, s * (1 - r2), s * r2], axis=1)
-    return np.einsum("nk,nkd->nd", w, tri[pick])
+    return geometry.sample_surface(mesh.vertices, mesh.faces, n, seed=seed).points
 
 
 def _footprint(points2: np.ndarray, lo: np.ndarray, hi: np.ndarray, bins: int = 32) -> set:
@@ -166,7 +147,7 @@ def main(argv=None) -> int:
         v = mesh.vertices - (mesh.vertices.min(axis=0) + mesh.vertices.max(axis=0)) / 2
         v = v / np.ptp(v, axis=0).max()
         up, head = OVERRIDES.get(rel) or find_frame(_samples(io.Mesh(v, mesh.faces)))
-        turned = v @ _basis(up, head).T
+        turned = v @ geometry.axis_rotation(up, head).T
         name = f"{path.parent.name}_{path.stem}"
         io.write_mesh(args.out / f"{name}.ply", turned, mesh.faces)
         items.append((name, _samples(io.Mesh(turned, mesh.faces), 4000)))

@@ -267,9 +267,7 @@ def procedural_named(model_path: Path, category: str, label_names: str, count: i
             got = io.read_labels(out / f"{f.stem}.seg", len(mesh.faces))
             got = np.array([truth.names.index(codes[str(c)]) if str(c) in codes and codes[str(c)] in truth.names else -1
                             for c in got])
-            v = mesh.vertices[mesh.faces]
-            area = 0.5 * np.linalg.norm(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]), axis=1)
-            ok = truth.labels >= 0
+            area, ok = mesh.face_areas(), truth.labels >= 0
             right.append(float(area[ok & (got == truth.labels)].sum() / area[ok].sum()))
     return {"shapes": count, "seed": seed, "area_right": round(float(np.mean(right)), 4),
             "worst": round(float(np.min(right)), 4)}
